@@ -1,0 +1,82 @@
+"""Side-by-side comparison of initializers, each followed by the same GTSAM refinement."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+
+import gtsam
+
+from rlpgo_gtsam.errors import RlpgoError
+from rlpgo_gtsam.graph import PoseGraph2D, chi2
+from rlpgo_gtsam.initializers import make_initializer
+from rlpgo_gtsam.solvers import refine
+
+__all__ = ["MethodResult", "compare_methods"]
+
+
+@dataclass
+class MethodResult:
+    """One method's row of a comparison; ``failure`` says why a method gave no result.
+
+    ``record()`` gives the JSON record: dataset, poses, edges, method, init_chi2,
+    init_seconds, solver, iters, refined_chi2, refine_seconds.
+    """
+
+    dataset: str
+    poses: int
+    edges: int
+    method: str
+    init_chi2: float | None
+    init_seconds: float | None
+    solver: str
+    iters: int | None
+    refined_chi2: float | None
+    refine_seconds: float | None
+    initial: gtsam.Values | None = None
+    refined: gtsam.Values | None = None
+    failure: str | None = None
+
+    def record(self) -> dict:
+        fields = asdict(self)
+        for key in ("initial", "refined", "failure"):
+            fields.pop(key)
+        return fields
+
+
+def compare_methods(
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    methods: list[str],
+    solver: str = "lm",
+    iters: int = 30,
+    dataset: str = "graph",
+) -> list[MethodResult]:
+    """Run each named initializer, then ``refine`` with the given solver and cap.
+
+    A method that fails (an indeterminate system, a diverging solver) gets a row with
+    ``failure`` set; the other methods still run.
+    """
+    pose_graph = PoseGraph2D.from_gtsam(graph, values)
+    results = []
+    for method in methods:
+        base = dict(dataset=dataset, poses=pose_graph.num_poses, edges=pose_graph.num_edges,
+                    method=method, solver=solver)
+        start = time.perf_counter()
+        try:
+            initial = make_initializer(method).initialize(graph, values)
+        except RlpgoError as error:
+            results.append(MethodResult(**base, init_chi2=None, init_seconds=None, iters=None,
+                                        refined_chi2=None, refine_seconds=None,
+                                        failure=str(error)))
+            continue
+        init_seconds = time.perf_counter() - start
+        start = time.perf_counter()
+        refined = refine(graph, initial, solver=solver, iters=iters)
+        refine_seconds = time.perf_counter() - start
+        results.append(MethodResult(
+            **base, init_chi2=chi2(graph, initial), init_seconds=init_seconds,
+            iters=refined.iterations, refined_chi2=refined.chi2, refine_seconds=refine_seconds,
+            initial=initial, refined=refined.values, failure=refined.failure,
+        ))
+    return results

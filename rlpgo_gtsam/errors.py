@@ -1,0 +1,40 @@
+"""The errors rlpgo_gtsam raises for problems a user can act on.
+
+Every error carries a message that reads well on one line; the command-line tools print
+``Error: <message>`` and exit non-zero, with no traceback.
+"""
+
+from __future__ import annotations
+
+import os
+
+
+class RlpgoError(Exception):
+    """Base class of every error this package raises on purpose."""
+
+
+class G2oFormatError(RlpgoError):
+    """A g2o file that cannot be read: the message names the file and, where known, the line."""
+
+    def __init__(self, path: str | os.PathLike[str], line: int | None, reason: str) -> None:
+        self.path = os.fspath(path)
+        self.line = line
+        self.reason = reason
+        where = self.path if line is None else f"{self.path}:{line}"
+        super().__init__(f"{where}: {reason}")
+
+
+class GraphError(RlpgoError):
+    """A graph that an algorithm cannot work on (disconnected, unsupported factor types, ...)."""
+
+
+class OutputError(RlpgoError):
+    """An output that cannot be written safely (it is an input, a directory, unwritable, ...)."""
+
+
+class SolverError(RlpgoError):
+    """A solver or initializer that failed on a graph (indeterminate system, divergence)."""
+
+
+class ModelError(RlpgoError):
+    """A model file that cannot be loaded (missing, tampered, wrong format version)."""

@@ -1,0 +1,77 @@
+"""Safe output files: written to a temporary file beside the target, then renamed over it."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from rlpgo_gtsam.errors import OutputError
+
+__all__ = ["write_text", "remember_input", "is_input"]
+
+# Files this process has read as inputs, as (device, inode): outputs never replace them.
+_inputs: set[tuple[int, int]] = set()
+
+
+def remember_input(path: str | os.PathLike[str]) -> None:
+    """Mark ``path`` as an input of this run; :func:`write_text` will refuse to replace it."""
+    stat = Path(path).stat()
+    _inputs.add((stat.st_dev, stat.st_ino))
+
+
+def is_input(path: str | os.PathLike[str]) -> bool:
+    """True if ``path`` (through any symlink or relative form) is a remembered input."""
+    try:
+        stat = Path(path).stat()
+    except OSError:
+        return False
+    return (stat.st_dev, stat.st_ino) in _inputs
+
+
+def write_text(path: str | os.PathLike[str], text: str) -> None:
+    """Write ``text`` to ``path`` atomically; an existing file is untouched on any failure.
+
+    A device or pipe (``/dev/null``, ``/dev/full``) is written through, since it cannot be
+    replaced.
+
+    Raises:
+        OutputError: ``path`` is an input of this run, a directory, or cannot be written.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"{path}: is a directory; give a file name for the output")
+    if is_input(path):
+        raise OutputError(f"{path}: is an input of this run; refusing to overwrite it")
+    if path.exists() and not path.is_file():
+        _write_through(path, text)
+    else:
+        _write_atomic(path, text)
+
+
+def _write_through(path: Path, text: str) -> None:
+    try:
+        with path.open("w") as handle:
+            handle.write(text)
+    except OSError as error:
+        raise OutputError(f"{path}: cannot write: {error.strerror or error}") from None
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    folder = path.parent
+    if not folder.is_dir():
+        raise OutputError(f"{path}: folder {folder} does not exist")
+    temp_name = None
+    try:
+        descriptor, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", dir=folder)
+        with os.fdopen(descriptor, "w") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(temp_name, path)
+        temp_name = None
+    except OSError as error:
+        raise OutputError(f"{path}: cannot write: {error.strerror or error}") from None
+    finally:
+        if temp_name is not None:
+            Path(temp_name).unlink(missing_ok=True)

@@ -1,0 +1,41 @@
+"""The LAGO-style translation step: positions that best fit the edges, orientations fixed."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.linear import solve_pairwise
+from rlpgo_gtsam.rotations import wrap
+
+__all__ = ["solve_translations", "rotation_matrices"]
+
+
+def rotation_matrices(theta: np.ndarray) -> np.ndarray:
+    """(k, 2, 2) rotation matrices of the angles ``theta``."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+def solve_translations(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray:
+    """Positions (n, 2) minimizing the edges' cost with the orientations ``theta`` fixed.
+
+    Each edge contributes its error in the measurement's frame,
+    ``e_t = R~_ij^T (R_i^T (t_j - t_i) - t~_ij)``, weighted by its full information:
+    with the angle error ``e_theta`` fixed, ``[e_t, e_theta]^T Lambda [e_t, e_theta]`` is
+    ``||W (e_t + Lambda_tt^-1 Lambda_t,theta e_theta)||^2 + const`` with ``W^T W = Lambda_tt``,
+    so xy and x/y-theta correlations are both kept. The anchor keeps its position.
+    """
+    g = pose_graph
+    i, j = g.edges[:, 0], g.edges[:, 1]
+    info = g.information
+    info_tt = info[:, :2, :2]
+    w = np.transpose(np.linalg.cholesky(info_tt), (0, 2, 1))  # upper factor: W^T W = info_tt
+    e_theta = wrap(theta[j] - theta[i] - g.measured[:, 2])
+    shift = np.linalg.solve(info_tt, (info[:, :2, 2] * e_theta[:, None])[..., None])[..., 0]
+    r_meas_t = np.transpose(rotation_matrices(g.measured[:, 2]), (0, 2, 1))
+    m = r_meas_t @ np.transpose(rotation_matrices(theta[i]), (0, 2, 1))
+    a_j = w @ m
+    target = np.einsum("eab,eb->ea", r_meas_t, g.measured[:, :2]) - shift
+    b = np.einsum("eab,eb->ea", w, target)
+    return solve_pairwise(g.num_poses, g.edges, -a_j, a_j, b, g.anchor, g.poses[g.anchor, :2])
