@@ -1,0 +1,78 @@
+import gtsam
+import numpy as np
+import pytest
+
+from rlpgo_gtsam import (
+    GraphError,
+    RlpgoError,
+    chi2,
+    initializer_names,
+    make_initializer,
+    read_g2o,
+    refine,
+    register,
+)
+from rlpgo_gtsam.initializers import OdometryInitializer
+from tests.conftest import dataset
+
+LOWEST_KNOWN = {"M3500A.g2o": 912.2, "M3500B.g2o": 2055.4, "Intel.g2o": 212.7, "MIT.g2o": 41.21}
+
+
+@pytest.mark.parametrize("name", sorted(LOWEST_KNOWN))
+def test_chordal_then_lm30_reaches_lowest_known(name):
+    graph, values = read_g2o(dataset(name))
+    result = refine(graph, make_initializer("chordal").initialize(graph, values), "lm", 30)
+    assert result.chi2 <= LOWEST_KNOWN[name] * 1.001
+
+
+@pytest.mark.parametrize(("name", "bound"), [("Intel.g2o", 213.0), ("MIT.g2o", 771.0)])
+def test_lago_works_with_full_gaussian_noise(name, bound):
+    graph, values = read_g2o(dataset(name))
+    result = refine(graph, make_initializer("lago").initialize(graph, values), "lm", 30)
+    assert result.chi2 <= bound
+
+
+@pytest.mark.parametrize(("method", "tolerance"), [("lago", 1e-6), ("chordal", 1e-6), ("shonan", 1e-2)])
+def test_classical_initializers_solve_exact_graphs(method, tolerance, small_exact):
+    # Shonan's iterative rotation solve stops at its own tolerance, the others are exact.
+    initial = make_initializer(method).initialize(small_exact.graph, small_exact.initial)
+    assert chi2(small_exact.graph, initial) < tolerance
+    assert chi2(small_exact.graph, small_exact.initial) > 1e3
+
+
+@pytest.mark.parametrize("method", ["odometry", "lago", "chordal", "shonan"])
+def test_anchor_pose_is_kept(method, small_noisy):
+    initial = make_initializer(method).initialize(small_noisy.graph, small_noisy.initial)
+    assert initial.atPose2(0).equals(small_noisy.initial.atPose2(0), 1e-9)
+    assert initial.size() == small_noisy.initial.size()
+
+
+def test_new_initializers_plug_in_by_name(small_noisy):
+    register("test-odometry", OdometryInitializer)
+    assert "test-odometry" in initializer_names()
+    result = make_initializer("test-odometry").initialize(small_noisy.graph, small_noisy.initial)
+    assert chi2(small_noisy.graph, result) == chi2(small_noisy.graph, small_noisy.initial)
+
+
+def test_unknown_method_names_the_choices():
+    with pytest.raises(RlpgoError, match="unknown method 'magic'; choose from odometry"):
+        make_initializer("magic")
+
+
+def test_disconnected_graph_from_code_is_refused():
+    graph = gtsam.NonlinearFactorGraph()
+    noise = gtsam.noiseModel.Unit.Create(3)
+    graph.add(gtsam.BetweenFactorPose2(0, 1, gtsam.Pose2(1, 0, 0), noise))
+    graph.add(gtsam.BetweenFactorPose2(2, 3, gtsam.Pose2(1, 0, 0), noise))
+    values = gtsam.Values()
+    for key in range(4):
+        values.insert(key, gtsam.Pose2(float(key), 0.0, 0.0))
+    with pytest.raises(GraphError, match=r"2 connected components \(keys 0-1 and keys 2-3\)"):
+        make_initializer("chordal").initialize(graph, values)
+
+
+def test_non_pose2_factor_is_refused(small_noisy):
+    graph = gtsam.NonlinearFactorGraph(small_noisy.graph)
+    graph.add(gtsam.PriorFactorPoint2(1, np.zeros(2), gtsam.noiseModel.Unit.Create(2)))
+    with pytest.raises(GraphError, match="unsupported factor PriorFactorPoint2"):
+        make_initializer("lago").initialize(graph, small_noisy.initial)

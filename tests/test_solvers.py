@@ -1,0 +1,47 @@
+import gtsam
+import numpy as np
+import pytest
+
+from rlpgo_gtsam import SolverError, chi2, read_g2o, refine
+from tests.conftest import dataset
+
+
+def test_lm30_from_m3500_vertices_matches_gtsam_reference():
+    graph, values = read_g2o(dataset("M3500.g2o"))
+    result = refine(graph, values, "lm", 30)
+    assert result.chi2 == pytest.approx(137.9, rel=0.01)
+    assert result.failure is None
+    assert result.chi2_trace[0] == pytest.approx(chi2(graph, values))
+    assert len(result.chi2_trace) == result.iterations + 1
+    assert result.chi2 == pytest.approx(chi2(graph, result.values))
+
+
+def test_gn_iteration_cap_is_respected(small_exact):
+    result = refine(small_exact.graph, small_exact.initial, "gn", 3)
+    assert result.iterations <= 3
+    assert result.chi2 < result.chi2_trace[0]
+
+
+def test_refine_keeps_the_anchor_pose(small_noisy):
+    result = refine(small_noisy.graph, small_noisy.initial, "lm", 10)
+    before, after = small_noisy.initial.atPose2(0), result.values.atPose2(0)
+    assert np.allclose([after.x(), after.y(), after.theta()],
+                       [before.x(), before.y(), before.theta()], atol=1e-6)
+
+
+def test_zero_iterations_returns_the_start(small_noisy):
+    result = refine(small_noisy.graph, small_noisy.initial, "lm", 0)
+    assert result.iterations == 0
+    assert result.chi2 == pytest.approx(chi2(small_noisy.graph, small_noisy.initial))
+
+
+def test_unknown_solver_is_an_error(small_noisy):
+    with pytest.raises(SolverError, match="unknown solver 'dogleg'"):
+        refine(small_noisy.graph, small_noisy.initial, "dogleg", 10)
+
+
+def test_non_finite_start_is_reported_not_raised(small_noisy):
+    values = gtsam.Values(small_noisy.initial)
+    values.update(5, gtsam.Pose2(1e300, -1e300, 0.0))
+    result = refine(small_noisy.graph, values, "gn", 5)
+    assert result.failure is not None
