@@ -1,5 +1,8 @@
 """rlpgo_gtsam: better initial guesses for planar pose-graph optimization in GTSAM."""
 
+import gymnasium
+
+from rlpgo_gtsam.env import ENV_ID, PRESETS, EnvConfig, PoseGraphEnv
 from rlpgo_gtsam.errors import (
     G2oFormatError,
     GraphError,
@@ -20,12 +23,22 @@ from rlpgo_gtsam.initializers import (
     register,
 )
 from rlpgo_gtsam.solvers import RefineResult, refine
+from rlpgo_gtsam.synthetic import SyntheticGraph, generate
 from rlpgo_gtsam.translations import solve_translations
 
 __version__ = "0.1.0"
 
+if ENV_ID not in gymnasium.registry:
+    gymnasium.register(id=ENV_ID, entry_point="rlpgo_gtsam.env:PoseGraphEnv")
+
 __all__ = [
+    "ENV_ID",
+    "PRESETS",
     "ChordalInitializer",
+    "EnvConfig",
+    "PoseGraphEnv",
+    "SyntheticGraph",
+    "generate",
     "G2oFormatError",
     "GraphError",
     "LagoInitializer",
