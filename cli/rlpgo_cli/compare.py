@@ -100,3 +100,7 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed):
     if failed:
         click.echo("Error: at least one method failed (see FAILED above)", err=True)
         sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,47 @@
+"""rlpgo-generate: write one of the paper's synthetic lawn-mower pose graphs as g2o."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import numpy as np
+
+from rlpgo_cli.errors import RlpgoCommand
+from rlpgo_gtsam.g2o import write_g2o
+from rlpgo_gtsam.graph import chi2
+from rlpgo_gtsam.synthetic import generate
+
+
+@click.command(cls=RlpgoCommand)
+@click.option("--n", type=click.IntRange(min=2), default=300, show_default=True,
+              help="Number of poses.")
+@click.option("--sigma-r", type=click.FloatRange(min=0, min_open=True), default=0.3,
+              show_default=True, help="Rotation noise, radians.")
+@click.option("--sigma-t", type=click.FloatRange(min=0, min_open=True), default=0.05,
+              show_default=True, help="Translation noise per axis, metres.")
+@click.option("--d", type=click.FloatRange(min=0, min_open=True), default=3.0,
+              show_default=True, help="Spacing of poses and rows, metres.")
+@click.option("--lc", type=click.FloatRange(0, 1), default=0.5, show_default=True,
+              help="Fraction of loop-closure candidates kept.")
+@click.option("--noisy-measurements", is_flag=True,
+              help="Perturb the measurements too (the paper's graphs have exact ones).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
+              help="g2o file for the graph and its noisy initial guess.")
+@click.option("--ground-truth", type=click.Path(path_type=Path),
+              help="g2o file for the graph with the ground-truth poses.")
+def main(n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_truth):
+    """Generate a lawn-mower pose graph as in the RL-PGO paper."""
+    sample = generate(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
+                      noisy_measurements=noisy_measurements)
+    write_g2o(output, sample.graph, sample.initial)
+    if ground_truth is not None:
+        write_g2o(ground_truth, sample.graph, sample.ground_truth)
+    click.echo(f"{output}: {n} poses, {sample.graph.size()} edges, initial chi2 "
+               f"{chi2(sample.graph, sample.initial):.6g}, ground-truth chi2 "
+               f"{chi2(sample.graph, sample.ground_truth):.6g}")
+
+
+if __name__ == "__main__":
+    main()
