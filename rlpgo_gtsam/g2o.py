@@ -68,9 +68,9 @@ def read_g2o(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph, 
     path = Path(path)
     parsed = _parse(path)
     _check_edges(path, parsed)
+    _check_connected(path, parsed)
     if not parsed.vertices:
         parsed.vertices = _chain_odometry(parsed.edges)
-    _check_connected(path, parsed)
     graph = gtsam.NonlinearFactorGraph()
     for edge in parsed.edges:
         noise = gtsam.noiseModel.Gaussian.Information(edge.information)
@@ -99,6 +99,8 @@ def _lines(path: Path) -> Iterator[tuple[int, str]]:
         if path.is_dir():
             raise G2oFormatError(path, None, "is a directory, not a g2o file")
         for number, raw in enumerate(handle, start=1):
+            if number == 1 and raw.startswith(b"\xef\xbb\xbf"):  # a UTF-8 byte-order mark
+                raw = raw[3:]
             if b"\x00" in raw:
                 raise G2oFormatError(path, number, "binary data, not a g2o text file")
             try:
@@ -151,10 +153,13 @@ def _id(path: Path, line: int, token: str) -> int:
     return value
 
 
-def _numbers(path: Path, line: int, tag: str, tokens: list[str]) -> list[float]:
+def _numbers(path: Path, line: int, tag: str, tokens: list[str], first: int) -> list[float]:
+    """Parse ``tokens`` as floats; ``first`` is the position of tokens[0] after the tag."""
     numbers = []
-    for position, token in enumerate(tokens, start=1):
+    for position, token in enumerate(tokens, start=first):
         try:
+            if not token.isascii() or "_" in token:  # float() takes '1_0' and other digits
+                raise ValueError(token)
             number = float(token)
         except ValueError:
             raise G2oFormatError(
@@ -173,7 +178,7 @@ def _parse_vertex(path: Path, line: int, fields: list[str], parsed: _Parsed) -> 
             f"VERTEX_SE2 needs {_VERTEX_NUMBERS} numbers after the tag, found {len(fields)}",
         )
     key = _id(path, line, fields[0])
-    x, y, theta = _numbers(path, line, "VERTEX_SE2", fields[1:])
+    x, y, theta = _numbers(path, line, "VERTEX_SE2", fields[1:], first=2)
     if key in parsed.vertices:
         raise G2oFormatError(
             path, line,
@@ -192,7 +197,7 @@ def _parse_edge(path: Path, line: int, fields: list[str], parsed: _Parsed) -> No
     i, j = _id(path, line, fields[0]), _id(path, line, fields[1])
     if i == j:
         raise G2oFormatError(path, line, f"EDGE_SE2 joins vertex {i} to itself")
-    numbers = _numbers(path, line, "EDGE_SE2", fields[2:])
+    numbers = _numbers(path, line, "EDGE_SE2", fields[2:], first=3)
     xx, xy, xt, yy, yt, tt = numbers[3:]
     information = np.array([[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]])
     if not _positive_definite(information):
@@ -251,7 +256,8 @@ def _chain_odometry(edges: list[_Edge]) -> dict[int, tuple[float, float, float]]
 
 
 def _check_connected(path: Path, parsed: _Parsed) -> None:
-    parent = {key: key for key in parsed.vertices}
+    keys = parsed.vertices.keys() or {k for edge in parsed.edges for k in (edge.i, edge.j)}
+    parent = {key: key for key in keys}
 
     def root(key: int) -> int:
         while parent[key] != key:
@@ -262,7 +268,7 @@ def _check_connected(path: Path, parsed: _Parsed) -> None:
     for edge in parsed.edges:
         parent[root(edge.i)] = root(edge.j)
     components: dict[int, list[int]] = {}
-    for key in sorted(parsed.vertices):
+    for key in sorted(keys):
         components.setdefault(root(key), []).append(key)
     if len(components) > 1:
         parts = sorted(components.values(), key=lambda keys: keys[0])
@@ -287,9 +293,11 @@ def format_ranges(keys: list[int], limit: int = 4) -> str:
     return ", ".join(text) + (", ..." if len(runs) > limit else "")
 
 
-def _format_information(value: float) -> str:
-    # The noise model stores the square-root information; 15 significant digits undo the
-    # rounding of R^T R, so a file's own decimals come back unchanged.
+def _format_15(value: float) -> str:
+    # GTSAM stores an angle as (cos, sin) and a noise model as its square-root information,
+    # so theta() and R^T R come back within an ulp or so of what was read. Fifteen
+    # significant digits undo that: a file's own decimals come back unchanged, and
+    # write -> read -> write gives the same text.
     return repr(float(f"{value:.15g}"))
 
 
@@ -297,7 +305,7 @@ def _g2o_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
     lines = []
     for key in sorted(values.keys()):
         pose = values.atPose2(key)
-        lines.append(f"VERTEX_SE2 {key} {pose.x()!r} {pose.y()!r} {pose.theta()!r}")
+        lines.append(f"VERTEX_SE2 {key} {pose.x()!r} {pose.y()!r} {_format_15(pose.theta())}")
     fixed = []
     for index in range(graph.size()):
         factor = graph.at(index)
@@ -307,8 +315,8 @@ def _g2o_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
             info = factor.noiseModel().information()
             upper = (info[0, 0], info[0, 1], info[0, 2], info[1, 1], info[1, 2], info[2, 2])
             lines.append(
-                f"EDGE_SE2 {i} {j} {z.x()!r} {z.y()!r} {z.theta()!r} "
-                + " ".join(_format_information(v) for v in upper)
+                f"EDGE_SE2 {i} {j} {z.x()!r} {z.y()!r} {_format_15(z.theta())} "
+                + " ".join(_format_15(v) for v in upper)
             )
         elif isinstance(factor, gtsam.PriorFactorPose2):
             fixed.append(factor.keys()[0])
@@ -325,8 +333,9 @@ def write_g2o(
     """Write ``graph`` and ``values`` as a planar g2o file, atomically.
 
     The text goes to a temporary file beside ``path`` that then replaces it, so a failed
-    write leaves any existing file untouched. Poses and measurements round-trip exactly
-    through :func:`read_g2o`; information entries keep 15 significant digits.
+    write leaves any existing file untouched. Positions round-trip exactly through
+    :func:`read_g2o`; angles and information entries are written with 15 significant
+    digits, so values read from a file with up to 15 digits come back exactly.
 
     Raises:
         OutputError: ``path`` is a file this process read with :func:`read_g2o`, a directory,

@@ -10,7 +10,9 @@ import pytest
 
 from rlpgo_gtsam.synthetic import SyntheticGraph, generate
 
-DATASETS = Path(os.environ.get("RLPGO_DATASETS", Path(__file__).resolve().parents[2] / "shared" / "datasets"))
+DATASETS = Path(
+    os.environ.get("RLPGO_DATASETS", Path(__file__).resolve().parents[2] / "shared" / "datasets")
+)
 
 
 def dataset(name: str) -> Path:

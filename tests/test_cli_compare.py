@@ -1,8 +1,8 @@
 import json
 
 from click.testing import CliRunner
-
 from rlpgo_cli.compare import main
+
 from rlpgo_gtsam import write_g2o
 from tests.conftest import dataset
 

@@ -1,6 +1,6 @@
 from click.testing import CliRunner
-
 from rlpgo_cli.generate import main
+
 from rlpgo_gtsam import chi2, read_g2o
 
 

@@ -32,7 +32,9 @@ def test_lago_works_with_full_gaussian_noise(name, bound):
     assert result.chi2 <= bound
 
 
-@pytest.mark.parametrize(("method", "tolerance"), [("lago", 1e-6), ("chordal", 1e-6), ("shonan", 1e-2)])
+@pytest.mark.parametrize(
+    ("method", "tolerance"), [("lago", 1e-6), ("chordal", 1e-6), ("shonan", 1e-2)]
+)
 def test_classical_initializers_solve_exact_graphs(method, tolerance, small_exact):
     # Shonan's iterative rotation solve stops at its own tolerance, the others are exact.
     initial = make_initializer(method).initialize(small_exact.graph, small_exact.initial)

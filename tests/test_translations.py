@@ -6,7 +6,9 @@ from tests.conftest import dataset
 
 
 def _poses(values: gtsam.Values) -> np.ndarray:
-    return np.array([[p.x(), p.y(), p.theta()] for p in (values.atPose2(k) for k in sorted(values.keys()))])
+    return np.array(
+        [[p.x(), p.y(), p.theta()] for p in (values.atPose2(k) for k in sorted(values.keys()))]
+    )
 
 
 def test_exact_orientations_recover_ground_truth(small_exact):
@@ -35,14 +37,23 @@ def test_correlated_information_is_used(small_noisy):
         factor = small_noisy.graph.at(index)
         information = np.diag([400.0, 25.0, 25.0])
         information[0, 1] = information[1, 0] = 80.0 * rng.choice([-1, 1])
-        graph.add(gtsam.BetweenFactorPose2(*factor.keys(), factor.measured(),
-                                           gtsam.noiseModel.Gaussian.Information(information)))
+        graph.add(
+            gtsam.BetweenFactorPose2(
+                *factor.keys(),
+                factor.measured(),
+                gtsam.noiseModel.Gaussian.Information(information),
+            )
+        )
     pose_graph = PoseGraph2D.from_gtsam(graph, small_noisy.initial)
     theta = _poses(small_noisy.ground_truth)[:, 2]
     full = pose_graph.to_values(np.column_stack([solve_translations(pose_graph, theta), theta]))
     diagonal_only = PoseGraph2D(
-        pose_graph.keys, pose_graph.poses, pose_graph.edges, pose_graph.measured,
-        pose_graph.information * np.eye(3), pose_graph.anchor,
+        pose_graph.keys,
+        pose_graph.poses,
+        pose_graph.edges,
+        pose_graph.measured,
+        pose_graph.information * np.eye(3),
+        pose_graph.anchor,
     )
     dropped = pose_graph.to_values(
         np.column_stack([solve_translations(diagonal_only, theta), theta])

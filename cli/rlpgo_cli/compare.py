@@ -28,7 +28,8 @@ def _format(value: float | None, spec: str) -> str:
 
 
 def _table(results: list[MethodResult]) -> str:
-    header = f"{'method':<12}{'init chi2':>14}{'init s':>9}{'refined chi2':>15}{'refine s':>10}{'iters':>7}"
+    header = (f"{'method':<12}{'init chi2':>14}{'init s':>9}{'refined chi2':>15}"
+              f"{'refine s':>10}{'iters':>7}")
     lines = [header, "-" * len(header)]
     for r in results:
         lines.append(
@@ -52,18 +53,45 @@ def _methods(text: str) -> list[str]:
 
 @click.command(cls=RlpgoCommand)
 @click.argument("files", nargs=-1, type=click.Path(path_type=Path))
-@click.option("--solver", type=click.Choice(SOLVERS), default="lm", show_default=True,
-              help="GTSAM solver run after each initializer.")
-@click.option("--iters", type=click.IntRange(min=0), default=30, show_default=True,
-              help="Iteration cap of the solver.")
-@click.option("--methods", default=DEFAULT_METHODS, show_default=True,
-              help="Comma-separated initializers to compare.")
-@click.option("--json", "json_path", type=click.Path(path_type=Path),
-              help="Write every row as a JSON list of records.")
-@click.option("--plot", "plot_dir", type=click.Path(path_type=Path),
-              help="Write one PNG per file: the initial guess and each refined trajectory.")
-@click.option("--seed", type=int, default=1, show_default=True,
-              help="Seed of the generated graph used when no FILE is given.")
+@click.option(
+    "--solver",
+    type=click.Choice(SOLVERS),
+    default="lm",
+    show_default=True,
+    help="GTSAM solver run after each initializer.",
+)
+@click.option(
+    "--iters",
+    type=click.IntRange(min=0),
+    default=30,
+    show_default=True,
+    help="Iteration cap of the solver.",
+)
+@click.option(
+    "--methods",
+    default=DEFAULT_METHODS,
+    show_default=True,
+    help="Comma-separated initializers to compare.",
+)
+@click.option(
+    "--json",
+    "json_path",
+    type=click.Path(path_type=Path),
+    help="Write every row as a JSON list of records.",
+)
+@click.option(
+    "--plot",
+    "plot_dir",
+    type=click.Path(path_type=Path),
+    help="Write one PNG per file: the initial guess and each refined trajectory.",
+)
+@click.option(
+    "--seed",
+    type=int,
+    default=1,
+    show_default=True,
+    help="Seed of the generated graph used when no FILE is given.",
+)
 def main(files, solver, iters, methods, json_path, plot_dir, seed):
     """Compare initial guesses for the planar pose graphs in FILES (g2o).
 
@@ -82,8 +110,9 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed):
     records, failed = [], False
     for name, graph, values in inputs:
         results = compare_methods(graph, values, method_list, solver, iters, dataset=name)
-        click.echo(f"\n{name}: {results[0].poses} poses, {results[0].edges} edges, "
-                   f"{solver.upper()}{iters}")
+        click.echo(
+            f"\n{name}: {results[0].poses} poses, {results[0].edges} edges, {solver.upper()}{iters}"
+        )
         click.echo(_table(results))
         records.extend(r.record() for r in results)
         failed = failed or any(r.failure for r in results)
@@ -92,7 +121,8 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed):
 
             panels = [("initial guess", values)] + [
                 (f"{r.method}+{solver.upper()}{iters}: {r.refined_chi2:.4g}", r.refined)
-                for r in results if r.refined is not None
+                for r in results
+                if r.refined is not None
             ]
             plot_trajectories(plot_dir / f"{Path(name).stem}.png", graph, panels, title=name)
     if json_path is not None:
