@@ -209,6 +209,7 @@ class PoseGraphEnv(gym.Env):
       override any preset value.
     - ``graph_file``: a g2o file to wrap instead of generating graphs.
     - ``graph``, ``values``: a GTSAM graph and values to wrap instead.
+    - ``pose_graph``: the same, already extracted as a :class:`PoseGraph2D`.
     """
 
     metadata = {"render_modes": []}
@@ -220,6 +221,7 @@ class PoseGraphEnv(gym.Env):
         graph_file: str | None = None,
         graph: gtsam.NonlinearFactorGraph | None = None,
         values: gtsam.Values | None = None,
+        pose_graph: PoseGraph2D | None = None,
         **overrides: Any,
     ) -> None:
         if preset is not None and preset not in PRESETS:
@@ -235,20 +237,20 @@ class PoseGraphEnv(gym.Env):
             graph, values = read_g2o(graph_file)
         if (graph is None) != (values is None):
             raise RlpgoError("give both graph and values, or neither")
-        self._fixed = graph is not None
-        self._graph, self._values = graph, values
+        if graph is not None and pose_graph is None:
+            pose_graph = PoseGraph2D.from_gtsam(graph, values)
+        self._fixed = pose_graph is not None
         self.observation_space = gym.spaces.Box(
             np.array([0.0, -np.pi, -_UNBOUNDED, -_UNBOUNDED], np.float32),
             np.array([_UNBOUNDED, np.pi, _UNBOUNDED, _UNBOUNDED], np.float32),
         )
         self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.pose_graph: PoseGraph2D | None = None
-        if self._fixed:
-            self._load(graph, values)
+        if pose_graph is not None:
+            self._load(pose_graph)
 
-    def _load(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
-        self._graph, self._values = graph, values
-        self.pose_graph = PoseGraph2D.from_gtsam(graph, values)
+    def _load(self, pose_graph: PoseGraph2D) -> None:
+        self.pose_graph = pose_graph
         anchor = self.pose_graph.anchor
         edges = self.pose_graph.edges
         self.action_edges = np.flatnonzero((edges[:, 0] != anchor) & (edges[:, 1] != anchor))
@@ -267,7 +269,7 @@ class PoseGraphEnv(gym.Env):
             c = self.config
             sample = generate(c.n, c.sigma_r, c.sigma_t, c.d, c.lc, self.np_random,
                               noisy_measurements=c.noisy_measurements)
-            self._load(sample.graph, sample.initial)
+            self._load(PoseGraph2D.from_gtsam(sample.graph, sample.initial))
         assert self.pose_graph is not None
         orientations = (options or {}).get("orientations")
         if orientations is None:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from rlpgo_gtsam.errors import OutputError
 
-__all__ = ["write_text", "remember_input", "is_input"]
+__all__ = ["write_text", "write_bytes", "remember_input", "is_input"]
 
 # Files this process has read as inputs, as (device, inode): outputs never replace them.
 _inputs: set[tuple[int, int]] = set()
@@ -30,7 +30,12 @@ def is_input(path: str | os.PathLike[str]) -> bool:
 
 
 def write_text(path: str | os.PathLike[str], text: str) -> None:
-    """Write ``text`` to ``path`` atomically; an existing file is untouched on any failure.
+    """Write ``text`` (UTF-8) to ``path`` atomically: see :func:`write_bytes`."""
+    write_bytes(path, text.encode("utf-8"))
+
+
+def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically; an existing file is untouched on any failure.
 
     A device or pipe (``/dev/null``, ``/dev/full``) is written through, since it cannot be
     replaced.
@@ -44,28 +49,28 @@ def write_text(path: str | os.PathLike[str], text: str) -> None:
     if is_input(path):
         raise OutputError(f"{path}: is an input of this run; refusing to overwrite it")
     if path.exists() and not path.is_file():
-        _write_through(path, text)
+        _write_through(path, data)
     else:
-        _write_atomic(path, text)
+        _write_atomic(path, data)
 
 
-def _write_through(path: Path, text: str) -> None:
+def _write_through(path: Path, data: bytes) -> None:
     try:
-        with path.open("w") as handle:
-            handle.write(text)
+        with path.open("wb") as handle:
+            handle.write(data)
     except OSError as error:
         raise OutputError(f"{path}: cannot write: {error.strerror or error}") from None
 
 
-def _write_atomic(path: Path, text: str) -> None:
+def _write_atomic(path: Path, data: bytes) -> None:
     folder = path.parent
     if not folder.is_dir():
         raise OutputError(f"{path}: folder {folder} does not exist")
     temp_name = None
     try:
         descriptor, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", dir=folder)
-        with os.fdopen(descriptor, "w") as handle:
-            handle.write(text)
+        with os.fdopen(descriptor, "wb") as handle:
+            handle.write(data)
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(temp_name, path)

@@ -44,3 +44,26 @@ def plot_trajectories(
     figure.tight_layout()
     figure.savefig(path, dpi=120)
     plt.close(figure)
+
+
+def plot_training_curve(path: str | os.PathLike[str], rows: list[dict], title: str = "") -> None:
+    """Episode reward (and its 20-episode mean) and best/initial OC against episodes."""
+    episodes = np.array([int(r["episode"]) for r in rows])
+    rewards = np.array([float(r["reward"]) for r in rows])
+    ratio = np.array([float(r["best_oc"]) / max(float(r["initial_oc"]), 1e-12) for r in rows])
+    window = min(20, len(rows))
+    smooth = np.convolve(rewards, np.ones(window) / window, mode="valid")
+    figure, (left, right) = plt.subplots(1, 2, figsize=(9, 3.5))
+    left.plot(episodes, rewards, color="0.7", linewidth=0.6)
+    left.plot(episodes[window - 1:], smooth, linewidth=1.2)
+    left.set_xlabel("episode")
+    left.set_ylabel("episode reward")
+    right.plot(episodes, ratio, color="0.7", linewidth=0.6)
+    right.plot(episodes[window - 1:], np.convolve(ratio, np.ones(window) / window, "valid"))
+    right.set_xlabel("episode")
+    right.set_ylabel("best OC / initial OC")
+    if title:
+        figure.suptitle(title)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)

@@ -1,0 +1,45 @@
+"""rlpgo-eval: a trained agent against random actions and the edge-balancing rule."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from rlpgo_cli.errors import RlpgoCommand
+from rlpgo_cli.output import write_json
+from rlpgo_gtsam.env import PRESETS
+from rlpgo_gtsam.evaluation import evaluate
+from rlpgo_gtsam.models import DEFAULT_PRESET_MODEL, resolve_model
+
+
+@click.command(cls=RlpgoCommand)
+@click.option("--model", default=None,
+              help="Shipped model name or model file [default: the preset's shipped agent].")
+@click.option("--preset", type=click.IntRange(1, len(PRESETS)), required=True)
+@click.option("--graphs", type=click.IntRange(min=1), default=50, show_default=True)
+@click.option("--seed", type=int, default=1000, show_default=True)
+@click.option("--noisy-measurements", is_flag=True, help="Evaluate on noisy-measurement graphs.")
+@click.option("--json", "json_path", type=click.Path(path_type=Path))
+def main(model, preset, graphs, seed, noisy_measurements, json_path):
+    """Deterministic rollouts on fresh graphs of a preset; mean initial and best OC."""
+    name = model or DEFAULT_PRESET_MODEL.format(preset=preset)
+    loaded = resolve_model(name)
+    overrides = {"noisy_measurements": True} if noisy_measurements else {}
+    result = evaluate(loaded, preset, graphs, seed, overrides)
+    record = {"model": name, **result}
+    initial = result["initial_oc_mean"]
+    click.echo(f"model {name}, preset {preset}, {graphs} graphs, seed {seed}")
+    click.echo(f"{'policy':<16}{'mean best OC':>14}{'/ initial':>11}")
+    click.echo(f"{'initial':<16}{initial:>14.4f}{1.0:>11.3f}")
+    for label, key in [("agent", "agent_best_oc_mean"), ("random", "random_best_oc_mean"),
+                       ("edge balancing", "greedy_best_oc_mean")]:
+        click.echo(f"{label:<16}{result[key]:>14.4f}{result[key] / initial:>11.3f}")
+    if json_path is not None:
+        keys = ["model", "preset", "graphs", "seed", "initial_oc_mean", "agent_best_oc_mean",
+                "random_best_oc_mean", "greedy_best_oc_mean"]
+        write_json(json_path, {k: record[k] for k in keys})
+
+
+if __name__ == "__main__":
+    main()

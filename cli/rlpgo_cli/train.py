@@ -1,0 +1,52 @@
+"""rlpgo-train: train a recurrent SAC agent on one of the paper's training environments."""
+
+from __future__ import annotations
+
+import shlex
+import sys
+
+import click
+
+from rlpgo_cli.errors import RlpgoCommand
+from rlpgo_gtsam.agent.sac import SacConfig
+from rlpgo_gtsam.env import PRESETS
+from rlpgo_gtsam.train import TrainConfig, train
+
+
+@click.command(cls=RlpgoCommand)
+@click.option("--preset", type=click.IntRange(1, len(PRESETS)), required=True,
+              help="The paper's training environment (Table I).")
+@click.option("--episodes", type=click.IntRange(min=1), default=300, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--out", default=None, help="Path stem of the outputs [default: models/presetP].")
+@click.option("--resume", is_flag=True, help="Continue from <out>.train.pt.")
+@click.option("--hidden", type=click.IntRange(min=4), default=SacConfig.hidden,
+              show_default=True, help="Width of the layers and LSTMs (the paper: 512).")
+@click.option("--batch-size", type=click.IntRange(min=1), default=SacConfig.batch_size,
+              show_default=True, help="Episodes per gradient step.")
+@click.option("--gradient-steps", type=click.IntRange(min=1), default=SacConfig.gradient_steps,
+              show_default=True, help="Gradient steps after each episode.")
+@click.option("--noisy-measurements", is_flag=True,
+              help="Train on graphs with noisy measurements (not in the paper).")
+def main(preset, episodes, seed, out, resume, hidden, batch_size, gradient_steps,
+         noisy_measurements):
+    """Train an agent; writes <out>.zip (the model), <out>.csv and <out>.png (the log)."""
+    out = out or f"models/preset{preset}"
+    config = TrainConfig(
+        preset=preset, episodes=episodes, seed=seed, out=out,
+        sac=SacConfig(hidden=hidden, batch_size=batch_size, gradient_steps=gradient_steps),
+        env_overrides={"noisy_measurements": True} if noisy_measurements else {},
+        command=shlex.join(["rlpgo-train", *sys.argv[1:]]),
+    )
+    with click.progressbar(length=episodes, label=f"preset {preset}", show_pos=True,
+                           item_show_func=lambda text: text) as bar:
+        def progress(episode_number, episode, seconds):
+            bar.update(1, f"reward {episode.rewards.sum():8.1f}  OC {episode.initial_oc:.3f}"
+                          f" -> {episode.best_oc:.3f}  {seconds:6.0f}s")
+
+        path = train(config, resume=resume, on_episode=progress)
+    click.echo(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

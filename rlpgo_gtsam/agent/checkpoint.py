@@ -1,0 +1,106 @@
+"""Model files: a zip of ``config.json`` and the actor's ``state_dict``, never a pickle.
+
+A shipped model holds what inference needs (actor with its encoder) and metadata: format
+version, package and torch versions, network size, environment, training command, seed,
+episodes, evaluation figures. Weights load with ``torch.load(..., weights_only=True)``,
+so a model file cannot run code. Critics and optimizer state go to a separate training
+checkpoint (``*.train.pt``), not shipped.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import zipfile
+from dataclasses import asdict
+from pathlib import Path
+
+import torch
+
+from rlpgo_gtsam.agent.networks import Actor
+from rlpgo_gtsam.env import EnvConfig
+from rlpgo_gtsam.errors import ModelError
+from rlpgo_gtsam.files import write_bytes
+
+__all__ = ["FORMAT_VERSION", "save_model", "load_model", "LoadedModel"]
+
+FORMAT_VERSION = 1
+_CONFIG, _WEIGHTS = "config.json", "actor.pt"
+
+
+class LoadedModel:
+    """An actor ready for inference, its environment config and its metadata."""
+
+    def __init__(self, actor: Actor, env_config: EnvConfig, metadata: dict, path: Path) -> None:
+        self.actor = actor
+        self.env_config = env_config
+        self.metadata = metadata
+        self.path = path
+
+
+def save_model(path: str | os.PathLike[str], actor: Actor, env_config: EnvConfig,
+               metadata: dict) -> None:
+    """Write a model zip atomically; ``metadata`` must be JSON-serializable."""
+    from rlpgo_gtsam import __version__
+
+    config = {
+        "format": FORMAT_VERSION,
+        "package_version": __version__,
+        "torch_version": torch.__version__,
+        "hidden": actor.trunk.hidden,
+        "env": asdict(env_config),
+        **metadata,
+    }
+    weights = io.BytesIO()
+    torch.save(actor.state_dict(), weights)
+    archive = io.BytesIO()
+    with zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr(_CONFIG, json.dumps(config, indent=2))
+        zf.writestr(_WEIGHTS, weights.getvalue())
+    write_bytes(path, archive.getvalue())
+
+
+def load_model(path: str | os.PathLike[str]) -> LoadedModel:
+    """Load a model zip without unpickling anything.
+
+    Raises:
+        ModelError: missing file, not a zip, no config or weights, another format
+            version, or weights that do not fit the network the config describes.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"{path}: no such model file")
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = set(zf.namelist())
+            if _CONFIG not in names or _WEIGHTS not in names:
+                raise ModelError(f"{path}: not an rlpgo model (needs {_CONFIG} and {_WEIGHTS})")
+            config = json.loads(zf.read(_CONFIG))
+            weights = zf.read(_WEIGHTS)
+    except (zipfile.BadZipFile, EOFError, OSError) as error:
+        raise ModelError(f"{path}: not a readable model zip ({error})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise ModelError(f"{path}: {_CONFIG} is not valid JSON") from None
+    if not isinstance(config, dict):
+        raise ModelError(f"{path}: {_CONFIG} is not a JSON object")
+    if config.get("format") != FORMAT_VERSION:
+        raise ModelError(
+            f"{path}: format {config.get('format')}, this version reads format "
+            f"{FORMAT_VERSION}; use a matching rlpgo-gtsam"
+        )
+    try:
+        state = torch.load(io.BytesIO(weights), weights_only=True, map_location="cpu")
+    except Exception as error:  # torch raises UnpicklingError, RuntimeError, ...
+        first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise ModelError(f"{path}: weights refused by the safe loader: {first}") from None
+    try:
+        hidden = int(config["hidden"])
+        env_config = EnvConfig(**config["env"])
+        actor = Actor(hidden)
+        actor.load_state_dict(state, strict=True)
+    except (KeyError, TypeError, ValueError, RuntimeError) as error:
+        first = str(error).strip().splitlines()[0]
+        raise ModelError(f"{path}: weights do not match the config: {first}") from None
+    actor.eval()
+    return LoadedModel(actor, env_config, config, path)

@@ -1,0 +1,38 @@
+"""Finding shipped models by name, in a checkout (``models/``) or an installed wheel."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from rlpgo_gtsam.agent.checkpoint import LoadedModel, load_model
+from rlpgo_gtsam.errors import ModelError
+
+__all__ = ["models_dir", "resolve_model", "shipped_models", "DEFAULT_PRESET_MODEL"]
+
+DEFAULT_PRESET_MODEL = "preset{preset}"
+
+
+def models_dir() -> Path:
+    """``rlpgo_gtsam/_models`` in a wheel, else the checkout's top-level ``models/``."""
+    here = Path(__file__).resolve().parent
+    packaged = here / "_models"
+    return packaged if packaged.is_dir() else here.parent / "models"
+
+
+def shipped_models() -> list[str]:
+    """Names of the shipped models."""
+    folder = models_dir()
+    return sorted(p.stem for p in folder.glob("*.zip")) if folder.is_dir() else []
+
+
+def resolve_model(name_or_path: str | os.PathLike[str]) -> LoadedModel:
+    """Load a shipped model by name (``preset1``) or any model file by path."""
+    candidate = Path(name_or_path)
+    if candidate.suffix == ".zip" or candidate.exists() or os.sep in str(name_or_path):
+        return load_model(candidate)
+    path = models_dir() / f"{name_or_path}.zip"
+    if not path.exists():
+        known = ", ".join(shipped_models()) or "none"
+        raise ModelError(f"no shipped model named '{name_or_path}' (shipped: {known})")
+    return load_model(path)

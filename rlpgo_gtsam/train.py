@@ -1,0 +1,151 @@
+"""Training one agent on a preset's generated graphs: TrainConfig + train().
+
+Logs go to a CSV (episode, reward, initial OC, best OC, final OC, seconds), to TensorBoard
+when it is installed, and to a PNG of the reward curve; nothing is printed (a caller may
+pass ``on_episode`` to show progress). The training state is checkpointed to
+``<out>.train.pt`` so that ``resume=True`` continues an interrupted run; the shipped model
+``<out>.zip`` holds the actor only.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from rlpgo_gtsam.agent.checkpoint import save_model
+from rlpgo_gtsam.agent.sac import Episode, SacAgent, SacConfig, run_episode
+from rlpgo_gtsam.env import PRESETS, EnvConfig, PoseGraphEnv
+from rlpgo_gtsam.errors import ModelError
+
+__all__ = ["TrainConfig", "train", "CSV_FIELDS"]
+
+CSV_FIELDS = ["episode", "reward", "initial_oc", "best_oc", "final_oc", "seconds"]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One training run.
+
+    Attributes:
+        preset: the paper's training environment, 1..5.
+        episodes: episodes to collect in all (including warm-up).
+        seed: seeds torch, the graphs and the replay sampling.
+        out: path stem: writes ``<out>.zip``, ``<out>.csv``, ``<out>.png``, ``<out>.train.pt``.
+        sac: the agent's hyper-parameters.
+        env_overrides: environment parameters that replace the preset's
+            (e.g. ``{"noisy_measurements": True}``).
+        checkpoint_every: episodes between training checkpoints.
+        command: the command line that started the run, kept in the model's metadata.
+    """
+
+    preset: int = 1
+    episodes: int = 300
+    seed: int = 0
+    out: str = "models/preset1"
+    sac: SacConfig = field(default_factory=SacConfig)
+    env_overrides: dict = field(default_factory=dict)
+    checkpoint_every: int = 25
+    command: str = ""
+
+    @property
+    def env_config(self) -> EnvConfig:
+        return replace(PRESETS[self.preset], **self.env_overrides)
+
+
+def train(
+    config: TrainConfig,
+    resume: bool = False,
+    on_episode: Callable[[int, Episode, float], None] | None = None,
+) -> Path:
+    """Train, checkpoint and save the model; returns the path of the shipped ``.zip``."""
+    torch.set_num_threads(1)
+    out = Path(config.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    paths = {s: out.with_name(out.name + s) for s in (".zip", ".csv", ".png", ".train.pt")}
+    env = PoseGraphEnv(config.preset, **config.env_overrides)
+    agent = SacAgent(config.sac, config.seed)
+    rng = np.random.default_rng(config.seed)
+    start_episode, elapsed = 0, 0.0
+    if resume and paths[".train.pt"].exists():
+        state = torch.load(paths[".train.pt"], weights_only=True)
+        agent.load_state_dict(state["agent"])
+        start_episode, elapsed = int(state["episode"]), float(state["seconds"])
+        rng = np.random.default_rng([config.seed, start_episode])
+    elif resume:
+        raise ModelError(f"{paths['.train.pt']}: nothing to resume")
+    writer = _tensorboard(out)
+    mode = "a" if start_episode else "w"
+    with paths[".csv"].open(mode, newline="") as log:
+        csv_writer = csv.writer(log)
+        if not start_episode:
+            csv_writer.writerow(CSV_FIELDS)
+        env.reset(seed=config.seed + start_episode)
+        warmup = config.sac.warmup_episodes
+        for episode_index in range(start_episode, config.episodes):
+            began = time.perf_counter()
+            # A resumed run starts with an empty replay (it is not checkpointed): it refills
+            # from the current policy, sampled with replacement until it grows.
+            episode = run_episode(env, None if episode_index < warmup else agent.actor, rng)
+            agent.replay.add(episode.observations, episode.last_actions, episode.actions,
+                             episode.rewards)
+            losses = agent.update() if episode_index + 1 >= warmup else {}
+            elapsed += time.perf_counter() - began
+            reward = float(episode.rewards.sum())
+            csv_writer.writerow([episode_index + 1, f"{reward:.4f}", f"{episode.initial_oc:.6g}",
+                                 f"{episode.best_oc:.6g}", f"{episode.final_oc:.6g}",
+                                 f"{elapsed:.2f}"])
+            log.flush()
+            if writer is not None:
+                writer.add_scalar("episode/reward", reward, episode_index + 1)
+                writer.add_scalar("episode/best_oc_ratio",
+                                  episode.best_oc / max(episode.initial_oc, 1e-12),
+                                  episode_index + 1)
+                for name, value in losses.items():
+                    writer.add_scalar(f"loss/{name}", value, episode_index + 1)
+            if on_episode is not None:
+                on_episode(episode_index + 1, episode, elapsed)
+            done = episode_index + 1
+            if done % config.checkpoint_every == 0 or done == config.episodes:
+                torch.save({"agent": agent.state_dict(), "episode": done, "seconds": elapsed},
+                           paths[".train.pt"])
+                metadata = _metadata(config, done, elapsed)
+                save_model(paths[".zip"], agent.actor, config.env_config, metadata)
+    if writer is not None:
+        writer.close()
+    _plot_rewards(paths[".csv"], paths[".png"], config)
+    return paths[".zip"]
+
+
+def _metadata(config: TrainConfig, episodes: int, seconds: float) -> dict:
+    return {
+        "preset": config.preset,
+        "seed": config.seed,
+        "episodes": episodes,
+        "train_seconds": round(seconds, 1),
+        "command": config.command,
+        "sac": asdict(config.sac),
+        "test_cycles": 2 * config.env_config.cycles,
+    }
+
+
+def _tensorboard(out: Path):
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:  # tensorboard is optional: pip install rlpgo-gtsam[train]
+        return None
+    return SummaryWriter(log_dir=str(out.parent / "runs" / out.name))
+
+
+def _plot_rewards(csv_path: Path, png_path: Path, config: TrainConfig) -> None:
+    from rlpgo_gtsam.plotting import plot_training_curve
+
+    with csv_path.open() as handle:
+        rows = list(csv.DictReader(handle))
+    if rows:
+        plot_training_curve(png_path, rows, title=f"preset {config.preset}, seed {config.seed}")
