@@ -22,6 +22,7 @@ from rlpgo_gtsam.initializers import (
     make_initializer,
     register,
 )
+from rlpgo_gtsam.rl_initializer import RLInitializer
 from rlpgo_gtsam.solvers import RefineResult, refine
 from rlpgo_gtsam.synthetic import SyntheticGraph, generate
 from rlpgo_gtsam.translations import solve_translations
@@ -37,6 +38,7 @@ __all__ = [
     "ChordalInitializer",
     "EnvConfig",
     "PoseGraphEnv",
+    "RLInitializer",
     "SyntheticGraph",
     "generate",
     "G2oFormatError",

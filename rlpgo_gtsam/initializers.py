@@ -179,7 +179,7 @@ class ShonanInitializer:
         return poses_with_orientations(g, best_theta)
 
 
-_REGISTRY: dict[str, Callable[[], Initializer]] = {
+_REGISTRY: dict[str, Callable[..., Initializer]] = {
     "odometry": OdometryInitializer,
     "lago": LagoInitializer,
     "chordal": ChordalInitializer,
@@ -187,7 +187,7 @@ _REGISTRY: dict[str, Callable[[], Initializer]] = {
 }
 
 
-def register(name: str, factory: Callable[[], Initializer]) -> None:
+def register(name: str, factory: Callable[..., Initializer]) -> None:
     """Make ``factory()`` available as initializer ``name`` (in the CLI's --methods too)."""
     _REGISTRY[name] = factory
 
@@ -197,8 +197,17 @@ def initializer_names() -> list[str]:
     return list(_REGISTRY)
 
 
-def make_initializer(name: str) -> Initializer:
-    """A new initializer of the given registered name."""
-    if name not in _REGISTRY:
-        raise RlpgoError(f"unknown method '{name}'; choose from {', '.join(_REGISTRY)}")
-    return _REGISTRY[name]()
+def make_initializer(name: str, **options) -> Initializer:
+    """A new initializer of a registered name; ``name@start`` passes ``start=...`` too.
+
+    ``options`` go to the factory (``make_initializer("rl@chordal", episodes=10)``).
+    """
+    base, _, start = name.partition("@")
+    if base not in _REGISTRY:
+        raise RlpgoError(f"unknown method '{base}'; choose from {', '.join(_REGISTRY)}")
+    if start:
+        options["start"] = start
+    try:
+        return _REGISTRY[base](**options)
+    except TypeError:
+        raise RlpgoError(f"method '{base}' takes no options ({name})") from None

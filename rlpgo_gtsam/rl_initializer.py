@@ -78,10 +78,17 @@ class RLInitializer:
         self.policy = NumpyPolicy(self.model.actor)
         self.last_chi2: float | None = None  # chi2 of the last guess, before refinement
 
-    def initialize(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
-        """The agent's guess for ``graph`` (``values`` gives the anchor pose and the start)."""
+    def initialize(
+        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+        start_values: gtsam.Values | None = None,
+    ) -> gtsam.Values:
+        """The agent's guess for ``graph`` (``values`` gives the anchor pose and the start).
+
+        ``start_values``: the ``start`` initializer's result, if already computed.
+        """
         pose_graph = PoseGraph2D.from_gtsam(graph, values)
-        start_values = make_initializer(self.start).initialize(graph, values)
+        if start_values is None:
+            start_values = make_initializer(self.start).initialize(graph, values)
         start_theta = PoseGraph2D.from_gtsam(graph, start_values).poses[:, 2]
         best_theta = self.rollout(pose_graph, start_theta)
         guesses = [poses_with_orientations(pose_graph, theta) for theta in best_theta]
@@ -118,11 +125,4 @@ class RLInitializer:
         return [env.best_orientations() for env in envs]
 
 
-class _DefaultRL(RLInitializer):
-    """The initializer registered as "rl": the default model, started from odometry."""
-
-    def __init__(self) -> None:
-        super().__init__()
-
-
-register("rl", _DefaultRL)
+register("rl", RLInitializer)

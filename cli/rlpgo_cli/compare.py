@@ -14,6 +14,7 @@ from rlpgo_gtsam.comparison import MethodResult, compare_methods
 from rlpgo_gtsam.errors import OutputError
 from rlpgo_gtsam.g2o import read_g2o
 from rlpgo_gtsam.initializers import initializer_names
+from rlpgo_gtsam.rl_initializer import DEFAULT_MODEL, STARTS
 from rlpgo_gtsam.solvers import SOLVERS
 from rlpgo_gtsam.synthetic import generate
 
@@ -44,8 +45,13 @@ def _methods(text: str) -> list[str]:
     methods = [m.strip() for m in text.split(",") if m.strip()]
     known = initializer_names()
     for method in methods:
-        if method not in known:
+        base, _, start = method.partition("@")
+        if base not in known:
             raise click.BadParameter(f"unknown method '{method}'; choose from {', '.join(known)}")
+        if start and (base != "rl" or start not in STARTS):
+            raise click.BadParameter(
+                f"'{method}': only rl takes a start, one of {', '.join(STARTS)}"
+            )
     if not methods:
         raise click.BadParameter("give at least one method")
     return methods
@@ -92,7 +98,13 @@ def _methods(text: str) -> list[str]:
     show_default=True,
     help="Seed of the generated graph used when no FILE is given.",
 )
-def main(files, solver, iters, methods, json_path, plot_dir, seed):
+@click.option("--model", default=DEFAULT_MODEL, show_default=True,
+              help="Agent of the rl methods: a shipped model name or a model file.")
+@click.option("--episodes", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Rollouts of the rl methods (lowest chi2 kept).")
+@click.option("--start", type=click.Choice(STARTS), default="odometry", show_default=True,
+              help="Start of method rl (rl@<start> names it per method).")
+def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episodes, start):
     """Compare initial guesses for the planar pose graphs in FILES (g2o).
 
     Each method's guess is refined by the same GTSAM solver; costs are g2o chi2
@@ -109,7 +121,11 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed):
         inputs = [(f"generated n={DEMO['n']} seed={seed}", demo.graph, demo.initial)]
     records, failed = [], False
     for name, graph, values in inputs:
-        results = compare_methods(graph, values, method_list, solver, iters, dataset=name)
+        rl_options = {"model": model, "episodes": episodes}
+        results = compare_methods(
+            graph, values, [f"rl@{start}" if m == "rl" else m for m in method_list], solver,
+            iters, dataset=name, rl_options=rl_options,
+        )
         click.echo(
             f"\n{name}: {results[0].poses} poses, {results[0].edges} edges, {solver.upper()}{iters}"
         )

@@ -1,0 +1,75 @@
+"""rlpgo-init: write an initial guess for a g2o pose graph (same edges, new vertices)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+
+from rlpgo_cli.errors import RlpgoCommand
+from rlpgo_gtsam.comparison import best_of, compare_methods
+from rlpgo_gtsam.g2o import read_g2o, write_g2o
+from rlpgo_gtsam.graph import chi2
+from rlpgo_gtsam.initializers import initializer_names
+from rlpgo_gtsam.rl_initializer import DEFAULT_MODEL, STARTS
+
+CLASSICAL = ["odometry", "lago", "chordal", "shonan"]
+
+
+@click.command(cls=RlpgoCommand)
+@click.argument("input_path", metavar="INPUT.g2o", type=click.Path(path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
+              help="g2o file to write (never the input).")
+@click.option("--method", default="best", show_default=True,
+              help="best (every method, keep the lowest chi2), rl, or a classical "
+                   "initializer: " + ", ".join(CLASSICAL) + ".")
+@click.option("--model", default=DEFAULT_MODEL, show_default=True,
+              help="Agent: a shipped model name or a model file.")
+@click.option("--cycles", type=click.IntRange(min=1), default=None,
+              help="Passes over the edges [default: the model's test cycles].")
+@click.option("--episodes", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Rollouts differing in their initial last action; lowest chi2 kept.")
+@click.option("--start", type=click.Choice(STARTS), default="odometry", show_default=True,
+              help="Orientations the agent starts from (with --method rl).")
+@click.option("--refine", type=click.Choice(["none", "gn", "lm"]), default="lm",
+              show_default=True, help="GTSAM refinement of the guess that is written.")
+@click.option("--iters", type=click.IntRange(min=0), default=30, show_default=True,
+              help="Iteration cap of the refinement.")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Seed of the rollouts' initial last actions.")
+def main(input_path, output, method, model, cycles, episodes, start, refine, iters, seed):
+    """Write an initial guess for INPUT.g2o to OUTPUT.
+
+    The default, --method best, runs every initializer (odometry, LAGO, chordal, Shonan, and
+    the agent from each of them), refines each with --refine, writes the lowest-chi2 one
+    and prints the ranking. The paper's behaviour is --method rl --start odometry.
+    """
+    if method not in ("best", "rl", *CLASSICAL) and method not in initializer_names():
+        raise click.BadParameter(f"unknown method '{method}'", param_hint="--method")
+    graph, values = read_g2o(input_path)
+    began = time.perf_counter()
+    methods = CLASSICAL + [f"rl@{s}" for s in STARTS] if method == "best" else \
+        [f"rl@{start}" if method == "rl" else method]
+    solver = None if refine == "none" else refine
+    rl_options = {"model": model, "cycles": cycles, "episodes": episodes, "seed": seed}
+    results = compare_methods(graph, values, methods, solver, iters,
+                              dataset=input_path.name, rl_options=rl_options)
+    chosen = best_of(results)
+    write_g2o(output, graph, chosen.refined)
+    seconds = time.perf_counter() - began
+    if len(results) > 1:
+        click.echo(f"{'rank':<6}{'method':<14}{'guess chi2':>14}{'result chi2':>14}")
+        ranked = sorted(results, key=lambda r: (r.refined_chi2 is None, r.refined_chi2 or 0))
+        for rank, r in enumerate(ranked, start=1):
+            tail = f"  FAILED: {r.failure}" if r.failure else ""
+            guess = "-" if r.init_chi2 is None else f"{r.init_chi2:.6g}"
+            result = "-" if r.refined_chi2 is None else f"{r.refined_chi2:.6g}"
+            click.echo(f"{rank:<6}{r.method:<14}{guess:>14}{result:>14}{tail}")
+    step = "" if solver is None else f" + {solver.upper()}{iters}"
+    click.echo(f"input chi2 {chi2(graph, values):.6g}; {chosen.method}{step}: chi2 "
+               f"{chosen.refined_chi2:.6g}; {seconds:.2f} s; wrote {output}")
+
+
+if __name__ == "__main__":
+    main()
