@@ -13,6 +13,7 @@ import io
 import json
 import os
 import zipfile
+import zlib
 from dataclasses import asdict
 from pathlib import Path
 
@@ -27,6 +28,8 @@ __all__ = ["FORMAT_VERSION", "save_model", "load_model", "LoadedModel"]
 
 FORMAT_VERSION = 1
 _CONFIG, _WEIGHTS = "config.json", "actor.pt"
+_RESERVED = ("format", "package_version", "torch_version", "hidden", "env")
+_MAX_HIDDEN = 4096
 
 
 class LoadedModel:
@@ -44,6 +47,9 @@ def save_model(path: str | os.PathLike[str], actor: Actor, env_config: EnvConfig
     """Write a model zip atomically; ``metadata`` must be JSON-serializable."""
     from rlpgo_gtsam import __version__
 
+    reserved = set(metadata) & set(_RESERVED)
+    if reserved:
+        raise ValueError(f"metadata may not set {', '.join(sorted(reserved))}")
     config = {
         "format": FORMAT_VERSION,
         "package_version": __version__,
@@ -78,13 +84,13 @@ def load_model(path: str | os.PathLike[str]) -> LoadedModel:
                 raise ModelError(f"{path}: not an rlpgo model (needs {_CONFIG} and {_WEIGHTS})")
             config = json.loads(zf.read(_CONFIG))
             weights = zf.read(_WEIGHTS)
-    except (zipfile.BadZipFile, EOFError, OSError) as error:
+    except (zipfile.BadZipFile, EOFError, OSError, zlib.error) as error:
         raise ModelError(f"{path}: not a readable model zip ({error})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError):
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError):
         raise ModelError(f"{path}: {_CONFIG} is not valid JSON") from None
     if not isinstance(config, dict):
         raise ModelError(f"{path}: {_CONFIG} is not a JSON object")
-    if config.get("format") != FORMAT_VERSION:
+    if type(config.get("format")) is not int or config["format"] != FORMAT_VERSION:
         raise ModelError(
             f"{path}: format {config.get('format')}, this version reads format "
             f"{FORMAT_VERSION}; use a matching rlpgo-gtsam"
@@ -94,8 +100,14 @@ def load_model(path: str | os.PathLike[str]) -> LoadedModel:
     except Exception as error:  # torch raises UnpicklingError, RuntimeError, ...
         first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise ModelError(f"{path}: weights refused by the safe loader: {first}") from None
+    hidden = config.get("hidden")
+    if type(hidden) is not int or not 1 <= hidden <= _MAX_HIDDEN:
+        raise ModelError(f"{path}: hidden size must be an integer in 1..{_MAX_HIDDEN}, "
+                         f"got {hidden!r}")
+    fc = state.get("trunk.fc.weight") if isinstance(state, dict) else None
+    if not isinstance(fc, torch.Tensor) or fc.shape[0] != hidden:
+        raise ModelError(f"{path}: weights do not match the config (hidden {hidden})")
     try:
-        hidden = int(config["hidden"])
         env_config = EnvConfig(**config["env"])
         actor = Actor(hidden)
         actor.load_state_dict(state, strict=True)
