@@ -6,13 +6,18 @@ import time
 from dataclasses import asdict, dataclass
 
 import gtsam
+import numpy as np
 
-from rlpgo_gtsam.errors import RlpgoError
+from rlpgo_gtsam.errors import RlpgoError, one_line
 from rlpgo_gtsam.graph import PoseGraph2D, chi2
 from rlpgo_gtsam.initializers import make_initializer
 from rlpgo_gtsam.solvers import refine
 
 __all__ = ["MethodResult", "compare_methods", "best_of"]
+
+# What an initializer may raise on a graph it cannot handle: our errors, and GTSAM's
+# (an indeterminate linear system is a RuntimeError, LAGO's missing key an IndexError).
+_FAILURES = (RlpgoError, RuntimeError, IndexError, ValueError, np.linalg.LinAlgError)
 
 
 @dataclass
@@ -77,10 +82,10 @@ def compare_methods(
             else:
                 init_seconds_before = 0.0
                 initial = make_initializer(method).initialize(graph, values)
-        except RlpgoError as error:
+        except _FAILURES as error:
             results.append(MethodResult(**base, init_chi2=None, init_seconds=None, iters=None,
                                         refined_chi2=None, refine_seconds=None,
-                                        failure=str(error)))
+                                        failure=one_line(error)))
             continue
         # An RL row that reused its start's guess is charged that start's seconds too.
         init_seconds = time.perf_counter() - start + init_seconds_before

@@ -38,3 +38,10 @@ class SolverError(RlpgoError):
 
 class ModelError(RlpgoError):
     """A model file that cannot be loaded (missing, tampered, wrong format version)."""
+
+
+def one_line(error: BaseException) -> str:
+    """A third-party exception's text on one line (GTSAM's span several lines and end in
+    a general explanation that starts "Thrown when": that part is dropped)."""
+    text = " ".join(str(error).split()).split(" Thrown when ")[0]
+    return text or type(error).__name__

@@ -10,7 +10,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from rlpgo_gtsam.errors import SolverError
+from rlpgo_gtsam.errors import SolverError, one_line
 
 __all__ = ["solve_pairwise"]
 
@@ -49,7 +49,7 @@ def solve_pairwise(
     try:
         solution = graph.optimize()
     except RuntimeError as error:
-        raise SolverError(f"linear solve failed: {error}") from None
+        raise SolverError(f"linear solve failed: {one_line(error)}") from None
     result = np.empty((num_poses, 2))
     result[anchor] = anchor_value
     for k in range(num_poses):

@@ -77,6 +77,7 @@ class RLInitializer:
         self.progress = progress
         self.policy = NumpyPolicy(self.model.actor)
         self.last_chi2: float | None = None  # chi2 of the last guess, before refinement
+        self.last_costs: list[float] = []  # chi2 of every rollout of the last call
 
     def initialize(
         self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
@@ -94,6 +95,7 @@ class RLInitializer:
         guesses = [poses_with_orientations(pose_graph, theta) for theta in best_theta]
         costs = [chi2(graph, guess) for guess in guesses]
         best = guesses[int(np.argmin(costs))]
+        self.last_costs = [float(c) for c in costs]
         self.last_chi2 = float(min(costs))
         if self.refine is None:
             return best

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import gtsam
 
-from rlpgo_gtsam.errors import SolverError
+from rlpgo_gtsam.errors import SolverError, one_line
 from rlpgo_gtsam.graph import PoseGraph2D, between_factors
 
 __all__ = ["RefineResult", "refine", "SOLVERS"]
@@ -72,7 +72,7 @@ def refine(
         try:
             optimizer.iterate()
         except RuntimeError as error:
-            failure = f"{solver.upper()} failed: {_first_line(error)}"
+            failure = f"{solver.upper()} failed: {one_line(error)}"
             break
         current = 2.0 * objective.error(optimizer.values())
         if not math.isfinite(current):
@@ -105,8 +105,3 @@ def _make_optimizer(graph, values, solver, iters):
     params.setAbsoluteErrorTol(_TOLERANCE)
     params.setlambdaUpperBound(_LM_LAMBDA_MAX)
     return gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-
-
-def _first_line(error: Exception) -> str:
-    text = str(error).strip()
-    return text.splitlines()[0] if text else type(error).__name__

@@ -45,3 +45,33 @@ def test_non_finite_start_is_reported_not_raised(small_noisy):
     values.update(5, gtsam.Pose2(1e300, -1e300, 0.0))
     result = refine(small_noisy.graph, values, "gn", 5)
     assert result.failure is not None
+
+
+def _degenerate_graph():
+    """A chain whose middle edge has information 1e-30: GTSAM finds the system indeterminate."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for key in range(4):
+        values.insert(key, gtsam.Pose2(float(key), 0.0, 0.0))
+    for key in range(3):
+        information = np.eye(3) * (1e-30 if key == 1 else 1.0)
+        graph.add(gtsam.BetweenFactorPose2(key, key + 1, gtsam.Pose2(1.0, 0.0, 0.1),
+                                           gtsam.noiseModel.Gaussian.Information(information)))
+    return graph, values
+
+
+def test_indeterminate_system_is_a_reported_failure():
+    graph, values = _degenerate_graph()
+    result = refine(graph, values, "gn", 10)
+    assert result.failure.startswith("GN failed: Indeterminate linear system")
+    assert result.chi2 == pytest.approx(chi2(graph, values))
+
+
+def test_compare_reports_failing_methods_and_keeps_the_others():
+    from rlpgo_gtsam.comparison import compare_methods
+
+    graph, values = _degenerate_graph()
+    results = compare_methods(graph, values, ["odometry", "chordal"], "gn", 10)
+    assert results[1].failure.startswith(
+        "linear solve failed: Indeterminate linear system detected while working near variable")
+    assert len(results[1].failure) < 150
+    assert results[0].init_chi2 is not None and results[0].failure is not None
