@@ -8,25 +8,49 @@ from pathlib import Path
 
 from rlpgo_gtsam.errors import OutputError
 
-__all__ = ["write_text", "write_bytes", "remember_input", "is_input"]
+__all__ = ["write_text", "write_bytes", "remember_input", "is_input", "check_output"]
 
-# Files this process has read as inputs, as (device, inode): outputs never replace them.
-_inputs: set[tuple[int, int]] = set()
+# Files this process has read as inputs: (device, inode) -> the path they were read from.
+# Outputs never replace them, whatever path (symlink, relative, hard link) names them.
+_inputs: dict[tuple[int, int], str] = {}
 
 
 def remember_input(path: str | os.PathLike[str]) -> None:
     """Mark ``path`` as an input of this run; :func:`write_text` will refuse to replace it."""
     stat = Path(path).stat()
-    _inputs.add((stat.st_dev, stat.st_ino))
+    _inputs[(stat.st_dev, stat.st_ino)] = os.path.abspath(path)
 
 
 def is_input(path: str | os.PathLike[str]) -> bool:
-    """True if ``path`` (through any symlink or relative form) is a remembered input."""
+    """True if ``path`` (through any symlink or relative form) is a remembered input.
+
+    An input deleted since it was read no longer counts, even if a new file reuses its inode.
+    """
     try:
         stat = Path(path).stat()
     except OSError:
         return False
-    return (stat.st_dev, stat.st_ino) in _inputs
+    source = _inputs.get((stat.st_dev, stat.st_ino))
+    if source is None:
+        return False
+    try:
+        return os.path.samefile(source, path)
+    except OSError:
+        return False
+
+
+def check_output(path: str | os.PathLike[str]) -> None:
+    """Raise :class:`OutputError` now if ``path`` could not be written safely later."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"{path}: is a directory; give a file name for the output")
+    if is_input(path):
+        raise OutputError(f"{path}: is an input of this run; refusing to overwrite it")
+    folder = path.parent
+    if not folder.exists():
+        raise OutputError(f"{path}: folder {folder} does not exist")
+    if not folder.is_dir():
+        raise OutputError(f"{path}: {folder} is not a folder")
 
 
 def write_text(path: str | os.PathLike[str], text: str) -> None:
@@ -44,10 +68,7 @@ def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
         OutputError: ``path`` is an input of this run, a directory, or cannot be written.
     """
     path = Path(path)
-    if path.is_dir():
-        raise OutputError(f"{path}: is a directory; give a file name for the output")
-    if is_input(path):
-        raise OutputError(f"{path}: is an input of this run; refusing to overwrite it")
+    check_output(path)
     if path.exists() and not path.is_file():
         _write_through(path, data)
     else:
@@ -64,8 +85,6 @@ def _write_through(path: Path, data: bytes) -> None:
 
 def _write_atomic(path: Path, data: bytes) -> None:
     folder = path.parent
-    if not folder.is_dir():
-        raise OutputError(f"{path}: folder {folder} does not exist")
     temp_name = None
     try:
         descriptor, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", dir=folder)

@@ -8,6 +8,8 @@ import click
 import numpy as np
 
 from rlpgo_cli.errors import RlpgoCommand
+from rlpgo_gtsam.errors import OutputError
+from rlpgo_gtsam.files import check_output
 from rlpgo_gtsam.g2o import write_g2o
 from rlpgo_gtsam.graph import chi2
 from rlpgo_gtsam.synthetic import generate
@@ -33,6 +35,11 @@ from rlpgo_gtsam.synthetic import generate
               help="g2o file for the graph with the ground-truth poses.")
 def main(n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_truth):
     """Generate a lawn-mower pose graph as in the RL-PGO paper."""
+    check_output(output)
+    if ground_truth is not None:
+        check_output(ground_truth)
+        if ground_truth.resolve() == output.resolve():
+            raise OutputError(f"{output}: given as both -o and --ground-truth")
     sample = generate(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
                       noisy_measurements=noisy_measurements)
     write_g2o(output, sample.graph, sample.initial)

@@ -9,9 +9,11 @@ import click
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_gtsam.comparison import best_of, compare_methods
+from rlpgo_gtsam.files import check_output
 from rlpgo_gtsam.g2o import read_g2o, write_g2o
 from rlpgo_gtsam.graph import chi2
 from rlpgo_gtsam.initializers import initializer_names
+from rlpgo_gtsam.models import resolve_model
 from rlpgo_gtsam.rl_initializer import DEFAULT_MODEL, STARTS
 
 CLASSICAL = ["odometry", "lago", "chordal", "shonan"]
@@ -48,6 +50,9 @@ def main(input_path, output, method, model, cycles, episodes, start, refine, ite
     if method not in ("best", "rl", *CLASSICAL) and method not in initializer_names():
         raise click.BadParameter(f"unknown method '{method}'", param_hint="--method")
     graph, values = read_g2o(input_path)
+    check_output(output)  # fail before minutes of work, not after
+    if method in ("best", "rl"):
+        resolve_model(model)  # a bad --model is an error, not a row of failed methods
     began = time.perf_counter()
     methods = CLASSICAL + [f"rl@{s}" for s in STARTS] if method == "best" else \
         [f"rl@{start}" if method == "rl" else method]

@@ -23,22 +23,36 @@ def _array(tensor: torch.Tensor) -> np.ndarray:
 class NumpyPolicy:
     """The deterministic policy of an :class:`Actor`, one batched step at a time.
 
-    The LSTM state ``(h, c)`` (each ``(B, hidden)``) is passed in and returned.
+    The affine maps that follow each other are folded once: the encoder's Linear(1 -> 20)
+    into the FC branch and the recurrent branch's input layer, both branches into one
+    (6 -> 2 hidden) matrix, and the LSTM's input and recurrent weights into one. The LSTM
+    state ``(h, c)`` (each ``(B, hidden)``) is passed in and returned.
     """
 
     def __init__(self, actor: Actor) -> None:
         trunk = actor.trunk
-        self.hidden = trunk.hidden
-        self.beta = trunk.encoder.beta.item()
-        self.enc_w = _array(trunk.encoder.linear.weight)[:, 0]
-        self.enc_b = _array(trunk.encoder.linear.bias)
-        self.fc_w, self.fc_b = _array(trunk.fc.weight).T, _array(trunk.fc.bias)
-        self.rec_w = _array(trunk.recurrent_in.weight).T
-        self.rec_b = _array(trunk.recurrent_in.bias)
+        n = self.hidden = trunk.hidden
+        beta = trunk.encoder.beta.item()
+        enc_w = _array(trunk.encoder.linear.weight)[:, 0] * beta  # (20,)
+        enc_b = _array(trunk.encoder.linear.bias)
+        encoding = enc_w.shape[0]
+
+        def fold(weight: torch.Tensor, bias: torch.Tensor, extra: int) -> tuple:
+            # x = [obs0, obs1..3, extra inputs]; encoded = [obs0 * enc_w + enc_b, obs1..3, ...]
+            w = _array(weight).T  # (20 + 3 + extra, n)
+            folded = np.vstack([enc_w @ w[:encoding], w[encoding:]])  # (4 + extra, n)
+            return folded, _array(bias) + enc_b @ w[:encoding]
+
+        fc_w, fc_b = fold(trunk.fc.weight, trunk.fc.bias, 0)
+        rec_w, rec_b = fold(trunk.recurrent_in.weight, trunk.recurrent_in.bias, 2)
+        inputs = rec_w.shape[0]  # 4 observations + 2 last actions
+        self.in_w = np.zeros((inputs, 2 * n))
+        self.in_w[: fc_w.shape[0], :n] = fc_w
+        self.in_w[:, n:] = rec_w
+        self.in_b = np.concatenate([fc_b, rec_b])
         lstm = trunk.lstm
-        self.w_ih = _array(lstm.weight_ih_l0).T
-        self.w_hh = _array(lstm.weight_hh_l0).T
-        self.b_lstm = _array(lstm.bias_ih_l0) + _array(lstm.bias_hh_l0)
+        self.lstm_w = np.vstack([_array(lstm.weight_ih_l0).T, _array(lstm.weight_hh_l0).T])
+        self.lstm_b = _array(lstm.bias_ih_l0) + _array(lstm.bias_hh_l0)
         self.h1_w, self.h1_b = _array(actor.head[0].weight).T, _array(actor.head[0].bias)
         self.h2_w, self.h2_b = _array(actor.head[2].weight).T, _array(actor.head[2].bias)
         self.mean_w, self.mean_b = _array(actor.mean.weight).T, _array(actor.mean.bias)
@@ -53,23 +67,14 @@ class NumpyPolicy:
     ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
         """Actions (B, 2) for observations (B, 4) and last actions (B, 2)."""
         h, c = state
-        encoded = np.concatenate(
-            [(self.beta * observation[:, :1]) * self.enc_w + self.enc_b, observation[:, 1:]],
-            axis=1,
-        )
-        fc = np.maximum(encoded @ self.fc_w + self.fc_b, 0.0)
-        recurrent = np.maximum(
-            np.concatenate([encoded, last_action], axis=1) @ self.rec_w + self.rec_b, 0.0
-        )
-        gates = recurrent @ self.w_ih + h @ self.w_hh + self.b_lstm
         n = self.hidden
-        i = 1.0 / (1.0 + np.exp(-gates[:, :n]))
-        f = 1.0 / (1.0 + np.exp(-gates[:, n : 2 * n]))
-        g = np.tanh(gates[:, 2 * n : 3 * n])
-        o = 1.0 / (1.0 + np.exp(-gates[:, 3 * n :]))
-        c = f * c + i * g
-        h = o * np.tanh(c)
-        features = np.concatenate([fc, h], axis=1)
-        features = np.maximum(features @ self.h1_w + self.h1_b, 0.0)
+        branches = np.concatenate([observation, last_action], axis=1) @ self.in_w + self.in_b
+        np.maximum(branches, 0.0, out=branches)
+        gates = np.concatenate([branches[:, n:], h], axis=1) @ self.lstm_w + self.lstm_b
+        sigmoid = 1.0 / (1.0 + np.exp(-gates))
+        c = sigmoid[:, n : 2 * n] * c + sigmoid[:, :n] * np.tanh(gates[:, 2 * n : 3 * n])
+        h = sigmoid[:, 3 * n :] * np.tanh(c)
+        branches[:, n:] = h
+        features = np.maximum(branches @ self.h1_w + self.h1_b, 0.0)
         features = np.maximum(features @ self.h2_w + self.h2_b, 0.0)
         return np.tanh(features @ self.mean_w + self.mean_b), (h, c)
