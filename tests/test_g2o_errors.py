@@ -28,6 +28,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from rlpgo_cli.compare import main
+from rlpgo_cli.init import main as init_main
 
 from rlpgo_gtsam.errors import G2oFormatError, OutputError
 from rlpgo_gtsam.g2o import read_g2o, write_g2o
@@ -264,6 +265,18 @@ def test_cli_rejects(tmp_path, case):
         result.exception
     )
     _check_cli_failure(case, path, json_path, result.exit_code, result.stdout, result.stderr)
+
+
+@pytest.mark.parametrize("case", _params(CASES))
+def test_init_cli_rejects(tmp_path, case):
+    """The same cases through rlpgo-init: one line, no output file."""
+    path = case.build(tmp_path)
+    output = tmp_path / "init_out.g2o"
+    result = CliRunner().invoke(init_main, [str(path), "-o", str(output), "--method", "chordal"])
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(
+        result.exception
+    )
+    _check_cli_failure(case, path, output, result.exit_code, result.stdout, result.stderr)
 
 
 def _console_script() -> list[str]:
