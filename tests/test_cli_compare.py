@@ -48,3 +48,24 @@ def test_unknown_method_is_a_usage_error():
     result = CliRunner().invoke(main, ["--methods", "odometry,magic"])
     assert result.exit_code == 2
     assert "unknown method 'magic'" in result.output
+
+
+def test_a_failing_method_is_reported_and_the_others_still_run(tmp_path):
+    """A middle edge with information 1e-30: GTSAM's linear solvers find it indeterminate."""
+    lines = [f"VERTEX_SE2 {k} {k}.0 0 0" for k in range(4)]
+    for k in range(3):
+        w = "1e-30" if k == 1 else "1"
+        lines.append(f"EDGE_SE2 {k} {k + 1} 1 0 0.1 {w} 0 0 {w} 0 {w}")
+    path = tmp_path / "degenerate.g2o"
+    path.write_text("\n".join(lines) + "\n")
+    json_path = tmp_path / "out.json"
+    result = CliRunner().invoke(main, [str(path), "--methods", "odometry,chordal,lago",
+                                       "--solver", "gn", "--json", str(json_path)])
+    assert result.exit_code == 1
+    assert result.stderr == "Error: at least one method failed (see FAILED above)\n"
+    assert result.stdout.count("FAILED: ") == 3
+    assert "Indeterminate linear system" in result.stdout
+    assert "Traceback" not in result.output
+    records = json.loads(json_path.read_text())
+    assert [r["method"] for r in records] == ["odometry", "chordal", "lago"]
+    assert records[0]["init_chi2"] is not None
