@@ -71,6 +71,12 @@ def read_g2o(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph, 
     _check_connected(path, parsed)
     if not parsed.vertices:
         parsed.vertices = _chain_odometry(parsed.edges)
+        for key, pose in parsed.vertices.items():
+            if not all(math.isfinite(v) for v in pose):
+                raise G2oFormatError(
+                    path, None, f"chaining the edges overflows at vertex {key}: give VERTEX_SE2 "
+                    "lines"
+                )
     graph = gtsam.NonlinearFactorGraph()
     for edge in parsed.edges:
         noise = gtsam.noiseModel.Gaussian.Information(edge.information)
@@ -134,6 +140,8 @@ def _parse(path: Path) -> _Parsed:
             )
     if not parsed.vertices and not parsed.edges:
         raise G2oFormatError(path, None, "holds no VERTEX_SE2 or EDGE_SE2 line")
+    if not parsed.edges:
+        raise G2oFormatError(path, None, "holds no EDGE_SE2 line: a pose graph needs edges")
     return parsed
 
 
@@ -147,10 +155,10 @@ def _id(path: Path, line: int, token: str) -> int:
         raise G2oFormatError(
             path, line, f"vertex id must be a non-negative integer, found '{_short(token)}'"
         )
-    value = int(token)
-    if value >= 2**63:
+    # GTSAM keys are 64-bit; the length test first keeps int() off huge digit strings.
+    if len(token.lstrip("0")) > 20 or int(token) >= 2**64:
         raise G2oFormatError(path, line, f"vertex id {_short(token)} is too large")
-    return value
+    return int(token)
 
 
 def _numbers(path: Path, line: int, tag: str, tokens: list[str], first: int) -> list[float]:
@@ -313,6 +321,9 @@ def _g2o_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
             i, j = factor.keys()
             z = factor.measured()
             info = factor.noiseModel().information()
+            if not _positive_definite(info):
+                raise OutputError(f"edge {i}-{j}: information is too ill-conditioned for g2o "
+                                  "(the reader would refuse it)")
             upper = (info[0, 0], info[0, 1], info[0, 2], info[1, 1], info[1, 2], info[2, 2])
             lines.append(
                 f"EDGE_SE2 {i} {j} {z.x()!r} {z.y()!r} {_format_15(z.theta())} "
