@@ -104,7 +104,10 @@ def _methods(text: str) -> list[str]:
               help="Rollouts of the rl methods (lowest chi2 kept).")
 @click.option("--start", type=click.Choice(STARTS), default="odometry", show_default=True,
               help="Start of method rl (rl@<start> names it per method).")
-def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episodes, start):
+@click.option("--cycles", type=click.IntRange(min=1), default=None,
+              help="Passes over the edges of the rl methods [default: the model's test cycles].")
+def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episodes, start,
+         cycles):
     """Compare initial guesses for the planar pose graphs in FILES (g2o).
 
     Each method's guess is refined by the same GTSAM solver; costs are g2o chi2
@@ -121,7 +124,7 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episod
         inputs = [(f"generated n={DEMO['n']} seed={seed}", demo.graph, demo.initial)]
     records, failed = [], False
     for name, graph, values in inputs:
-        rl_options = {"model": model, "episodes": episodes}
+        rl_options = {"model": model, "episodes": episodes, "cycles": cycles}
         results = compare_methods(
             graph, values, [f"rl@{start}" if m == "rl" else m for m in method_list], solver,
             iters, dataset=name, rl_options=rl_options,
