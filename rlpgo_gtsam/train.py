@@ -41,6 +41,10 @@ class TrainConfig:
         env_overrides: environment parameters that replace the preset's
             (e.g. ``{"noisy_measurements": True}``).
         checkpoint_every: episodes between training checkpoints.
+        validation_graphs: if > 0, at each checkpoint the deterministic policy runs on this
+            many validation graphs (generator seeds 10000 + k, which neither training nor
+            rlpgo-eval's default seeds use) and the shipped model is the checkpoint with the
+            lowest mean best-OC / initial-OC; if 0, the last checkpoint is shipped.
         command: the command line that started the run, kept in the model's metadata.
     """
 
@@ -51,6 +55,7 @@ class TrainConfig:
     sac: SacConfig = field(default_factory=SacConfig)
     env_overrides: dict = field(default_factory=dict)
     checkpoint_every: int = 25
+    validation_graphs: int = 0
     command: str = ""
 
     @property
@@ -71,11 +76,12 @@ def train(
     env = PoseGraphEnv(config.preset, **config.env_overrides)
     agent = SacAgent(config.sac, config.seed)
     rng = np.random.default_rng(config.seed)
-    start_episode, elapsed = 0, 0.0
+    start_episode, elapsed, best_validation = 0, 0.0, float("inf")
     if resume and paths[".train.pt"].exists():
         state = torch.load(paths[".train.pt"], weights_only=True)
         agent.load_state_dict(state["agent"])
         start_episode, elapsed = int(state["episode"]), float(state["seconds"])
+        best_validation = float(state.get("best_validation", float("inf")))
         rng = np.random.default_rng([config.seed, start_episode])
     elif resume:
         raise ModelError(f"{paths['.train.pt']}: nothing to resume")
@@ -112,14 +118,35 @@ def train(
                 on_episode(episode_index + 1, episode, elapsed)
             done = episode_index + 1
             if done % config.checkpoint_every == 0 or done == config.episodes:
-                torch.save({"agent": agent.state_dict(), "episode": done, "seconds": elapsed},
-                           paths[".train.pt"])
                 metadata = _metadata(config, done, elapsed)
-                save_model(paths[".zip"], agent.actor, config.env_config, metadata)
+                if config.validation_graphs:
+                    score = _validate(agent, config)
+                    if writer is not None:
+                        writer.add_scalar("validation/best_oc_ratio", score, done)
+                    if score < best_validation:
+                        best_validation = score
+                        metadata |= {"validation_best_oc_ratio": score, "selected_episode": done}
+                        save_model(paths[".zip"], agent.actor, config.env_config, metadata)
+                else:
+                    save_model(paths[".zip"], agent.actor, config.env_config, metadata)
+                torch.save({"agent": agent.state_dict(), "episode": done, "seconds": elapsed,
+                            "best_validation": best_validation}, paths[".train.pt"])
     if writer is not None:
         writer.close()
     _plot_rewards(paths[".csv"], paths[".png"], config)
     return paths[".zip"]
+
+
+def _validate(agent: SacAgent, config: TrainConfig) -> float:
+    """Mean best-OC / initial-OC of the deterministic policy on the validation graphs."""
+    env = PoseGraphEnv(config.preset, **config.env_overrides)
+    rng = np.random.default_rng(0)
+    ratios = []
+    for k in range(config.validation_graphs):
+        episode = run_episode(env, agent.actor, rng, deterministic=True, seed=10_000 + k,
+                              initial_last_action=np.zeros(2, np.float32))
+        ratios.append(episode.best_oc / max(episode.initial_oc, 1e-12))
+    return float(np.mean(ratios))
 
 
 def _metadata(config: TrainConfig, episodes: int, seconds: float) -> dict:

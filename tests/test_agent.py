@@ -325,3 +325,18 @@ def test_train_end_to_end_and_resume(tmp_path):
     assert load_model(path).metadata["episodes"] == 14
     names = {p.name for p in tmp_path.iterdir()} - {"runs"}  # runs/: TensorBoard, if installed
     assert names == {"m.csv", "m.png", "m.train.pt", "m.zip"}  # no temporary files left
+
+
+def test_validation_selects_the_best_checkpoint(tmp_path):
+    """With validation graphs, the shipped model is the best-validating checkpoint."""
+    config = TrainConfig(
+        preset=1, episodes=4, out=str(tmp_path / "v"), checkpoint_every=2, validation_graphs=2,
+        sac=SacConfig(hidden=8, batch_size=2, gradient_steps=1, warmup_episodes=1, window=8,
+                      burn_in=2),
+    )
+    train(config)
+    meta = load_model(tmp_path / "v.zip").metadata
+    assert meta["selected_episode"] in (2, 4)
+    assert 0.0 < meta["validation_best_oc_ratio"] <= 1.0 + 1e-9
+    state = torch.load(tmp_path / "v.train.pt", weights_only=True)
+    assert state["best_validation"] == pytest.approx(meta["validation_best_oc_ratio"])

@@ -28,14 +28,18 @@ from rlpgo_gtsam.train import TrainConfig, train
               show_default=True, help="Gradient steps after each episode.")
 @click.option("--noisy-measurements", is_flag=True,
               help="Train on graphs with noisy measurements (not in the paper).")
+@click.option("--validation-graphs", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Ship the checkpoint that does best on this many validation graphs "
+                   "(0: ship the last one).")
 def main(preset, episodes, seed, out, resume, hidden, batch_size, gradient_steps,
-         noisy_measurements):
+         noisy_measurements, validation_graphs):
     """Train an agent; writes <out>.zip (the model), <out>.csv and <out>.png (the log)."""
     out = out or f"models/preset{preset}"
     config = TrainConfig(
         preset=preset, episodes=episodes, seed=seed, out=out,
         sac=SacConfig(hidden=hidden, batch_size=batch_size, gradient_steps=gradient_steps),
         env_overrides={"noisy_measurements": True} if noisy_measurements else {},
+        validation_graphs=validation_graphs,
         command=shlex.join(["rlpgo-train", *sys.argv[1:]]),
     )
     with click.progressbar(length=episodes, label=f"preset {preset}", show_pos=True,
