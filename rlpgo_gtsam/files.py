@@ -88,6 +88,7 @@ def _write_atomic(path: Path, data: bytes) -> None:
     temp_name = None
     try:
         descriptor, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", dir=folder)
+        os.chmod(temp_name, _mode_for(path))  # mkstemp's 0600 is not what users expect
         with os.fdopen(descriptor, "wb") as handle:
             handle.write(data)
             handle.flush()
@@ -99,3 +100,13 @@ def _write_atomic(path: Path, data: bytes) -> None:
     finally:
         if temp_name is not None:
             Path(temp_name).unlink(missing_ok=True)
+
+
+def _mode_for(path: Path) -> int:
+    """The mode a replaced file keeps, or a new file's usual mode under the umask."""
+    try:
+        return path.stat().st_mode & 0o7777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask

@@ -541,3 +541,20 @@ def test_a_new_file_reusing_a_deleted_inputs_inode_is_not_an_input(tmp_path, inp
         pytest.skip("the file system did not reuse the inode; nothing to check")
     write_g2o(new, graph, values)
     assert new.read_bytes() == input_file.read_bytes()
+
+
+def test_new_outputs_get_the_usual_mode_and_replaced_ones_keep_theirs(tmp_path):
+    from rlpgo_gtsam.files import write_text
+
+    umask = os.umask(0o022)
+    try:
+        fresh = tmp_path / "fresh.txt"
+        write_text(fresh, "x\n")
+        assert fresh.stat().st_mode & 0o777 == 0o644
+        kept = tmp_path / "kept.txt"
+        kept.write_text("old\n")
+        kept.chmod(0o640)
+        write_text(kept, "new\n")
+        assert kept.stat().st_mode & 0o777 == 0o640
+    finally:
+        os.umask(umask)
