@@ -11,7 +11,7 @@ the best of them, as in the paper):
   noisy    both sweeps again on graphs with noisy measurements.
 Each table also has LAGO and chordal rows, alone and + the same solver. Seconds are given
 as ratios to the solver's own run from odometry in the same row set. Writes
-benchmarks/results/paper_tables.{md,json} and one PNG per table.
+benchmarks/results/paper_tables[_<only>].{md,json} and one PNG per table.
 """
 
 from __future__ import annotations
@@ -169,17 +169,18 @@ def main() -> None:
         "d_noisy": "d sweep, noisy measurements, agent preset 5",
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
-    text = ["# Paper tables\n", "Made by `python benchmarks/paper_tables.py` "
-            f"(--episodes {args.episodes}); chi2 = 2 x GTSAM error.\n"]
+    text = ["# Paper tables\n", "Made by `python benchmarks/paper_tables.py "
+            f"--episodes {args.episodes} --only {args.only} --benchmark-model "
+            f"{args.benchmark_model}`; chi2 = 2 x GTSAM error.\n"]
     for name, rows in tables.items():
         text.append(_markdown(titles[name], rows))
         solver_keys = [k for k in rows[0] if k.startswith(("GN", "LM", "RL+", "LAGO+",
                                                             "chordal+"))]
         _plot(name, titles[name], rows, ["RL", *solver_keys])
         print(_markdown(titles[name], rows), flush=True)
-    (RESULTS / "paper_tables.md").write_text("\n".join(text))
     suffix = "" if wanted == {"sigma_t", "d", "benchmarks", "noisy"} else "_" + "_".join(
         sorted(wanted))
+    (RESULTS / f"paper_tables{suffix}.md").write_text("\n".join(text))
     (RESULTS / f"paper_tables{suffix}.json").write_text(json.dumps(
         {"machine": machine(), "episodes": args.episodes, "tables": tables}, indent=2) + "\n")
 
