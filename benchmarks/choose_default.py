@@ -11,6 +11,8 @@ writes benchmarks/results/choose_default.json.
 from __future__ import annotations
 
 import argparse
+import json
+from pathlib import Path
 
 import numpy as np
 
@@ -25,6 +27,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--models", default=",".join(shipped_models()))
     parser.add_argument("--episodes", type=int, default=1)
+    parser.add_argument("--merge", help="a earlier JSON of this script whose models to include")
     args = parser.parse_args()
     models = args.models.split(",")
     graphs = {name: read_g2o(DATASETS / f"{name}.g2o") for name in FILES}
@@ -35,6 +38,10 @@ def main() -> None:
             guess = RLInitializer(model=model, episodes=args.episodes).initialize(graph, values)
             costs[model][name] = refine(graph, guess, "lm", 30).chi2
             print(f"{model:<10}{name:<9}{costs[model][name]:>12.6g}", flush=True)
+    if args.merge:
+        earlier = json.loads(Path(args.merge).read_text())["rl_plus_lm30"]
+        costs |= {m: c for m, c in earlier.items() if m not in costs}
+        models = list(costs)
     lowest = {name: min(costs[m][name] for m in models) for name in FILES}
     scores = {m: float(np.exp(np.mean([np.log(costs[m][f] / lowest[f]) for f in FILES])))
               for m in models}

@@ -137,7 +137,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--only", default="sigma_t,d,benchmarks,noisy")
-    parser.add_argument("--benchmark-model", default="preset1")
+    parser.add_argument("--benchmark-model", default="preset4")
     args = parser.parse_args()
     wanted = set(args.only.split(","))
     tables: dict[str, list[dict]] = {}

@@ -28,7 +28,7 @@ from rlpgo_gtsam.solvers import refine as refine_values
 
 __all__ = ["RLInitializer", "DEFAULT_MODEL", "STARTS"]
 
-DEFAULT_MODEL = "preset1"
+DEFAULT_MODEL = "preset4"
 STARTS = ("odometry", "lago", "chordal", "shonan")
 
 
