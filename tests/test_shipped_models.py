@@ -5,6 +5,7 @@ import pytest
 
 from rlpgo_gtsam.agent.sac import run_episode
 from rlpgo_gtsam.env import PoseGraphEnv
+from rlpgo_gtsam.evaluation import balancing_episode
 from rlpgo_gtsam.models import models_dir, resolve_model, shipped_models
 
 SHIPPED = shipped_models()
@@ -30,10 +31,15 @@ def test_shipped_model_lowers_oc_on_fresh_graphs(name):
     env_config = model.env_config
     env = PoseGraphEnv(**env_config.__dict__)
     rng = np.random.default_rng(0)
-    ratios = []
+    ratios, agent, rule = [], [], []
     # Training draws its graphs from one stream seeded by the run's seed (0): these differ.
-    for seed in range(5000, 5005):
+    for seed in range(5000, 5010):
         episode = run_episode(env, model.actor, rng, deterministic=True, seed=seed,
                               initial_last_action=np.zeros(2, np.float32))
         ratios.append(episode.best_oc / episode.initial_oc)
-    assert np.mean(ratios) < 0.6, ratios
+        agent.append(episode.best_oc)
+        rule.append(balancing_episode(env, seed=seed))
+    # 50-graph evaluations (models/README.md): 0.16-0.49 of the initial OC, 0.59-0.86 of
+    # the edge-balancing rule's; ten graphs leave some margin for their spread.
+    assert np.mean(ratios) < 0.7, ratios
+    assert np.mean(agent) < 1.05 * np.mean(rule), (agent, rule)
