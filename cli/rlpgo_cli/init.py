@@ -19,6 +19,26 @@ from rlpgo_gtsam.rl_initializer import DEFAULT_MODEL, STARTS
 CLASSICAL = ["odometry", "lago", "chordal", "shonan"]
 
 
+def _progress_bar():
+    """A callback drawing one stderr progress bar per agent rollout (long graphs only)."""
+    bars: dict = {}
+
+    def progress(done: int, total: int) -> None:
+        if total < 20_000:  # small graphs finish in about a second
+            return
+        if "bar" not in bars:
+            bars["bar"] = click.progressbar(length=total, label="agent",
+                                            file=click.get_text_stream("stderr"))
+            bars["bar"].__enter__()
+        bar = bars["bar"]
+        bar.update(done - bar.pos)
+        if done >= total:
+            bar.__exit__(None, None, None)
+            del bars["bar"]
+
+    return progress
+
+
 @click.command(cls=RlpgoCommand)
 @click.argument("input_path", metavar="INPUT.g2o", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
@@ -57,7 +77,8 @@ def main(input_path, output, method, model, cycles, episodes, start, refine, ite
     methods = CLASSICAL + [f"rl@{s}" for s in STARTS] if method == "best" else \
         [f"rl@{start}" if method == "rl" else method]
     solver = None if refine == "none" else refine
-    rl_options = {"model": model, "cycles": cycles, "episodes": episodes, "seed": seed}
+    rl_options = {"model": model, "cycles": cycles, "episodes": episodes, "seed": seed,
+                  "progress": _progress_bar()}
     results = compare_methods(graph, values, methods, solver, iters,
                               dataset=input_path.name, rl_options=rl_options)
     chosen = best_of(results)
