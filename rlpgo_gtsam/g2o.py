@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,7 +29,7 @@ import numpy as np
 from rlpgo_gtsam.errors import G2oFormatError, OutputError
 from rlpgo_gtsam.files import remember_input, write_text
 
-__all__ = ["read_g2o", "write_g2o", "format_ranges"]
+__all__ = ["read_g2o", "write_g2o", "format_ranges", "disconnection"]
 
 _EDGE_NUMBERS = 11
 _VERTEX_NUMBERS = 4
@@ -265,6 +265,13 @@ def _chain_odometry(edges: list[_Edge]) -> dict[int, tuple[float, float, float]]
 
 def _check_connected(path: Path, parsed: _Parsed) -> None:
     keys = parsed.vertices.keys() or {k for edge in parsed.edges for k in (edge.i, edge.j)}
+    problem = disconnection(keys, [(edge.i, edge.j) for edge in parsed.edges])
+    if problem is not None:
+        raise G2oFormatError(path, None, problem)
+
+
+def disconnection(keys: Iterable[int], pairs: Iterable[tuple[int, int]]) -> str | None:
+    """None if ``pairs`` join all ``keys`` into one component, else a message naming them."""
     parent = {key: key for key in keys}
 
     def root(key: int) -> int:
@@ -273,20 +280,18 @@ def _check_connected(path: Path, parsed: _Parsed) -> None:
             key = parent[key]
         return key
 
-    for edge in parsed.edges:
-        parent[root(edge.i)] = root(edge.j)
+    for i, j in pairs:
+        parent[root(i)] = root(j)
     components: dict[int, list[int]] = {}
-    for key in sorted(keys):
+    for key in sorted(parent):
         components.setdefault(root(key), []).append(key)
-    if len(components) > 1:
-        parts = sorted(components.values(), key=lambda keys: keys[0])
-        shown = " and ".join(f"keys {format_ranges(keys)}" for keys in parts[:3])
-        more = f" and {len(parts) - 3} more" if len(parts) > 3 else ""
-        raise G2oFormatError(
-            path, None,
-            f"graph has {len(parts)} connected components ({shown}{more}); an initializer "
-            "needs one",
-        )
+    if len(components) == 1:
+        return None
+    parts = sorted(components.values(), key=lambda part: part[0])
+    shown = " and ".join(f"keys {format_ranges(part)}" for part in parts[:3])
+    more = f" and {len(parts) - 3} more" if len(parts) > 3 else ""
+    return (f"graph has {len(parts)} connected components ({shown}{more}); an initializer "
+            "needs one")
 
 
 def format_ranges(keys: list[int], limit: int = 4) -> str:

@@ -13,7 +13,7 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
-from rlpgo_gtsam.g2o import format_ranges
+from rlpgo_gtsam.g2o import disconnection
 
 __all__ = ["PoseGraph2D", "chi2", "between_factors"]
 
@@ -92,29 +92,10 @@ class PoseGraph2D:
 
     def check_connected(self) -> None:
         """Raise :class:`GraphError` naming the components if the graph is not connected."""
-        n = self.num_poses
-        parent = np.arange(n)
-
-        def root(k: int) -> int:
-            while parent[k] != k:
-                parent[k] = parent[parent[k]]
-                k = parent[k]
-            return int(k)
-
-        for i, j in self.edges:
-            parent[root(i)] = root(j)
-        roots = np.array([root(k) for k in range(n)])
-        labels = np.unique(roots)
-        if len(labels) > 1:
-            parts = sorted(
-                ([int(key) for key in self.keys[roots == label]] for label in labels),
-                key=lambda part: part[0],
-            )
-            shown = " and ".join(f"keys {format_ranges(part)}" for part in parts[:3])
-            raise GraphError(
-                f"graph has {len(parts)} connected components ({shown}); an initializer "
-                "needs one"
-            )
+        keys = [int(key) for key in self.keys]
+        problem = disconnection(keys, [(keys[i], keys[j]) for i, j in self.edges.tolist()])
+        if problem is not None:
+            raise GraphError(problem)
 
     def to_values(self, poses: np.ndarray) -> gtsam.Values:
         """GTSAM values of the given (n, 3) poses under this graph's keys."""
