@@ -1,8 +1,17 @@
-"""rlpgo_gtsam: better initial guesses for planar pose-graph optimization in GTSAM."""
+"""rlpgo_gtsam: better initial guesses for planar pose-graph optimization in GTSAM.
 
-import gymnasium
+Reading graphs and the classical initializers load GTSAM and numpy only; the agent's names
+(``RLInitializer``, ``PoseGraphEnv``, ...) load torch or gymnasium on first use. The
+environment id ``rlpgo/PoseGraph-v0`` registers when :mod:`rlpgo_gtsam.env` is imported
+(``gymnasium.make("rlpgo_gtsam.env:rlpgo/PoseGraph-v0")`` does that itself).
+"""
 
-from rlpgo_gtsam.env import ENV_ID, PRESETS, EnvConfig, PoseGraphEnv
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from rlpgo_gtsam.episode import PRESETS, EnvConfig
 from rlpgo_gtsam.errors import (
     G2oFormatError,
     GraphError,
@@ -12,52 +21,72 @@ from rlpgo_gtsam.errors import (
     SolverError,
 )
 from rlpgo_gtsam.g2o import read_g2o, write_g2o
-from rlpgo_gtsam.graph import PoseGraph2D, chi2
+from rlpgo_gtsam.graph import PoseGraph2D, chi2, rotation_weights
 from rlpgo_gtsam.initializers import (
     ChordalInitializer,
+    Initializer,
+    InitResult,
     LagoInitializer,
     OdometryInitializer,
+    OrientationInitializer,
     ShonanInitializer,
     initializer_names,
     make_initializer,
     register,
 )
-from rlpgo_gtsam.rl_initializer import RLInitializer
 from rlpgo_gtsam.solvers import RefineResult, refine
 from rlpgo_gtsam.synthetic import SyntheticGraph, generate
-from rlpgo_gtsam.translations import solve_translations
+from rlpgo_gtsam.translations import poses_with_orientations, solve_translations
 
 __version__ = "0.1.0"
 
-if ENV_ID not in gymnasium.registry:
-    gymnasium.register(id=ENV_ID, entry_point="rlpgo_gtsam.env:PoseGraphEnv")
+# Names whose modules import torch or gymnasium: loaded when first used.
+_LAZY = {
+    "RLInitializer": "rlpgo_gtsam.rl_initializer",
+    "PoseGraphEnv": "rlpgo_gtsam.env",
+    "ENV_ID": "rlpgo_gtsam.env",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'rlpgo_gtsam' has no attribute '{name}'")
+
 
 __all__ = [
     "ENV_ID",
     "PRESETS",
     "ChordalInitializer",
     "EnvConfig",
-    "PoseGraphEnv",
-    "RLInitializer",
-    "SyntheticGraph",
-    "generate",
     "G2oFormatError",
     "GraphError",
+    "InitResult",
+    "Initializer",
     "LagoInitializer",
     "ModelError",
     "OdometryInitializer",
+    "OrientationInitializer",
     "OutputError",
     "PoseGraph2D",
+    "PoseGraphEnv",
+    "RLInitializer",
     "RefineResult",
     "RlpgoError",
     "ShonanInitializer",
     "SolverError",
+    "SyntheticGraph",
     "chi2",
+    "generate",
     "initializer_names",
     "make_initializer",
+    "poses_with_orientations",
     "read_g2o",
     "refine",
     "register",
+    "rotation_weights",
     "solve_translations",
     "write_g2o",
 ]

@@ -3,50 +3,68 @@
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
+from typing import Any
 
 import gtsam
-import numpy as np
 
-from rlpgo_gtsam.errors import RlpgoError, one_line
-from rlpgo_gtsam.graph import PoseGraph2D, chi2
-from rlpgo_gtsam.initializers import make_initializer
+from rlpgo_gtsam.errors import RlpgoError
+from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.initializers import InitResult, make_initializer
 from rlpgo_gtsam.solvers import refine
 
 __all__ = ["MethodResult", "compare_methods", "best_of"]
-
-# What an initializer may raise on a graph it cannot handle: our errors, and GTSAM's
-# (an indeterminate linear system is a RuntimeError, LAGO's missing key an IndexError).
-_FAILURES = (RlpgoError, RuntimeError, IndexError, ValueError, np.linalg.LinAlgError)
 
 
 @dataclass
 class MethodResult:
     """One method's row of a comparison; ``failure`` says why a method gave no result.
 
-    ``record()`` gives the JSON record: dataset, poses, edges, method, init_chi2,
-    init_seconds, solver, iters, refined_chi2, refine_seconds.
+    Attributes:
+        dataset, poses, edges: the graph compared.
+        method: the method's name.
+        init: the initializer's result (guess, chi2, seconds, details), or None if it failed.
+        solver, iters: the refinement run (``solver`` None: no refinement).
+        refined_chi2, refine_seconds, refined: the refinement's outcome.
+        failure: why the method or its refinement failed, or None.
     """
 
     dataset: str
     poses: int
     edges: int
     method: str
-    init_chi2: float | None
-    init_seconds: float | None
+    init: InitResult | None
     solver: str | None
-    iters: int | None
-    refined_chi2: float | None
-    refine_seconds: float | None
-    initial: gtsam.Values | None = None
+    iters: int | None = None
+    refined_chi2: float | None = None
+    refine_seconds: float | None = None
     refined: gtsam.Values | None = None
     failure: str | None = None
 
-    def record(self) -> dict:
-        fields = asdict(self)
-        for key in ("initial", "refined", "failure"):
-            fields.pop(key)
-        return fields
+    @property
+    def init_chi2(self) -> float | None:
+        return None if self.init is None else self.init.chi2
+
+    @property
+    def init_seconds(self) -> float | None:
+        return None if self.init is None else self.init.seconds
+
+    def record(self) -> dict[str, Any]:
+        """The JSON record: dataset, poses, edges, method, init_chi2, init_seconds, solver,
+        iters, refined_chi2, refine_seconds, failure, and the method's details (with its
+        certificate where it has one)."""
+        record = {
+            "dataset": self.dataset, "poses": self.poses, "edges": self.edges,
+            "method": self.method, "init_chi2": self.init_chi2,
+            "init_seconds": self.init_seconds, "solver": self.solver, "iters": self.iters,
+            "refined_chi2": self.refined_chi2, "refine_seconds": self.refine_seconds,
+            "failure": self.failure,
+        }
+        if self.init is not None and self.init.details:
+            record["details"] = self.init.details
+        if self.init is not None and self.init.certificate is not None:
+            record["certificate"] = self.init.certificate.record()
+        return record
 
 
 def compare_methods(
@@ -56,59 +74,52 @@ def compare_methods(
     solver: str | None = "lm",
     iters: int = 30,
     dataset: str = "graph",
-    rl_options: dict | None = None,
+    options: dict[str, dict[str, Any]] | None = None,
+    pose_graph: PoseGraph2D | None = None,
 ) -> list[MethodResult]:
-    """Run each named initializer, then ``refine`` with the given solver and cap.
+    """Run each named initializer on one extraction of the graph, then ``refine`` each guess.
 
-    Methods ``rl`` and ``rl@<start>`` get ``rl_options`` (model, episodes, cycles, seed)
-    and reuse the start's guess where that method ran earlier in the list. With
-    ``solver=None`` nothing is refined. A method that fails (an indeterminate system, a
-    diverging solver) gets a row with ``failure`` set; the other methods still run.
+    Args:
+        methods: initializer names (``rl@chordal`` names a start).
+        solver: "lm", "gn", or None for no refinement.
+        options: per base method name, options for its factory (``{"rl": {"episodes": 4}}``).
+        pose_graph: the graph's extraction, if the caller has it.
+
+    A method that starts from another (``initializer.start``) reuses that method's guess
+    where it ran earlier in the list and is charged its seconds. A method that fails (an
+    indeterminate system, a diverging solver) gets a row with ``failure`` set; the others
+    still run.
     """
-    pose_graph = PoseGraph2D.from_gtsam(graph, values)
+    g = pose_graph if pose_graph is not None else PoseGraph2D.from_gtsam(graph, values)
     results: list[MethodResult] = []
-    guesses: dict[str, gtsam.Values] = {}
-    seconds: dict[str, float] = {}
+    guesses: dict[str, InitResult] = {}
     for method in methods:
-        base = dict(dataset=dataset, poses=pose_graph.num_poses, edges=pose_graph.num_edges,
-                    method=method, solver=solver)
-        start = time.perf_counter()
+        row = MethodResult(dataset, g.num_poses, g.num_edges, method, None, solver)
         try:
-            if method.partition("@")[0] == "rl":
-                rl = make_initializer(method, **(rl_options or {}))
-                start_guess = guesses.get(getattr(rl, "start", ""))
-                init_seconds_before = seconds.get(getattr(rl, "start", ""), 0.0)
-                initial = rl.initialize(graph, values, start_values=start_guess)
-            else:
-                init_seconds_before = 0.0
-                initial = make_initializer(method).initialize(graph, values)
-        except _FAILURES as error:
-            results.append(MethodResult(**base, init_chi2=None, init_seconds=None, iters=None,
-                                        refined_chi2=None, refine_seconds=None,
-                                        failure=one_line(error)))
+            initializer = make_initializer(method,
+                                           **(options or {}).get(method.partition("@")[0], {}))
+            start = guesses.get(initializer.start) if initializer.start else None
+            row.init = guesses[method] = initializer.run(g, start)
+        except RlpgoError as error:
+            row.failure = str(error)
+            results.append(row)
             continue
-        # An RL row that reused its start's guess is charged that start's seconds too.
-        init_seconds = time.perf_counter() - start + init_seconds_before
-        guesses[method], seconds[method] = initial, init_seconds
-        init_chi2 = chi2(graph, initial)
         if solver is None:
-            results.append(MethodResult(**base, init_chi2=init_chi2, init_seconds=init_seconds,
-                                        iters=0, refined_chi2=init_chi2, refine_seconds=0.0,
-                                        initial=initial, refined=initial))
-            continue
-        start = time.perf_counter()
-        refined = refine(graph, initial, solver=solver, iters=iters)
-        refine_seconds = time.perf_counter() - start
-        results.append(MethodResult(
-            **base, init_chi2=init_chi2, init_seconds=init_seconds,
-            iters=refined.iterations, refined_chi2=refined.chi2, refine_seconds=refine_seconds,
-            initial=initial, refined=refined.values, failure=refined.failure,
-        ))
+            row.iters, row.refined_chi2, row.refine_seconds = 0, row.init.chi2, 0.0
+            row.refined = row.init.values
+        else:
+            began = time.perf_counter()
+            refined = refine(graph, row.init.values, solver=solver, iters=iters, pose_graph=g)
+            row.refine_seconds = time.perf_counter() - began
+            row.iters, row.refined_chi2 = refined.iterations, refined.chi2
+            row.refined, row.failure = refined.values, refined.failure
+        results.append(row)
     return results
 
 
 def best_of(results: list[MethodResult]) -> MethodResult:
-    """The row with the lowest refined chi2 among those that did not fail."""
+    """The row with the lowest refined chi2 among those that did not fail; ties go to the
+    earlier (cheaper) row."""
     usable = [r for r in results if r.failure is None and r.refined_chi2 is not None]
     if not usable:
         raise RlpgoError("every method failed: " + "; ".join(

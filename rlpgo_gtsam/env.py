@@ -1,162 +1,32 @@
-"""The RL-PGO environment: an agent walks a pose graph edge by edge, rotating its two poses.
+"""The RL-PGO training environment: a thin gymnasium wrapper over :mod:`rlpgo_gtsam.episode`.
 
-The orientation state is kept incrementally: a step rotates two poses and recomputes only
-the residuals of the edges incident to them, so a step costs O(degree) and never calls
-GTSAM. The graph, its measurements and the translation step after the episode stay GTSAM's.
+The orientation state, the edge order and the observation are the episode module's, the
+same that :func:`~rlpgo_gtsam.episode.rollout` uses at inference; this module adds the
+reward, the generated training graphs and gymnasium's interface. A step costs O(degree) and
+never calls GTSAM. Importing this module registers ``rlpgo/PoseGraph-v0``.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import gtsam
 import gymnasium as gym
 import numpy as np
 
+from rlpgo_gtsam.episode import PRESETS, EdgeWalk, EnvConfig, OrientationState
 from rlpgo_gtsam.errors import RlpgoError
-from rlpgo_gtsam.g2o import read_g2o
 from rlpgo_gtsam.graph import PoseGraph2D
-from rlpgo_gtsam.initializers import poses_with_orientations
-from rlpgo_gtsam.rotations import angle_residuals, wrap
 from rlpgo_gtsam.synthetic import generate
+from rlpgo_gtsam.translations import poses_with_orientations
 
-__all__ = ["EnvConfig", "PRESETS", "PoseGraphEnv", "OrientationState", "OBSERVATION_SIZE"]
+__all__ = ["ENV_ID", "PoseGraphEnv"]
 
 ENV_ID = "rlpgo/PoseGraph-v0"
-OBSERVATION_SIZE = 4
 _BONUS = 25.0
 _UNBOUNDED = 1e9  # the slopes grow with a pose's degree: no useful finite bound
 _BONUS_FACTOR = 10.0
-
-
-@dataclass(frozen=True)
-class EnvConfig:
-    """Parameters of the training graphs and of an episode (the paper's Table I).
-
-    Attributes:
-        n: poses per generated graph.
-        sigma_r: rotation noise of the generator, radians.
-        sigma_t: translation noise of the generator, metres.
-        d: spacing of the lawn-mower path, metres.
-        lc: fraction of loop-closure candidates kept.
-        cycles: passes over the edges per episode.
-        action_range_rad: the largest rotation one action applies to a pose.
-        noisy_measurements: generate graphs with noisy measurements (not in the paper).
-    """
-
-    n: int = 20
-    sigma_r: float = 0.3
-    sigma_t: float = 0.01
-    d: float = 3.0
-    lc: float = 0.5
-    cycles: int = 7
-    action_range_rad: float = 0.25
-    noisy_measurements: bool = False
-
-
-PRESETS: dict[int, EnvConfig] = {
-    1: EnvConfig(sigma_r=0.3, sigma_t=0.01, d=3.0, cycles=7, action_range_rad=0.25),
-    2: EnvConfig(sigma_r=0.3, sigma_t=0.01, d=3.0, cycles=8, action_range_rad=0.25),
-    3: EnvConfig(sigma_r=0.2, sigma_t=0.1495, d=1.0, cycles=5, action_range_rad=0.4),
-    4: EnvConfig(sigma_r=0.2, sigma_t=0.1495, d=1.0, cycles=6, action_range_rad=0.25),
-    5: EnvConfig(sigma_r=0.1, sigma_t=0.01, d=10.0, cycles=6, action_range_rad=0.25),
-}
-
-
-class OrientationState:
-    """Orientations of a graph with incrementally kept residuals and orientation cost.
-
-    Kept per edge: the angle residual r_e = wrap(theta_j - theta_i - theta~_ij) and the
-    chordal cost 8 sin^2(r_e / 2); kept in total: their sum (OC^2) and the sum of the
-    chordal messages ||R_i R~_ij - R_j||_F = sqrt(8) |sin(r_e / 2)|. :meth:`rotate` touches
-    the edges incident to one pose only. The configuration with the lowest OC seen is kept
-    through an undo log of the changes made since it, not by copying all orientations.
-    """
-
-    def __init__(self, graph: PoseGraph2D, theta: np.ndarray) -> None:
-        self.num_poses = graph.num_poses
-        self.source = graph.edges[:, 0].tolist()
-        self.target = graph.edges[:, 1].tolist()
-        self.measured = graph.measured[:, 2].tolist()
-        incident: list[list[int]] = [[] for _ in range(graph.num_poses)]
-        for e, (i, j) in enumerate(zip(self.source, self.target, strict=True)):
-            incident[i].append(e)
-            incident[j].append(e)
-        self.incident = incident
-        self.set_orientations(theta)
-
-    def set_orientations(self, theta: np.ndarray) -> None:
-        """Start over from the given orientations (recomputes every edge once)."""
-        self.theta = [float(t) for t in wrap(np.asarray(theta, dtype=float))]
-        self.recompute()
-        self.best_cost_sq = self.cost_sq
-        self._undo: list[tuple[int, float]] = []
-
-    def recompute(self) -> None:
-        """Recompute every residual and both sums from scratch (no drift)."""
-        theta = np.array(self.theta)
-        edges = np.column_stack([self.source, self.target])
-        residual = angle_residuals(theta, edges, np.array(self.measured))
-        half_sin = np.abs(np.sin(0.5 * residual))
-        self.residual = residual.tolist()
-        self.message = (math.sqrt(8.0) * half_sin).tolist()
-        self.cost = (8.0 * half_sin**2).tolist()
-        self.cost_sq = math.fsum(self.cost)
-        self.message_sum = math.fsum(self.message)
-
-    @property
-    def oc(self) -> float:
-        """The orientation cost: sqrt of the summed chordal costs."""
-        return math.sqrt(max(self.cost_sq, 0.0))
-
-    @property
-    def best_oc(self) -> float:
-        return math.sqrt(max(self.best_cost_sq, 0.0))
-
-    @property
-    def mean_message(self) -> float:
-        """The encoder's graph value: node sums of chordal messages, averaged over nodes."""
-        return self.message_sum / self.num_poses
-
-    def rotate(self, pose: int, angle: float) -> None:
-        """R_pose <- R_pose Exp(angle), updating the incident edges only."""
-        old = self.theta[pose]
-        self._undo.append((pose, old))
-        self.theta[pose] = (old + angle + math.pi) % (2.0 * math.pi) - math.pi
-        theta, residual, cost, message = self.theta, self.residual, self.cost, self.message
-        for e in self.incident[pose]:
-            r = theta[self.target[e]] - theta[self.source[e]] - self.measured[e]
-            r = (r + math.pi) % (2.0 * math.pi) - math.pi
-            s = abs(math.sin(0.5 * r))
-            new_message, new_cost = 2.8284271247461903 * s, 8.0 * s * s
-            self.cost_sq += new_cost - cost[e]
-            self.message_sum += new_message - message[e]
-            residual[e], cost[e], message[e] = r, new_cost, new_message
-
-    def gradient(self, pose: int) -> float:
-        """d(OC^2)/d(theta_pose), summed over the edges incident to ``pose``."""
-        total = 0.0
-        for e in self.incident[pose]:
-            slope = 4.0 * math.sin(self.residual[e])
-            total += slope if self.target[e] == pose else -slope
-        return total
-
-    def mark_best(self) -> bool:
-        """Keep the current configuration if its OC is the lowest seen; True if it is."""
-        if self.cost_sq < self.best_cost_sq:
-            self.best_cost_sq = self.cost_sq
-            self._undo.clear()
-            return True
-        return False
-
-    def best_orientations(self) -> np.ndarray:
-        """The orientations of the lowest-OC configuration seen (the state is unchanged)."""
-        theta = list(self.theta)
-        for pose, old in reversed(self._undo):
-            theta[pose] = old
-        return np.array(theta)
 
 
 class PoseGraphEnv(gym.Env):
@@ -164,9 +34,10 @@ class PoseGraphEnv(gym.Env):
 
     ## Description
     The agent visits the edges of a pose graph in graph order, skipping those that touch
-    the fixed anchor pose; one pass is a cycle, an episode is ``cycles`` passes. On each
-    edge (i, j) it rotates both poses. Translations do not move during an episode; after
-    it, :meth:`best_values` recovers positions for the lowest-cost orientations seen.
+    a held pose (the anchor, FIXed poses); one pass is a cycle, an episode is ``cycles``
+    passes. On each edge (i, j) it rotates both poses. Translations do not move during an
+    episode; after it, :meth:`best_values` recovers positions for the lowest-cost
+    orientations seen.
 
     ## Observation
     ``Box((4,), float32)``, index 1 within [-pi, pi], the others effectively unbounded:
@@ -193,8 +64,8 @@ class PoseGraphEnv(gym.Env):
 
     ## Starting state
     Generated graphs (``preset`` / parameters): a new lawn-mower graph at every reset, the
-    noisy dead-reckoned orientations. A fixed graph (``graph_file`` or ``graph`` +
-    ``values``): its values' orientations, or ``options={"orientations": theta}``.
+    noisy dead-reckoned orientations. A fixed graph (``graph`` + ``values``, or
+    ``pose_graph``): its values' orientations, or ``options={"orientations": theta}``.
 
     ## Episode end
     ``terminated`` after the last edge of the last cycle (a fixed horizon, no bootstrap past
@@ -207,7 +78,6 @@ class PoseGraphEnv(gym.Env):
     - ``preset``: 1..5, the paper's Table I training environments (default 1).
     - ``n, sigma_r, sigma_t, d, lc, cycles, action_range_rad, noisy_measurements``:
       override any preset value.
-    - ``graph_file``: a g2o file to wrap instead of generating graphs.
     - ``graph``, ``values``: a GTSAM graph and values to wrap instead.
     - ``pose_graph``: the same, already extracted as a :class:`PoseGraph2D`.
     """
@@ -218,7 +88,6 @@ class PoseGraphEnv(gym.Env):
         self,
         preset: int | None = None,
         *,
-        graph_file: str | None = None,
         graph: gtsam.NonlinearFactorGraph | None = None,
         values: gtsam.Values | None = None,
         pose_graph: PoseGraph2D | None = None,
@@ -233,8 +102,6 @@ class PoseGraphEnv(gym.Env):
         self.config = replace(base, **overrides)
         if self.config.cycles < 1:
             raise RlpgoError("cycles must be >= 1")
-        if graph_file is not None:
-            graph, values = read_g2o(graph_file)
         if (graph is None) != (values is None):
             raise RlpgoError("give both graph and values, or neither")
         if graph is not None and pose_graph is None:
@@ -251,17 +118,12 @@ class PoseGraphEnv(gym.Env):
 
     def _load(self, pose_graph: PoseGraph2D) -> None:
         self.pose_graph = pose_graph
-        anchor = self.pose_graph.anchor
-        edges = self.pose_graph.edges
-        self.action_edges = np.flatnonzero((edges[:, 0] != anchor) & (edges[:, 1] != anchor))
-        if len(self.action_edges) == 0:
-            raise RlpgoError("every edge touches the anchor pose: nothing for the agent to do")
-        self.state = OrientationState(self.pose_graph, self.pose_graph.poses[:, 2])
-        self._pairs = edges[self.action_edges].tolist()
+        self.walk = EdgeWalk(pose_graph)
+        self.state = OrientationState(pose_graph, pose_graph.poses[:, 2])
 
     @property
     def steps_per_episode(self) -> int:
-        return len(self.action_edges) * self.config.cycles
+        return len(self.walk) * self.config.cycles
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -270,7 +132,8 @@ class PoseGraphEnv(gym.Env):
             sample = generate(c.n, c.sigma_r, c.sigma_t, c.d, c.lc, self.np_random,
                               noisy_measurements=c.noisy_measurements)
             self._load(PoseGraph2D.from_gtsam(sample.graph, sample.initial))
-        assert self.pose_graph is not None
+        if self.pose_graph is None:
+            raise RlpgoError("no graph: give graph and values, or generate (preset)")
         orientations = (options or {}).get("orientations")
         if orientations is None:
             orientations = self.pose_graph.poses[:, 2]
@@ -286,12 +149,7 @@ class PoseGraphEnv(gym.Env):
         return self._observation(), self._info()
 
     def step(self, action):
-        a0, a1 = np.clip(np.asarray(action, dtype=float), -1.0, 1.0)
-        i, j = self._pairs[self._step % len(self._pairs)]
-        scale = self.config.action_range_rad
-        self.state.rotate(i, float(a0) * scale)
-        self.state.rotate(j, float(a1) * scale)
-        self.state.mark_best()
+        self.walk.act(self.state, self._step, action, self.config.action_range_rad)
         oc = self.state.oc
         reward = 100.0 / (oc + 1.0)
         if oc < self._bonus_level / _BONUS_FACTOR:
@@ -299,18 +157,10 @@ class PoseGraphEnv(gym.Env):
             self._bonus_level /= _BONUS_FACTOR
         self._step += 1
         terminated = self._step >= self.steps_per_episode
-        if self._step % len(self._pairs) == 0:
-            self.state.recompute()  # once per cycle: clears rounding drift of the kept sums
         return self._observation(), reward, terminated, False, self._info()
 
     def _observation(self) -> np.ndarray:
-        i, j = self._pairs[self._step % len(self._pairs)]
-        e = int(self.action_edges[self._step % len(self._pairs)])
-        state = self.state
-        return np.array(
-            [state.mean_message, state.residual[e], state.gradient(i), state.gradient(j)],
-            dtype=np.float32,
-        )
+        return np.array(self.walk.observe(self.state, self._step), dtype=np.float32)
 
     def _info(self) -> dict:
         return {
@@ -318,8 +168,8 @@ class PoseGraphEnv(gym.Env):
             "best_oc": self.state.best_oc,
             "initial_oc": self.initial_oc,
             "step": self._step,
-            "cycle": self._step // len(self._pairs),
-            "edge": int(self.action_edges[self._step % len(self._pairs)]),
+            "cycle": self._step // len(self.walk),
+            "edge": self.walk.edge_list[self._step % len(self.walk)],
         }
 
     def best_orientations(self) -> np.ndarray:
@@ -328,5 +178,11 @@ class PoseGraphEnv(gym.Env):
 
     def best_values(self) -> gtsam.Values:
         """The lowest-OC orientations with positions from the translation step."""
-        assert self.pose_graph is not None
-        return poses_with_orientations(self.pose_graph, self.best_orientations())
+        if self.pose_graph is None:
+            raise RlpgoError("reset the environment first")
+        return self.pose_graph.to_values(
+            poses_with_orientations(self.pose_graph, self.best_orientations()))
+
+
+if ENV_ID not in gym.registry:
+    gym.register(id=ENV_ID, entry_point="rlpgo_gtsam.env:PoseGraphEnv")

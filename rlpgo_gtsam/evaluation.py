@@ -1,9 +1,10 @@
 """Deterministic evaluation of an agent on fresh generated graphs, with two controls.
 
-The controls see the same graphs: uniformly random actions of the same range, and the
-hand-written edge-balancing rule (on edge (i, j) with residual r, rotate i by +r/2 and j by
--r/2, clipped to the range), which zeroes each residual it visits. An agent that does not
-beat the rule has learned nothing worth shipping.
+Every policy runs through :func:`~rlpgo_gtsam.episode.rollout`, the code path users run:
+the agent as the numpy policy (episode 0's initial last action, zeros), uniformly random
+actions of the same range, and the edge-balancing rule (on edge (i, j) with residual r,
+rotate i by +r/2 and j by -r/2, clipped to the range), which zeroes each residual it
+visits. An agent that does not beat the rule has learned nothing worth shipping.
 """
 
 from __future__ import annotations
@@ -13,22 +14,32 @@ from dataclasses import replace
 import numpy as np
 
 from rlpgo_gtsam.agent.checkpoint import LoadedModel
-from rlpgo_gtsam.agent.sac import run_episode
-from rlpgo_gtsam.env import PRESETS, PoseGraphEnv
+from rlpgo_gtsam.agent.inference import NumpyPolicy
+from rlpgo_gtsam.episode import PRESETS, BalancingPolicy, EnvConfig, RandomPolicy, rollout
+from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.synthetic import generate
 
-__all__ = ["evaluate", "balancing_episode"]
+__all__ = ["evaluate", "evaluation_graph", "best_oc_ratios"]
 
 
-def balancing_episode(env: PoseGraphEnv, seed: int | None = None,
-                      options: dict | None = None) -> float:
-    """Run the edge-balancing rule for one episode; returns its best OC."""
-    observation, info = env.reset(seed=seed, options=options)
-    scale = 0.5 / env.config.action_range_rad
-    done = False
-    while not done:
-        half = float(np.clip(observation[1] * scale, -1.0, 1.0))
-        observation, _, done, _, info = env.step(np.array([half, -half], np.float32))
-    return info["best_oc"]
+def evaluation_graph(config: EnvConfig, seed: int) -> PoseGraph2D:
+    """The generated graph of ``config`` for ``seed`` (the one the environment draws after
+    ``reset(seed=seed)``)."""
+    sample = generate(config.n, config.sigma_r, config.sigma_t, config.d, config.lc,
+                      np.random.default_rng(seed), noisy_measurements=config.noisy_measurements)
+    return PoseGraph2D.from_gtsam(sample.graph, sample.initial)
+
+
+def best_oc_ratios(policy, config: EnvConfig, seeds: list[int]) -> tuple[list[float], list[float]]:
+    """Initial OC and best OC of one deterministic rollout per seed's graph."""
+    initial, best = [], []
+    for seed in seeds:
+        graph = evaluation_graph(config, seed)
+        result = rollout(policy, graph, graph.poses[:, 2], config.cycles,
+                         config.action_range_rad, np.zeros((1, 2)))
+        initial.append(result.initial_oc)
+        best.append(float(result.best_oc[0]))
+    return initial, best
 
 
 def evaluate(model: LoadedModel, preset: int, graphs: int, seed: int,
@@ -41,16 +52,10 @@ def evaluate(model: LoadedModel, preset: int, graphs: int, seed: int,
     """
     config = replace(PRESETS[preset], action_range_rad=model.env_config.action_range_rad,
                      **(overrides or {}))
-    env = PoseGraphEnv(preset, **{**config.__dict__})
-    rng = np.random.default_rng(seed)
-    initial, agent, random, greedy = [], [], [], []
-    for k in range(graphs):
-        episode = run_episode(env, model.actor, rng, deterministic=True, seed=seed + k,
-                              initial_last_action=np.zeros(2, np.float32))
-        initial.append(episode.initial_oc)
-        agent.append(episode.best_oc)
-        random.append(run_episode(env, None, rng, seed=seed + k).best_oc)
-        greedy.append(balancing_episode(env, seed=seed + k))
+    seeds = [seed + k for k in range(graphs)]
+    initial, agent = best_oc_ratios(NumpyPolicy(model.actor), config, seeds)
+    _, random = best_oc_ratios(RandomPolicy(np.random.default_rng(seed)), config, seeds)
+    _, greedy = best_oc_ratios(BalancingPolicy(config.action_range_rad), config, seeds)
     return {
         "preset": preset,
         "graphs": graphs,

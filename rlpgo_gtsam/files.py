@@ -1,4 +1,8 @@
-"""Safe output files: written to a temporary file beside the target, then renamed over it."""
+"""Atomic output files: written to a temporary file beside the target, then renamed over it.
+
+The library only writes safely; which paths a command may write (never one of its inputs)
+is the command's policy (``rlpgo_cli.output``).
+"""
 
 from __future__ import annotations
 
@@ -8,44 +12,14 @@ from pathlib import Path
 
 from rlpgo_gtsam.errors import OutputError
 
-__all__ = ["write_text", "write_bytes", "remember_input", "is_input", "check_output"]
-
-# Files this process has read as inputs: (device, inode) -> the path they were read from.
-# Outputs never replace them, whatever path (symlink, relative, hard link) names them.
-_inputs: dict[tuple[int, int], str] = {}
-
-
-def remember_input(path: str | os.PathLike[str]) -> None:
-    """Mark ``path`` as an input of this run; :func:`write_text` will refuse to replace it."""
-    stat = Path(path).stat()
-    _inputs[(stat.st_dev, stat.st_ino)] = os.path.abspath(path)
-
-
-def is_input(path: str | os.PathLike[str]) -> bool:
-    """True if ``path`` (through any symlink or relative form) is a remembered input.
-
-    An input deleted since it was read no longer counts, even if a new file reuses its inode.
-    """
-    try:
-        stat = Path(path).stat()
-    except OSError:
-        return False
-    source = _inputs.get((stat.st_dev, stat.st_ino))
-    if source is None:
-        return False
-    try:
-        return os.path.samefile(source, path)
-    except OSError:
-        return False
+__all__ = ["write_text", "write_bytes", "write_together", "check_output"]
 
 
 def check_output(path: str | os.PathLike[str]) -> None:
-    """Raise :class:`OutputError` now if ``path`` could not be written safely later."""
+    """Raise :class:`OutputError` now if ``path`` could not be written later."""
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{path}: is a directory; give a file name for the output")
-    if is_input(path):
-        raise OutputError(f"{path}: is an input of this run; refusing to overwrite it")
     folder = path.parent
     if not folder.exists():
         raise OutputError(f"{path}: folder {folder} does not exist")
@@ -65,7 +39,7 @@ def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
     replaced.
 
     Raises:
-        OutputError: ``path`` is an input of this run, a directory, or cannot be written.
+        OutputError: ``path`` is a directory or cannot be written.
     """
     path = Path(path)
     check_output(path)
@@ -73,6 +47,58 @@ def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
         _write_through(path, data)
     else:
         _write_atomic(path, data)
+
+
+def write_together(items: list[tuple[str | os.PathLike[str], bytes]]) -> None:
+    """Write several files so that either every regular file is replaced or none is.
+
+    Every regular file's data is first written and synced to a temporary file beside it;
+    only when all of them succeeded are they renamed over their targets. A device or pipe
+    among the targets (``/dev/null``) is written through after that.
+
+    Raises:
+        OutputError: a target is a directory, or cannot be written.
+    """
+    staged: list[tuple[str, Path]] = []
+    through: list[tuple[Path, bytes]] = []
+    try:
+        for path, data in items:
+            path = Path(path)
+            check_output(path)
+            if path.exists() and not path.is_file():
+                through.append((path, data))
+            else:
+                staged.append((_stage(path, data), path))
+        while staged:
+            temp_name, path = staged[0]
+            try:
+                os.replace(temp_name, path)
+            except OSError as error:
+                raise OutputError(f"{path}: cannot write: {error.strerror or error}") from None
+            staged.pop(0)
+    finally:
+        for temp_name, _ in staged:
+            Path(temp_name).unlink(missing_ok=True)
+    for path, data in through:
+        _write_through(path, data)
+
+
+def _stage(path: Path, data: bytes) -> str:
+    """A synced temporary file beside ``path`` holding ``data``; returns its name."""
+    try:
+        descriptor, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    except OSError as error:
+        raise OutputError(f"{path}: cannot write: {error.strerror or error}") from None
+    try:
+        os.chmod(temp_name, _mode_for(path))  # mkstemp's 0600 is not what users expect
+        with os.fdopen(descriptor, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+    except OSError as error:
+        Path(temp_name).unlink(missing_ok=True)
+        raise OutputError(f"{path}: cannot write: {error.strerror or error}") from None
+    return temp_name
 
 
 def _write_through(path: Path, data: bytes) -> None:
@@ -84,22 +110,12 @@ def _write_through(path: Path, data: bytes) -> None:
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
-    folder = path.parent
-    temp_name = None
+    temp_name = _stage(path, data)
     try:
-        descriptor, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", dir=folder)
-        os.chmod(temp_name, _mode_for(path))  # mkstemp's 0600 is not what users expect
-        with os.fdopen(descriptor, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
         os.replace(temp_name, path)
-        temp_name = None
     except OSError as error:
+        Path(temp_name).unlink(missing_ok=True)
         raise OutputError(f"{path}: cannot write: {error.strerror or error}") from None
-    finally:
-        if temp_name is not None:
-            Path(temp_name).unlink(missing_ok=True)
 
 
 def _mode_for(path: Path) -> int:

@@ -12,14 +12,15 @@ Supported lines::
     # comment
 
 A ``FIX``-ed vertex becomes a :class:`gtsam.PriorFactorPose2` with a constrained noise
-model: the marker of the anchor pose (it adds nothing to :func:`~rlpgo_gtsam.graph.chi2`).
+model: the pose is held where its vertex line puts it (the first FIXed pose is the anchor;
+a held pose adds nothing to :func:`~rlpgo_gtsam.graph.chi2`).
 """
 
 from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,9 +28,10 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import G2oFormatError, OutputError
-from rlpgo_gtsam.files import remember_input, write_text
+from rlpgo_gtsam.files import write_text
+from rlpgo_gtsam.graph import disconnection
 
-__all__ = ["read_g2o", "write_g2o", "format_ranges", "disconnection"]
+__all__ = ["read_g2o", "write_g2o", "g2o_text"]
 
 _EDGE_NUMBERS = 11
 _VERTEX_NUMBERS = 4
@@ -88,7 +90,6 @@ def read_g2o(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph, 
         graph.add(
             gtsam.PriorFactorPose2(key, values.atPose2(key), gtsam.noiseModel.Constrained.All(3))
         )
-    remember_input(path)
     return graph, values
 
 
@@ -270,42 +271,6 @@ def _check_connected(path: Path, parsed: _Parsed) -> None:
         raise G2oFormatError(path, None, problem)
 
 
-def disconnection(keys: Iterable[int], pairs: Iterable[tuple[int, int]]) -> str | None:
-    """None if ``pairs`` join all ``keys`` into one component, else a message naming them."""
-    parent = {key: key for key in keys}
-
-    def root(key: int) -> int:
-        while parent[key] != key:
-            parent[key] = parent[parent[key]]
-            key = parent[key]
-        return key
-
-    for i, j in pairs:
-        parent[root(i)] = root(j)
-    components: dict[int, list[int]] = {}
-    for key in sorted(parent):
-        components.setdefault(root(key), []).append(key)
-    if len(components) == 1:
-        return None
-    parts = sorted(components.values(), key=lambda part: part[0])
-    shown = " and ".join(f"keys {format_ranges(part)}" for part in parts[:3])
-    more = f" and {len(parts) - 3} more" if len(parts) > 3 else ""
-    return (f"graph has {len(parts)} connected components ({shown}{more}); an initializer "
-            "needs one")
-
-
-def format_ranges(keys: list[int], limit: int = 4) -> str:
-    """``[0, 1, 2, 5, 7, 8]`` -> ``'0-2, 5, 7-8'`` (at most ``limit`` runs, then '...')."""
-    runs: list[list[int]] = []
-    for key in keys:
-        if runs and key == runs[-1][1] + 1:
-            runs[-1][1] = key
-        else:
-            runs.append([key, key])
-    text = [f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:limit]]
-    return ", ".join(text) + (", ..." if len(runs) > limit else "")
-
-
 def _format_15(value: float) -> str:
     # GTSAM stores an angle as (cos, sin) and a noise model as its square-root information,
     # so theta() and R^T R come back within an ulp or so of what was read. Fifteen
@@ -314,7 +279,12 @@ def _format_15(value: float) -> str:
     return repr(float(f"{value:.15g}"))
 
 
-def _g2o_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
+def g2o_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
+    """The planar g2o text of ``graph`` and ``values`` (what :func:`write_g2o` writes).
+
+    Raises:
+        OutputError: a factor or information that a g2o file cannot hold.
+    """
     lines = []
     for key in sorted(values.keys()):
         pose = values.atPose2(key)
@@ -335,6 +305,9 @@ def _g2o_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
                 + " ".join(_format_15(v) for v in upper)
             )
         elif isinstance(factor, gtsam.PriorFactorPose2):
+            if not isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
+                raise OutputError(f"prior on key {factor.keys()[0]}: a soft prior has no planar "
+                                  "g2o line (FIX holds a pose exactly)")
             fixed.append(factor.keys()[0])
         elif factor is not None:
             raise OutputError(f"cannot write a {type(factor).__name__} as a planar g2o line")
@@ -354,7 +327,7 @@ def write_g2o(
     digits, so values read from a file with up to 15 digits come back exactly.
 
     Raises:
-        OutputError: ``path`` is a file this process read with :func:`read_g2o`, a directory,
-            or cannot be written.
+        OutputError: ``path`` is a directory or cannot be written. (Refusing to overwrite
+            an input is the caller's policy: the commands check it before any work.)
     """
-    write_text(path, _g2o_text(graph, values))
+    write_text(path, g2o_text(graph, values))

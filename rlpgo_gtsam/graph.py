@@ -1,21 +1,39 @@
 """Numpy arrays of a planar pose graph, extracted once from GTSAM's graph and values.
 
 This is the one module that inspects GTSAM factor types. Everything downstream (rotation
-maths, the environment, the initializers) works on a :class:`PoseGraph2D` and hands
-results back as :class:`gtsam.Values`.
+maths, the rollout, the initializers) works on a :class:`PoseGraph2D` and hands results back
+as :class:`gtsam.Values`.
+
+What the arrays keep of GTSAM's meaning:
+
+- every ``BetweenFactorPose2`` with a Gaussian noise model (unit, isotropic, diagonal or full)
+  becomes an edge with its full 3x3 information;
+- a ``PriorFactorPose2`` with a constrained noise model (a g2o ``FIX`` line) holds its pose:
+  every initializer leaves that pose at the prior's value;
+- a ``PriorFactorPose2`` with a Gaussian noise model is a soft prior: the initializers use it
+  for the gauge only, while :func:`chi2` and :func:`~rlpgo_gtsam.solvers.refine` evaluate it
+  as GTSAM does;
+- anything else (robust noise models, other factor types, keys without a Pose2 value) is a
+  :class:`~rlpgo_gtsam.errors.GraphError` that names it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Iterable
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
-from rlpgo_gtsam.g2o import disconnection
 
-__all__ = ["PoseGraph2D", "chi2", "between_factors"]
+__all__ = [
+    "PoseGraph2D",
+    "chi2",
+    "rotation_weights",
+    "disconnection",
+    "format_ranges",
+]
 
 
 @dataclass(frozen=True)
@@ -28,7 +46,13 @@ class PoseGraph2D:
         edges: (m, 2) pose indices (i, j) of each between factor, in graph order.
         measured: (m, 3) dx, dy, dtheta of each measurement (pose j in the frame of pose i).
         information: (m, 3, 3) information matrix of each measurement (x, y, theta order).
-        anchor: index of the fixed pose: the one with a prior factor, else the first key.
+        anchor: index of the pose that fixes the gauge: the first hard prior's pose, else the
+            first soft prior's, else index 0.
+        fixed: (k,) indices of the poses held by hard (constrained) priors.
+        fixed_poses: (k, 3) the poses those priors hold.
+        anchor_pose: (3,) where the initializers put the anchor: its prior's value if it has
+            one, else its pose in ``values``.
+        graph: the GTSAM graph the arrays came from (costs are evaluated on it).
     """
 
     keys: np.ndarray
@@ -37,6 +61,10 @@ class PoseGraph2D:
     measured: np.ndarray
     information: np.ndarray
     anchor: int
+    fixed: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    fixed_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    anchor_pose: np.ndarray | None = None
+    graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
 
     @property
     def num_poses(self) -> int:
@@ -46,13 +74,22 @@ class PoseGraph2D:
     def num_edges(self) -> int:
         return len(self.edges)
 
+    @property
+    def held(self) -> tuple[np.ndarray, np.ndarray]:
+        """Indices and poses the initializers keep: the anchor and every hard-prior pose."""
+        anchor_pose = self.poses[self.anchor] if self.anchor_pose is None else self.anchor_pose
+        mask = self.fixed != self.anchor
+        return (np.concatenate([[self.anchor], self.fixed[mask]]).astype(np.int64),
+                np.vstack([anchor_pose[None], self.fixed_poses[mask]]))
+
     @classmethod
     def from_gtsam(cls, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> PoseGraph2D:
         """Extract the arrays; the graph must be connected and made of Pose2 factors only.
 
         Raises:
-            GraphError: a factor other than BetweenFactorPose2 / PriorFactorPose2, a key
-                without a Pose2 value, or a graph that is not connected.
+            GraphError: a factor other than BetweenFactorPose2 / PriorFactorPose2, a noise
+                model that is not Gaussian (robust models), a key without a Pose2 value, or
+                a graph that is not connected.
         """
         keys = np.array(sorted(values.keys()), dtype=np.uint64)
         index = {int(key): k for k, key in enumerate(keys)}
@@ -60,49 +97,92 @@ class PoseGraph2D:
             poses = np.array([_pose_array(values.atPose2(int(key))) for key in keys])
         except RuntimeError as error:
             raise GraphError(f"values hold something other than Pose2: {error}") from None
-        edges, measured, information, priors = [], [], [], []
+        edges, measured, information = [], [], []
+        hard: list[tuple[int, np.ndarray]] = []
+        soft: list[tuple[int, np.ndarray]] = []
         for factor in _factors(graph):
             if isinstance(factor, gtsam.BetweenFactorPose2):
                 i, j = factor.keys()
-                if i not in index or j not in index:
-                    missing = i if i not in index else j
-                    raise GraphError(f"a between factor refers to key {missing}, not in values")
+                for key in (i, j):
+                    if key not in index:
+                        raise GraphError(f"between factor {i}-{j}: key {key} has no value")
                 edges.append((index[i], index[j]))
                 measured.append(_pose_array(factor.measured()))
-                information.append(factor.noiseModel().information())
+                information.append(_information(factor, f"between factor {i}-{j}"))
             elif isinstance(factor, gtsam.PriorFactorPose2):
-                priors.append(index[factor.keys()[0]])
+                key = factor.keys()[0]
+                if key not in index:
+                    raise GraphError(f"prior factor on key {key}: the key has no value")
+                model = factor.noiseModel()
+                prior = (index[key], _pose_array(factor.prior()))
+                if isinstance(model, gtsam.noiseModel.Constrained):
+                    hard.append(prior)
+                else:
+                    _information(factor, f"prior factor on key {key}")
+                    soft.append(prior)
             else:
                 raise GraphError(
                     f"unsupported factor {type(factor).__name__}: a planar pose graph holds "
-                    "BetweenFactorPose2 (and PriorFactorPose2 anchors) only"
+                    "BetweenFactorPose2 and PriorFactorPose2 factors only"
                 )
         if not edges:
             raise GraphError("the graph has no BetweenFactorPose2 factors")
+        anchor, anchor_pose = (hard or soft or [(0, None)])[0]
         result = cls(
             keys=keys,
             poses=poses.reshape(-1, 3),
             edges=np.array(edges, dtype=np.int64),
             measured=np.array(measured),
             information=np.array(information),
-            anchor=priors[0] if priors else 0,
+            anchor=anchor,
+            fixed=np.array([k for k, _ in hard], dtype=np.int64),
+            fixed_poses=np.array([p for _, p in hard]).reshape(-1, 3),
+            anchor_pose=poses[anchor] if anchor_pose is None else anchor_pose,
+            graph=graph,
         )
         result.check_connected()
         return result
 
     def check_connected(self) -> None:
         """Raise :class:`GraphError` naming the components if the graph is not connected."""
-        keys = [int(key) for key in self.keys]
-        problem = disconnection(keys, [(keys[i], keys[j]) for i, j in self.edges.tolist()])
+        problem = disconnection(self.keys.tolist(), self.keys[self.edges].tolist())
         if problem is not None:
             raise GraphError(problem)
 
     def to_values(self, poses: np.ndarray) -> gtsam.Values:
         """GTSAM values of the given (n, 3) poses under this graph's keys."""
         values = gtsam.Values()
-        for key, (x, y, theta) in zip(self.keys, poses, strict=True):
-            values.insert(int(key), gtsam.Pose2(float(x), float(y), float(theta)))
+        for key, (x, y, theta) in zip(self.keys.tolist(), poses.tolist(), strict=True):
+            values.insert(key, gtsam.Pose2(x, y, theta))
         return values
+
+    def chi2(self, poses: np.ndarray) -> float:
+        """g2o chi2 of the given (n, 3) poses: 2 x GTSAM error of the whole graph."""
+        if self.graph is None:
+            raise GraphError("this PoseGraph2D was not extracted from a GTSAM graph")
+        return 2.0 * self.graph.error(self.to_values(poses))
+
+
+def rotation_weights(pose_graph: PoseGraph2D) -> np.ndarray:
+    """The weight of each edge's rotation error, the one convention of every initializer.
+
+    It is the conditional rotational information ``information[2, 2]``: the precision of
+    the angle with the translation error held at zero (what the g2o/GTSAM cost charges for
+    an angle error alone). SE-Sync's kappa is the same entry.
+    """
+    return pose_graph.information[:, 2, 2]
+
+
+def _information(factor, name: str) -> np.ndarray:
+    model = factor.noiseModel()
+    if not isinstance(model, gtsam.noiseModel.Gaussian):
+        raise GraphError(
+            f"{name} has a {type(model).__name__} noise model; the initializers need Gaussian "
+            "models (wrap the graph's robust models after initialization)"
+        )
+    if isinstance(model, gtsam.noiseModel.Constrained):
+        raise GraphError(f"{name} has a constrained noise model; only priors may be hard")
+    return model.information()
 
 
 def _pose_array(pose: gtsam.Pose2) -> np.ndarray:
@@ -113,15 +193,51 @@ def _factors(graph: gtsam.NonlinearFactorGraph) -> list:
     return [graph.at(i) for i in range(graph.size()) if graph.at(i) is not None]
 
 
-def between_factors(graph: gtsam.NonlinearFactorGraph) -> gtsam.NonlinearFactorGraph:
-    """The graph's BetweenFactorPose2 factors alone (anchor priors dropped)."""
-    result = gtsam.NonlinearFactorGraph()
-    for factor in _factors(graph):
-        if isinstance(factor, gtsam.BetweenFactorPose2):
-            result.add(factor)
-    return result
-
-
 def chi2(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> float:
-    """g2o's chi2: 2 x GTSAM error of the between factors, the anchor fixed (adds nothing)."""
-    return 2.0 * between_factors(graph).error(values)
+    """g2o's chi2: 2 x GTSAM error of the whole graph (every prior included).
+
+    A hard (FIX) prior adds nothing while its pose is held; g2o fixes its first pose, so on a
+    graph read from a g2o file this is g2o's own chi2.
+
+    Raises:
+        GraphError: a factor's key has no value.
+    """
+    try:
+        return 2.0 * graph.error(values)
+    except RuntimeError as error:
+        raise GraphError(f"cannot evaluate the graph: {' '.join(str(error).split())}") from None
+
+
+def disconnection(keys: Iterable[int], pairs: Iterable[tuple[int, int]]) -> str | None:
+    """None if ``pairs`` join all ``keys`` into one component, else a message naming them."""
+    from scipy.sparse import coo_matrix  # scipy loads in 0.2 s: not for a command's --help
+    from scipy.sparse.csgraph import connected_components
+
+    keys = sorted(set(keys))
+    index = {key: k for k, key in enumerate(keys)}
+    pairs = np.array([(index[i], index[j]) for i, j in pairs], dtype=np.int64).reshape(-1, 2)
+    adjacency = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                           shape=(len(keys), len(keys)))
+    count, labels = connected_components(adjacency, directed=False)
+    if count <= 1:
+        return None
+    parts: dict[int, list[int]] = {}
+    for key, label in zip(keys, labels.tolist(), strict=True):
+        parts.setdefault(label, []).append(key)
+    ordered = sorted(parts.values(), key=lambda part: part[0])
+    shown = " and ".join(f"keys {format_ranges(part)}" for part in ordered[:3])
+    more = f" and {len(ordered) - 3} more" if len(ordered) > 3 else ""
+    return (f"graph has {count} connected components ({shown}{more}); an initializer "
+            "needs one")
+
+
+def format_ranges(keys: list[int], limit: int = 4) -> str:
+    """``[0, 1, 2, 5, 7, 8]`` -> ``'0-2, 5, 7-8'`` (at most ``limit`` runs, then '...')."""
+    runs: list[list[int]] = []
+    for key in keys:
+        if runs and key == runs[-1][1] + 1:
+            runs[-1][1] = key
+        else:
+            runs.append([key, key])
+    text = [f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:limit]]
+    return ", ".join(text) + (", ..." if len(runs) > limit else "")

@@ -1,213 +1,354 @@
 """Initial guesses for planar pose-graph optimization, one protocol, chosen by name.
 
-Every initializer mirrors ``gtsam.lago.initialize``: GTSAM graph and values in,
-:class:`gtsam.Values` out. The classical ones estimate the orientations first and then
-recover the positions with :func:`~rlpgo_gtsam.translations.solve_translations`. The anchor
-pose (the prior-marked one, else the first key) keeps the pose it has in ``values``.
+Every initializer mirrors ``gtsam.lago.initialize``: ``initialize(graph, values)`` takes
+GTSAM's graph and values and returns :class:`gtsam.Values`. That call is a thin wrapper: the
+graph is extracted once into a :class:`~rlpgo_gtsam.graph.PoseGraph2D`, and :meth:`run`
+returns an :class:`InitResult` with the guess, its chi2, the seconds it took and whatever
+the method learned (rollout costs, a certificate). Orientation initializers estimate the
+orientations only; positions then come from
+:func:`~rlpgo_gtsam.translations.poses_with_orientations`. The anchor pose and FIXed poses
+keep their poses; every edge's rotation is weighted by
+:func:`~rlpgo_gtsam.graph.rotation_weights`.
 
 New initializers plug in with :func:`register`::
 
-    register("mine", MyInitializer)
+    class Mine(OrientationInitializer):
+        def orientations(self, pose_graph, start_theta=None):
+            return ...  # (n,) angles
+
+    register("mine", Mine)
     make_initializer("mine").initialize(graph, values)
 """
 
 from __future__ import annotations
 
+import importlib
+import inspect
+import time
 from collections.abc import Callable
-from typing import Protocol
+from dataclasses import dataclass, field
+from typing import Any
 
 import gtsam
 import numpy as np
 
-from rlpgo_gtsam.errors import RlpgoError, SolverError
-from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.errors import RlpgoError, SolverError, one_line
+from rlpgo_gtsam.graph import PoseGraph2D, chi2, rotation_weights
 from rlpgo_gtsam.linear import solve_pairwise
-from rlpgo_gtsam.rotations import angle_residuals, chordal_edge_costs, wrap
-from rlpgo_gtsam.translations import rotation_matrices, solve_translations
+from rlpgo_gtsam.rotations import angle_residuals, chordal_edge_costs, rotation_matrices
+from rlpgo_gtsam.translations import poses_with_orientations
 
 __all__ = [
+    "InitResult",
+    "Estimate",
     "Initializer",
+    "OrientationInitializer",
     "OdometryInitializer",
     "LagoInitializer",
     "ChordalInitializer",
     "ShonanInitializer",
+    "CLASSICAL",
     "register",
     "make_initializer",
     "initializer_names",
-    "poses_with_orientations",
+    "start_names",
+    "check_method",
+    "chordal_orientations",
 ]
 
 
-class Initializer(Protocol):
-    """Anything with ``initialize(graph, values) -> gtsam.Values``."""
+@dataclass
+class Estimate:
+    """What an initializer's :meth:`Initializer.estimate` produces.
 
-    def initialize(
-        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
-    ) -> gtsam.Values: ...
+    Attributes:
+        poses: (n, 3) x, y, theta of the guess, in pose-index order.
+        details: JSON-ready facts the method learned (rollout costs, chosen rollout, ...).
+        certificate: an optimality certificate, for methods that give one.
+    """
 
-
-def poses_with_orientations(pose_graph: PoseGraph2D, theta: np.ndarray) -> gtsam.Values:
-    """Values with the given orientations (re-anchored) and positions from the translation step."""
-    theta = wrap(theta - theta[pose_graph.anchor] + pose_graph.poses[pose_graph.anchor, 2])
-    positions = solve_translations(pose_graph, theta)
-    return pose_graph.to_values(np.column_stack([positions, theta]))
-
-
-def _rotation_weights(pose_graph: PoseGraph2D) -> np.ndarray:
-    return pose_graph.information[:, 2, 2]
+    poses: np.ndarray
+    details: dict[str, Any] = field(default_factory=dict)
+    certificate: Any = None
 
 
-class OdometryInitializer:
-    """The values as given: a file's vertices, or its chained odometry if it had none."""
+@dataclass
+class InitResult:
+    """One initializer's answer for one graph.
+
+    Attributes:
+        method: the name it was made by (``make_initializer(method)``).
+        values: the guess as GTSAM values.
+        poses: (n, 3) the same guess as an array, in pose-index order.
+        chi2: g2o chi2 of the guess (2 x GTSAM error of the graph).
+        seconds: wall time to produce the guess, its start's included.
+        details: JSON-ready facts the method learned.
+        certificate: an optimality certificate, for methods that give one.
+    """
+
+    method: str
+    values: gtsam.Values
+    poses: np.ndarray
+    chi2: float
+    seconds: float
+    details: dict[str, Any] = field(default_factory=dict)
+    certificate: Any = None
+
+
+class Initializer:
+    """The protocol: subclasses implement :meth:`estimate`.
+
+    Attributes:
+        name: the registered name (set by :func:`make_initializer`).
+        start: the method whose guess this one starts from, or None.
+    """
+
+    name: str = ""
+    start: str | None = None
 
     def initialize(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
-        PoseGraph2D.from_gtsam(graph, values)  # same checks as every other initializer
-        return gtsam.Values(values)
+        """The guess for ``graph`` (``values`` gives the anchor pose and any start)."""
+        return self.run(PoseGraph2D.from_gtsam(graph, values)).values
+
+    def run(self, pose_graph: PoseGraph2D, start: InitResult | None = None) -> InitResult:
+        """The guess with its chi2 and seconds; ``start``: the start method's result, if any.
+
+        An initializer with a ``start`` method and no ``start`` result runs that method
+        first; either way its seconds are counted in the result.
+        """
+        began = time.perf_counter()
+        if start is None and self.start is not None:
+            start = make_initializer(self.start).run(pose_graph)
+        estimate = self.estimate(pose_graph, None if start is None else start.poses)
+        seconds = time.perf_counter() - began + (0.0 if start is None else start.seconds)
+        values = pose_graph.to_values(estimate.poses)
+        return InitResult(self.name, values, estimate.poses, chi2(pose_graph.graph, values),
+                          seconds, estimate.details, estimate.certificate)
+
+    def estimate(self, pose_graph: PoseGraph2D, start_poses: np.ndarray | None) -> Estimate:
+        """The guess as arrays; ``start_poses``: (n, 3) poses to start from, or None."""
+        raise NotImplementedError
 
 
-class LagoInitializer:
+class OrientationInitializer(Initializer):
+    """An initializer that estimates orientations; positions come from the translation step."""
+
+    def estimate(self, pose_graph: PoseGraph2D, start_poses: np.ndarray | None) -> Estimate:
+        start_theta = None if start_poses is None else start_poses[:, 2]
+        return Estimate(poses_with_orientations(pose_graph,
+                                                self.orientations(pose_graph, start_theta)))
+
+    def orientations(self, pose_graph: PoseGraph2D, start_theta: np.ndarray | None) -> np.ndarray:
+        """Orientations (n,), in any gauge (the anchor is re-aligned afterwards)."""
+        raise NotImplementedError
+
+
+class OdometryInitializer(Initializer):
+    """The values as given: a file's vertices, or its chained odometry if it had none."""
+
+    name = "odometry"
+
+    def estimate(self, pose_graph: PoseGraph2D, start_poses: np.ndarray | None) -> Estimate:
+        return Estimate(pose_graph.poses.copy())
+
+
+class LagoInitializer(OrientationInitializer):
     """GTSAM's LAGO orientations, then the translation step with the full information.
 
     ``gtsam.lago`` rejects full Gaussian noise models ("invalid noise model"), so its
-    orientation step runs on a copy of the graph with diagonal models (the diagonal of each
-    edge's covariance); the translation step then uses each edge's full information.
+    orientation step runs on a copy of the graph with diagonal models whose rotational
+    sigma is ``1 / sqrt(rotation_weights)`` (the package's one convention); the translation
+    step then uses each edge's full information.
 
     Args:
         odometric_path: LAGO's spanning tree follows the odometry edges ``(k, k+1)``
             (pose indices) when True, else a breadth-first tree.
     """
 
+    name = "lago"
+
     def __init__(self, odometric_path: bool = True) -> None:
         self.odometric_path = odometric_path
 
-    def initialize(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
-        g = PoseGraph2D.from_gtsam(graph, values)
+    def orientations(self, pose_graph: PoseGraph2D, start_theta: np.ndarray | None) -> np.ndarray:
+        g = pose_graph
+        sigmas = np.column_stack([
+            1.0 / np.sqrt(g.information[:, 0, 0]), 1.0 / np.sqrt(g.information[:, 1, 1]),
+            1.0 / np.sqrt(rotation_weights(g)),
+        ])
         diagonal = gtsam.NonlinearFactorGraph()
-        for (i, j), z, info in zip(g.edges, g.measured, g.information, strict=True):
-            sigmas = np.sqrt(np.diag(np.linalg.inv(info)))
-            diagonal.add(
-                gtsam.BetweenFactorPose2(
-                    int(i), int(j), gtsam.Pose2(*z), gtsam.noiseModel.Diagonal.Sigmas(sigmas)
-                )
-            )
-        anchor_pose = gtsam.Pose2(*g.poses[g.anchor])
+        for (i, j), z, sigma in zip(g.edges.tolist(), g.measured, sigmas, strict=True):
+            diagonal.add(gtsam.BetweenFactorPose2(
+                i, j, gtsam.Pose2(*z), gtsam.noiseModel.Diagonal.Sigmas(sigma)))
+        anchor_pose = gtsam.Pose2(*g.held[1][0])
         diagonal.add(gtsam.PriorFactorPose2(g.anchor, anchor_pose, gtsam.noiseModel.Unit.Create(3)))
         try:
             orientations = gtsam.lago.initializeOrientations(diagonal, self.odometric_path)
-        except RuntimeError as error:
-            raise SolverError(f"LAGO orientation step failed: {error}") from None
-        theta = np.array([orientations.at(k)[0] for k in range(g.num_poses)])
-        return poses_with_orientations(g, theta)
+            return np.array([orientations.at(k)[0] for k in range(g.num_poses)])
+        except (RuntimeError, IndexError) as error:
+            raise SolverError(f"LAGO orientation step failed: {one_line(error)}") from None
 
 
-class ChordalInitializer:
+class ChordalInitializer(OrientationInitializer):
     """Chordal relaxation of the rotations, projected onto SO(2), then the translation step.
 
     Each rotation is a complex number z (a 2-vector); the relaxation minimizes
-    ``sum_e w_e |z_j - z_i exp(i theta~_ij)|^2`` with ``w_e`` the edge's rotational
-    information and the anchor's z fixed, one sparse linear solve in GTSAM. Each z is then
-    projected onto the unit circle.
+    ``sum_e w_e |z_j - z_i exp(i theta~_ij)|^2`` with ``w_e`` the edge's rotation weight and
+    the held poses' z fixed, one sparse linear solve in GTSAM. Each z is then projected
+    onto the unit circle.
     """
 
-    def initialize(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
-        g = PoseGraph2D.from_gtsam(graph, values)
-        return poses_with_orientations(g, chordal_orientations(g))
+    name = "chordal"
+
+    def orientations(self, pose_graph: PoseGraph2D, start_theta: np.ndarray | None) -> np.ndarray:
+        return chordal_orientations(pose_graph)
 
 
 def chordal_orientations(pose_graph: PoseGraph2D) -> np.ndarray:
-    """Orientations (n,) from the chordal relaxation; the anchor keeps its angle."""
+    """Orientations (n,) from the chordal relaxation; held poses keep their angles."""
     g = pose_graph
-    root_w = np.sqrt(_rotation_weights(g))[:, None, None]
+    root_w = np.sqrt(rotation_weights(g))[:, None, None]
     a_i = -root_w * rotation_matrices(g.measured[:, 2])
     a_j = root_w * np.broadcast_to(np.eye(2), a_i.shape)
-    anchor_theta = g.poses[g.anchor, 2]
-    z = solve_pairwise(
-        g.num_poses, g.edges, a_i, a_j, np.zeros((g.num_edges, 2)), g.anchor,
-        np.array([np.cos(anchor_theta), np.sin(anchor_theta)]),
-    )
+    held, held_poses = g.held
+    held_z = np.column_stack([np.cos(held_poses[:, 2]), np.sin(held_poses[:, 2])])
+    z = solve_pairwise(g.num_poses, g.edges, a_i, a_j, np.zeros((g.num_edges, 2)), held, held_z)
     return np.arctan2(z[:, 1], z[:, 0])
 
 
-class ShonanInitializer:
-    """GTSAM's Shonan rotation averaging (SO(2)), best of a few seeded random starts.
+class ShonanInitializer(OrientationInitializer):
+    """GTSAM's Shonan rotation averaging (SO(2)), best of a few starts.
 
-    The measurements are built from the graph's factors, each weighted by its rotational
-    information (GTSAM's own g2o reader rejects correlated information). The start whose
-    result has the lowest weighted rotation cost wins; then the translation step.
+    The measurements are built from the graph's factors, each weighted by its rotation
+    weight. Started from given orientations (``start_theta``) it runs once from them;
+    otherwise from ``starts`` seeded random rotations. The result with the lowest weighted
+    rotation cost wins; then the translation step.
 
     Args:
-        starts: number of random starts.
+        starts: number of random starts (when no start orientations are given).
         seed: seed of the random starts.
         max_p: highest rank of the Riemannian staircase.
     """
+
+    name = "shonan"
 
     def __init__(self, starts: int = 2, seed: int = 0, max_p: int = 10) -> None:
         self.starts = starts
         self.seed = seed
         self.max_p = max_p
 
-    def initialize(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
-        g = PoseGraph2D.from_gtsam(graph, values)
+    def orientations(self, pose_graph: PoseGraph2D, start_theta: np.ndarray | None) -> np.ndarray:
+        g = pose_graph
+        weights = rotation_weights(g)
         factors = [
             gtsam.BetweenFactorPose2(
-                int(i), int(j), gtsam.Pose2(*z),
-                gtsam.noiseModel.Diagonal.Precisions(np.array([1.0, 1.0, w])),
+                i, j, gtsam.Pose2(*z), gtsam.noiseModel.Diagonal.Precisions(np.array([1.0, 1.0, w]))
             )
-            for (i, j), z, w in zip(g.edges, g.measured, _rotation_weights(g), strict=True)
+            for (i, j), z, w in zip(g.edges.tolist(), g.measured, weights, strict=True)
         ]
         shonan = gtsam.ShonanAveraging2(
             factors, gtsam.ShonanAveragingParameters2(gtsam.LevenbergMarquardtParams())
         )
         rng = np.random.default_rng(self.seed)
+        starts = [start_theta] if start_theta is not None else [
+            rng.uniform(-np.pi, np.pi, g.num_poses) for _ in range(self.starts)]
         best_theta, best_cost, failures = None, np.inf, []
-        for _ in range(self.starts):
-            start = gtsam.Values()
-            for k, angle in enumerate(rng.uniform(-np.pi, np.pi, g.num_poses)):
-                start.insert(k, gtsam.Rot2(float(angle)))
+        for angles in starts:
+            initial = gtsam.Values()
+            for k, angle in enumerate(np.asarray(angles, dtype=float).tolist()):
+                initial.insert(k, gtsam.Rot2(angle))
             try:
-                result, _ = shonan.run(start, 2, self.max_p)
+                result, _ = shonan.run(initial, 2, self.max_p)
             except RuntimeError as error:
-                failures.append(str(error).strip())
+                failures.append(one_line(error))
                 continue
             theta = np.array([result.atRot2(k).theta() for k in range(g.num_poses)])
-            residuals = angle_residuals(theta, g.edges, g.measured[:, 2])
-            cost = float(_rotation_weights(g) @ chordal_edge_costs(residuals))
+            cost = float(weights @ chordal_edge_costs(angle_residuals(theta, g.edges,
+                                                                      g.measured[:, 2])))
             if cost < best_cost:
                 best_theta, best_cost = theta, cost
         if best_theta is None:
             raise SolverError(f"Shonan averaging failed from every start: {failures[0]}")
-        return poses_with_orientations(g, best_theta)
+        return best_theta
 
 
-_REGISTRY: dict[str, Callable[..., Initializer]] = {
+CLASSICAL = ("odometry", "lago", "chordal", "shonan")
+
+# The one list of method names. Name -> factory, or "module:attribute" for one imported on
+# first use (the agent's initializer needs torch: importing it here would load torch for
+# every classical run).
+_REGISTRY: dict[str, Callable[..., Initializer] | str] = {
     "odometry": OdometryInitializer,
     "lago": LagoInitializer,
     "chordal": ChordalInitializer,
     "shonan": ShonanInitializer,
+    "rl": "rlpgo_gtsam.rl_initializer:RLInitializer",
 }
+# Methods that start from another method's guess (``name@start``); the others can be starts.
+_TAKES_START = {"rl"}
 
 
-def register(name: str, factory: Callable[..., Initializer]) -> None:
-    """Make ``factory()`` available as initializer ``name`` (in the CLI's --methods too)."""
+def register(name: str, factory: Callable[..., Initializer], takes_start: bool = False) -> None:
+    """Make ``factory(**options)`` available as initializer ``name`` (and in the CLIs).
+
+    ``takes_start``: the factory takes ``start=<method name>`` (``name@start`` in lists).
+    """
+    if not name or "@" in name or "," in name:
+        raise RlpgoError(f"an initializer name is a word without '@' or ',', got '{name}'")
     _REGISTRY[name] = factory
+    _TAKES_START.discard(name)
+    if takes_start:
+        _TAKES_START.add(name)
 
 
 def initializer_names() -> list[str]:
-    """Names of the registered initializers."""
+    """Names of the registered initializers, in registration order."""
     return list(_REGISTRY)
 
 
-def make_initializer(name: str, **options) -> Initializer:
+def start_names() -> list[str]:
+    """Names of the initializers another one can start from (those without a start)."""
+    return [name for name in _REGISTRY if name not in _TAKES_START]
+
+
+def check_method(name: str) -> None:
+    """Raise :class:`RlpgoError` unless ``name`` (or ``name@start``) names a method."""
+    base, at, start = name.partition("@")
+    if base not in _REGISTRY:
+        raise RlpgoError(f"unknown method '{name}'; choose from {', '.join(_REGISTRY)}")
+    if at and base not in _TAKES_START:
+        raise RlpgoError(f"'{name}': method {base} takes no start")
+    if at and start not in start_names():
+        raise RlpgoError(f"'{name}': unknown start '{start}'; choose from "
+                         f"{', '.join(start_names())}")
+
+
+def _factory(name: str) -> Callable[..., Initializer]:
+    factory = _REGISTRY[name]
+    if isinstance(factory, str):
+        module, _, attribute = factory.partition(":")
+        factory = _REGISTRY[name] = getattr(importlib.import_module(module), attribute)
+    return factory
+
+
+def make_initializer(name: str, **options: Any) -> Initializer:
     """A new initializer of a registered name; ``name@start`` passes ``start=...`` too.
 
     ``options`` go to the factory (``make_initializer("rl@chordal", episodes=10)``).
+
+    Raises:
+        RlpgoError: an unknown name, or options the method does not take (named).
     """
+    check_method(name)
     base, _, start = name.partition("@")
-    if base not in _REGISTRY:
-        raise RlpgoError(f"unknown method '{base}'; choose from {', '.join(_REGISTRY)}")
     if start:
         options["start"] = start
-    try:
-        return _REGISTRY[base](**options)
-    except TypeError:
-        raise RlpgoError(f"method '{base}' takes no options ({name})") from None
+    factory = _factory(base)
+    accepted = inspect.signature(factory).parameters
+    unknown = sorted(set(options) - set(accepted))
+    if unknown and not any(p.kind is p.VAR_KEYWORD for p in accepted.values()):
+        takes = ", ".join(accepted) or "no options"
+        raise RlpgoError(f"method '{base}' does not take {', '.join(unknown)} (it takes: {takes})")
+    initializer = factory(**options)
+    initializer.name = name
+    return initializer

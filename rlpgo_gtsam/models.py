@@ -4,12 +4,17 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from rlpgo_gtsam.agent.checkpoint import LoadedModel, load_model
 from rlpgo_gtsam.errors import ModelError
 
-__all__ = ["models_dir", "resolve_model", "shipped_models", "DEFAULT_PRESET_MODEL"]
+if TYPE_CHECKING:  # loading a model needs torch; naming one does not
+    from rlpgo_gtsam.agent.checkpoint import LoadedModel
 
+__all__ = ["models_dir", "resolve_model", "shipped_models", "DEFAULT_MODEL",
+           "DEFAULT_PRESET_MODEL"]
+
+DEFAULT_MODEL = "preset4"
 DEFAULT_PRESET_MODEL = "preset{preset}"
 
 
@@ -26,13 +31,20 @@ def shipped_models() -> list[str]:
     return sorted(p.stem for p in folder.glob("*.zip")) if folder.is_dir() else []
 
 
-def resolve_model(name_or_path: str | os.PathLike[str]) -> LoadedModel:
-    """Load a shipped model by name (``preset1``) or any model file by path."""
+def model_path(name_or_path: str | os.PathLike[str]) -> Path:
+    """The file a model name or path refers to (a shipped name must exist)."""
     candidate = Path(name_or_path)
     if candidate.suffix == ".zip" or candidate.exists() or os.sep in str(name_or_path):
-        return load_model(candidate)
+        return candidate
     path = models_dir() / f"{name_or_path}.zip"
     if not path.exists():
         known = ", ".join(shipped_models()) or "none"
         raise ModelError(f"no shipped model named '{name_or_path}' (shipped: {known})")
-    return load_model(path)
+    return path
+
+
+def resolve_model(name_or_path: str | os.PathLike[str]) -> LoadedModel:
+    """Load a shipped model by name (``preset1``) or any model file by path."""
+    from rlpgo_gtsam.agent.checkpoint import load_model
+
+    return load_model(model_path(name_or_path))

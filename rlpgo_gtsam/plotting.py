@@ -1,19 +1,21 @@
-"""Matplotlib figures of planar trajectories."""
+"""Matplotlib figures of planar trajectories and training curves, rendered to PNG bytes.
+
+Figures are made with :class:`matplotlib.figure.Figure` directly, not through pyplot: no
+backend is chosen and no global figure state is touched, so importing this module changes
+nothing for a caller's own plots. The caller writes the bytes (atomically).
+"""
 
 from __future__ import annotations
 
-import os
+import io
 
 import gtsam
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from rlpgo_gtsam.graph import PoseGraph2D
 
-from rlpgo_gtsam.graph import PoseGraph2D  # noqa: E402
-
-__all__ = ["plot_trajectories"]
+__all__ = ["plot_trajectories", "plot_training_curve"]
 
 
 def _xy(values: gtsam.Values) -> np.ndarray:
@@ -21,15 +23,20 @@ def _xy(values: gtsam.Values) -> np.ndarray:
     return np.array([[values.atPose2(k).x(), values.atPose2(k).y()] for k in keys])
 
 
+def _png(figure: Figure, dpi: int) -> bytes:
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=dpi)
+    return buffer.getvalue()
+
+
 def plot_trajectories(
-    path: str | os.PathLike[str],
-    graph: gtsam.NonlinearFactorGraph,
+    pose_graph: PoseGraph2D,
     panels: list[tuple[str, gtsam.Values]],
     title: str = "",
-) -> None:
-    """One PNG with a panel per (label, values): edges in grey, the trajectory on top."""
-    pose_graph = PoseGraph2D.from_gtsam(graph, panels[0][1])
-    figure, axes = plt.subplots(1, len(panels), figsize=(4 * len(panels), 4), squeeze=False)
+) -> bytes:
+    """A PNG with a panel per (label, values): loop closures in grey, the trajectory on top."""
+    figure = Figure(figsize=(4 * len(panels), 4))
+    axes = figure.subplots(1, len(panels), squeeze=False)
     for axis, (label, values) in zip(axes[0], panels, strict=True):
         xy = _xy(values)
         closures = pose_graph.edges[np.abs(pose_graph.edges[:, 1] - pose_graph.edges[:, 0]) != 1]
@@ -42,18 +49,18 @@ def plot_trajectories(
     if title:
         figure.suptitle(title)
     figure.tight_layout()
-    figure.savefig(path, dpi=120)
-    plt.close(figure)
+    return _png(figure, 120)
 
 
-def plot_training_curve(path: str | os.PathLike[str], rows: list[dict], title: str = "") -> None:
+def plot_training_curve(rows: list[dict], title: str = "") -> bytes:
     """Episode reward (and its 20-episode mean) and best/initial OC against episodes."""
     episodes = np.array([int(r["episode"]) for r in rows])
     rewards = np.array([float(r["reward"]) for r in rows])
     ratio = np.array([float(r["best_oc"]) / max(float(r["initial_oc"]), 1e-12) for r in rows])
     window = min(20, len(rows))
     smooth = np.convolve(rewards, np.ones(window) / window, mode="valid")
-    figure, (left, right) = plt.subplots(1, 2, figsize=(9, 3.5))
+    figure = Figure(figsize=(9, 3.5))
+    left, right = figure.subplots(1, 2)
     left.plot(episodes, rewards, color="0.7", linewidth=0.6)
     left.plot(episodes[window - 1:], smooth, linewidth=1.2)
     left.set_xlabel("episode")
@@ -65,5 +72,4 @@ def plot_training_curve(path: str | os.PathLike[str], rows: list[dict], title: s
     if title:
         figure.suptitle(title)
     figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
+    return _png(figure, 110)

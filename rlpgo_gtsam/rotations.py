@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["wrap", "angle_residuals", "orientation_cost", "chordal_edge_costs"]
+__all__ = [
+    "wrap", "angle_residuals", "orientation_cost", "chordal_edge_costs", "rotation_matrices"
+]
 
 
 def wrap(angle: np.ndarray | float) -> np.ndarray:
@@ -25,3 +27,9 @@ def chordal_edge_costs(residuals: np.ndarray) -> np.ndarray:
 def orientation_cost(theta: np.ndarray, edges: np.ndarray, measured_theta: np.ndarray) -> float:
     """The paper's OC: sqrt of the summed, unweighted chordal costs over all edges."""
     return float(np.sqrt(chordal_edge_costs(angle_residuals(theta, edges, measured_theta)).sum()))
+
+
+def rotation_matrices(theta: np.ndarray) -> np.ndarray:
+    """(k, 2, 2) rotation matrices of the angles ``theta``."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)

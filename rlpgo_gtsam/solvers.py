@@ -1,4 +1,4 @@
-"""GTSAM Gauss-Newton and Levenberg-Marquardt with iteration caps and a per-iteration trace."""
+"""GTSAM Gauss-Newton and Levenberg-Marquardt on the whole graph, with a chi2 trace."""
 
 from __future__ import annotations
 
@@ -8,14 +8,17 @@ from dataclasses import dataclass, field
 import gtsam
 
 from rlpgo_gtsam.errors import SolverError, one_line
-from rlpgo_gtsam.graph import PoseGraph2D, between_factors
+from rlpgo_gtsam.graph import PoseGraph2D, chi2
 
-__all__ = ["RefineResult", "refine", "SOLVERS"]
+__all__ = ["RefineResult", "refine", "solver_params", "SOLVERS"]
 
 SOLVERS = ("lm", "gn")
-# An anchor prior this tight fixes the gauge without changing the chi2 of the other factors.
+# A gauge prior this tight holds the anchor without changing the chi2 of the other factors.
 _ANCHOR_SIGMA = 1e-8
 _TOLERANCE = 1e-10
+_LM_LAMBDA_MAX = 1e5
+
+Params = gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams
 
 
 @dataclass
@@ -23,11 +26,11 @@ class RefineResult:
     """What :func:`refine` returns.
 
     Attributes:
-        values: the refined poses (the start, if the solver failed at once).
-        chi2: g2o chi2 of ``values`` (2 x GTSAM error of the between factors).
+        values: the refined poses (the last iterate GTSAM reached if it failed).
+        chi2: g2o chi2 of ``values`` (2 x GTSAM error of the user's graph).
         iterations: solver iterations run.
         chi2_trace: chi2 before the first iteration and after each one.
-        failure: why the solver stopped early with an unusable result, or None.
+        failure: why the solver stopped with an unusable result, or None.
     """
 
     values: gtsam.Values
@@ -37,71 +40,85 @@ class RefineResult:
     failure: str | None = None
 
 
-def refine(
-    graph: gtsam.NonlinearFactorGraph,
-    values: gtsam.Values,
-    solver: str = "lm",
-    iters: int = 30,
-) -> RefineResult:
-    """Run GTSAM's GN or LM from ``values`` for at most ``iters`` iterations.
+def solver_params(solver: str = "lm", iters: int = 30) -> Params:
+    """GTSAM parameters of the project's GN / LM: ``iters`` at most, tolerances 1e-10.
 
-    The anchor pose (the prior-marked one, else the first key) is held by a tight prior.
-    Iterations stop early once the error's relative or absolute decrease falls below 1e-10,
-    as GTSAM's own convergence test does. A failure of the linear solver (an indeterminate
-    system) or a non-finite error ends the run with ``failure`` set instead of raising.
-
-    Raises:
-        SolverError: an unknown solver name or a negative iteration cap.
+    LM also stops once its damping exceeds 1e5 (no step that lowers the error is left).
     """
     if solver not in SOLVERS:
         raise SolverError(f"unknown solver '{solver}'; choose one of {', '.join(SOLVERS)}")
     if iters < 0:
         raise SolverError(f"iteration cap must be >= 0, got {iters}")
-    pose_graph = PoseGraph2D.from_gtsam(graph, values)
-    objective = between_factors(graph)
-    anchored = between_factors(graph)
-    anchor_key = int(pose_graph.keys[pose_graph.anchor])
-    anchor_noise = gtsam.noiseModel.Isotropic.Sigma(3, _ANCHOR_SIGMA)
-    anchored.add(gtsam.PriorFactorPose2(anchor_key, values.atPose2(anchor_key), anchor_noise))
-    trace = [2.0 * objective.error(values)]
-    if iters == 0:
-        return RefineResult(gtsam.Values(values), trace[0], 0, trace)
-    optimizer = _make_optimizer(anchored, values, solver, iters)
-    failure = None
-    for _ in range(iters):
-        try:
-            optimizer.iterate()
-        except RuntimeError as error:
-            failure = f"{solver.upper()} failed: {one_line(error)}"
-            break
-        current = 2.0 * objective.error(optimizer.values())
-        if not math.isfinite(current):
-            failure = f"{solver.upper()} diverged (non-finite error)"
-            break
-        previous = trace[-1]
-        trace.append(current)
-        decrease = previous - current
-        if abs(decrease) <= _TOLERANCE or abs(decrease) <= _TOLERANCE * previous:
-            break
-        if solver == "lm" and optimizer.lambda_() >= _LM_LAMBDA_MAX:
-            break
-    result = gtsam.Values(optimizer.values())
-    return RefineResult(result, trace[-1], len(trace) - 1, trace, failure)
-
-
-_LM_LAMBDA_MAX = 1e5
-
-
-def _make_optimizer(graph, values, solver, iters):
-    if solver == "gn":
-        params = gtsam.GaussNewtonParams()
-        params.setMaxIterations(iters)
-        params.setRelativeErrorTol(_TOLERANCE)
-        params.setAbsoluteErrorTol(_TOLERANCE)
-        return gtsam.GaussNewtonOptimizer(graph, values, params)
-    params = gtsam.LevenbergMarquardtParams()
+    params = gtsam.GaussNewtonParams() if solver == "gn" else gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(iters)
     params.setRelativeErrorTol(_TOLERANCE)
     params.setAbsoluteErrorTol(_TOLERANCE)
-    params.setlambdaUpperBound(_LM_LAMBDA_MAX)
-    return gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    if solver == "lm":
+        params.setlambdaUpperBound(_LM_LAMBDA_MAX)
+    return params
+
+
+def refine(
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    solver: str | Params = "lm",
+    iters: int = 30,
+    pose_graph: PoseGraph2D | None = None,
+) -> RefineResult:
+    """Run GTSAM's GN or LM on ``graph`` from ``values``.
+
+    The graph is optimized as it is, every prior included. If it has no prior, the gauge
+    is fixed by a tight prior on the anchor pose (the first key), which adds nothing to the
+    reported chi2.
+
+    Args:
+        solver: "lm", "gn", or a ``gtsam.LevenbergMarquardtParams`` /
+            ``gtsam.GaussNewtonParams`` used as given (``iters`` is then ignored).
+        iters: iteration cap of "lm" / "gn".
+        pose_graph: the graph's extraction, if the caller has it (saves a second one).
+
+    A failure of the linear solver (an indeterminate system) or a non-finite error ends the
+    run with ``failure`` set instead of raising.
+
+    Raises:
+        SolverError: an unknown solver name or a negative iteration cap.
+        GraphError: a graph the package cannot work on (see :class:`PoseGraph2D`).
+    """
+    params = solver if isinstance(solver, Params) else solver_params(solver, iters)
+    name = "GN" if isinstance(params, gtsam.GaussNewtonParams) else "LM"
+    g = pose_graph if pose_graph is not None else PoseGraph2D.from_gtsam(graph, values)
+    start_chi2 = chi2(graph, values)
+    if params.getMaxIterations() == 0:
+        return RefineResult(gtsam.Values(values), start_chi2, 0, [start_chi2])
+    optimized = graph
+    if not _has_prior(graph):
+        optimized = gtsam.NonlinearFactorGraph(graph)
+        anchor_key = int(g.keys[g.anchor])
+        optimized.add(gtsam.PriorFactorPose2(anchor_key, values.atPose2(anchor_key),
+                                             gtsam.noiseModel.Isotropic.Sigma(3, _ANCHOR_SIGMA)))
+    after_iteration: dict[int, float] = {}  # GTSAM's LM may report an iteration twice
+    caller_hook = params.iterationHook  # the caller's params get their own hook back
+    params.iterationHook = lambda k, _before, after: after_iteration.__setitem__(k, 2.0 * after)
+    failure, optimizer = None, None
+    try:
+        if name == "GN":
+            optimizer = gtsam.GaussNewtonOptimizer(optimized, values, params)
+        else:
+            optimizer = gtsam.LevenbergMarquardtOptimizer(optimized, values, params)
+        optimizer.optimize()
+    except RuntimeError as error:
+        failure = f"{name} failed: {one_line(error)}"
+    finally:
+        params.iterationHook = caller_hook
+    result = gtsam.Values(values if optimizer is None else optimizer.values())
+    final = chi2(graph, result)
+    if failure is None and not math.isfinite(final):
+        failure = f"{name} diverged (non-finite error)"
+    iterations = 0 if optimizer is None else optimizer.iterations()
+    trace = [start_chi2] + [after_iteration[k] for k in sorted(after_iteration)]
+    return RefineResult(result, final, iterations, trace, failure)
+
+
+def _has_prior(graph: gtsam.NonlinearFactorGraph) -> bool:
+    return any(isinstance(graph.at(i), gtsam.PriorFactorPose2) for i in range(graph.size()))
+

@@ -19,9 +19,14 @@ import numpy as np
 import torch
 
 from rlpgo_gtsam.agent.checkpoint import save_model
-from rlpgo_gtsam.agent.sac import Episode, SacAgent, SacConfig, run_episode
-from rlpgo_gtsam.env import PRESETS, EnvConfig, PoseGraphEnv
+from rlpgo_gtsam.agent.config import SacConfig
+from rlpgo_gtsam.agent.inference import NumpyPolicy
+from rlpgo_gtsam.agent.sac import Episode, SacAgent, run_episode
+from rlpgo_gtsam.env import PoseGraphEnv
+from rlpgo_gtsam.episode import PRESETS, EnvConfig
 from rlpgo_gtsam.errors import ModelError
+from rlpgo_gtsam.evaluation import best_oc_ratios
+from rlpgo_gtsam.files import write_bytes
 
 __all__ = ["TrainConfig", "train", "CSV_FIELDS"]
 
@@ -138,15 +143,11 @@ def train(
 
 
 def _validate(agent: SacAgent, config: TrainConfig) -> float:
-    """Mean best-OC / initial-OC of the deterministic policy on the validation graphs."""
-    env = PoseGraphEnv(config.preset, **config.env_overrides)
-    rng = np.random.default_rng(0)
-    ratios = []
-    for k in range(config.validation_graphs):
-        episode = run_episode(env, agent.actor, rng, deterministic=True, seed=10_000 + k,
-                              initial_last_action=np.zeros(2, np.float32))
-        ratios.append(episode.best_oc / max(episode.initial_oc, 1e-12))
-    return float(np.mean(ratios))
+    """Mean best-OC / initial-OC of the deterministic policy on the validation graphs,
+    through the rollout and numpy policy that users run."""
+    seeds = [10_000 + k for k in range(config.validation_graphs)]
+    initial, best = best_oc_ratios(NumpyPolicy(agent.actor), config.env_config, seeds)
+    return float(np.mean([b / max(i, 1e-12) for i, b in zip(initial, best, strict=True)]))
 
 
 def _metadata(config: TrainConfig, episodes: int, seconds: float) -> dict:
@@ -175,4 +176,5 @@ def _plot_rewards(csv_path: Path, png_path: Path, config: TrainConfig) -> None:
     with csv_path.open() as handle:
         rows = list(csv.DictReader(handle))
     if rows:
-        plot_training_curve(png_path, rows, title=f"preset {config.preset}, seed {config.seed}")
+        write_bytes(png_path, plot_training_curve(
+            rows, title=f"preset {config.preset}, seed {config.seed}"))

@@ -6,15 +6,24 @@ import numpy as np
 
 from rlpgo_gtsam.graph import PoseGraph2D
 from rlpgo_gtsam.linear import solve_pairwise
-from rlpgo_gtsam.rotations import wrap
+from rlpgo_gtsam.rotations import rotation_matrices, wrap
 
-__all__ = ["solve_translations", "rotation_matrices"]
+__all__ = ["solve_translations", "poses_with_orientations"]
 
 
-def rotation_matrices(theta: np.ndarray) -> np.ndarray:
-    """(k, 2, 2) rotation matrices of the angles ``theta``."""
-    c, s = np.cos(theta), np.sin(theta)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+def poses_with_orientations(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray:
+    """Poses (n, 3): the orientations ``theta`` in the anchor's gauge, positions solved.
+
+    ``theta`` is rotated as a whole so that the anchor gets its angle; every held pose (the
+    anchor, FIXed poses) keeps its angle and position; the others get positions from
+    :func:`solve_translations`.
+    """
+    held, held_poses = pose_graph.held
+    theta = np.asarray(theta, dtype=float)
+    theta = wrap(theta - theta[held[0]] + held_poses[0, 2])
+    theta[held] = held_poses[:, 2]
+    positions = solve_translations(pose_graph, theta)
+    return np.column_stack([positions, theta])
 
 
 def solve_translations(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray:
@@ -24,7 +33,8 @@ def solve_translations(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray
     ``e_t = R~_ij^T (R_i^T (t_j - t_i) - t~_ij)``, weighted by its full information:
     with the angle error ``e_theta`` fixed, ``[e_t, e_theta]^T Lambda [e_t, e_theta]`` is
     ``||W (e_t + Lambda_tt^-1 Lambda_t,theta e_theta)||^2 + const`` with ``W^T W = Lambda_tt``,
-    so xy and x/y-theta correlations are both kept. The anchor keeps its position.
+    so xy and x/y-theta correlations are both kept. Held poses (the anchor, FIXed poses)
+    keep their positions; soft priors are not used (refinement honours them).
     """
     g = pose_graph
     i, j = g.edges[:, 0], g.edges[:, 1]
@@ -38,4 +48,5 @@ def solve_translations(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray
     a_j = w @ m
     target = np.einsum("eab,eb->ea", r_meas_t, g.measured[:, :2]) - shift
     b = np.einsum("eab,eb->ea", w, target)
-    return solve_pairwise(g.num_poses, g.edges, -a_j, a_j, b, g.anchor, g.poses[g.anchor, :2])
+    held, held_poses = g.held
+    return solve_pairwise(g.num_poses, g.edges, -a_j, a_j, b, held, held_poses[:, :2])

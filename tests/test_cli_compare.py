@@ -7,7 +7,7 @@ from rlpgo_gtsam import write_g2o
 from tests.conftest import dataset
 
 RECORD_KEYS = {"dataset", "poses", "edges", "method", "init_chi2", "init_seconds", "solver",
-               "iters", "refined_chi2", "refine_seconds"}
+               "iters", "refined_chi2", "refine_seconds", "failure"}
 
 
 def test_compare_runs_out_of_the_box(tmp_path):

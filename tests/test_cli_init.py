@@ -3,9 +3,6 @@
 The agent is a real, untrained model file: ``Actor(16)`` with seeded weights and preset 1,
 saved with ``save_model`` (two test cycles keep the rollouts short). Graphs are small
 generated lawn mowers (40 poses) written with ``write_g2o``.
-
-Cases where the library is wrong today are written to the correct behaviour and marked
-``xfail(strict=True)``.
 """
 
 from __future__ import annotations
@@ -24,6 +21,7 @@ from rlpgo_cli.init import main as init_main
 
 from rlpgo_gtsam import (
     PRESETS,
+    PoseGraph2D,
     RLInitializer,
     RlpgoError,
     chi2,
@@ -165,9 +163,10 @@ def test_init_rl_without_refinement_writes_the_agents_guess(tmp_path, graph_file
 
     graph, values = read_g2o(graph_file)
     assert summary["input"] == _g6(chi2(graph, values))
-    rl = RLInitializer(model=agent, cycles=1, start="odometry", refine=None)
-    guess = rl.initialize(graph, values)
-    assert summary["result"] == _g6(rl.last_chi2)
+    rl = RLInitializer(model=agent, cycles=1, start="odometry").run(
+        PoseGraph2D.from_gtsam(graph, values))
+    guess = rl.values
+    assert summary["result"] == _g6(rl.chi2)
 
     _assert_same_edges(graph_file, output)
     out_graph, out_values = read_g2o(output)
@@ -234,17 +233,22 @@ def test_init_unknown_method(tmp_path, graph_file, method):
 
 def test_rl_initializer_api(graph_file, agent):
     graph, values = read_g2o(graph_file)
-    rl = RLInitializer(model=agent, episodes=3, start="chordal", refine="lm", iters=10)
-    result = rl.initialize(graph, values)
-    assert isinstance(result, gtsam.Values)
-    assert sorted(result.keys()) == sorted(values.keys())
-    assert result.atPose2(0).equals(values.atPose2(0), 1e-9)
-    assert rl.last_chi2 is not None and np.isfinite(rl.last_chi2)
-    assert chi2(graph, result) <= rl.last_chi2  # LM only improves the agent's guess
+    guess = RLInitializer(model=agent, episodes=3, start="chordal").initialize(graph, values)
+    assert isinstance(guess, gtsam.Values)
+    assert sorted(guess.keys()) == sorted(values.keys())
+    assert guess.atPose2(0).equals(values.atPose2(0), 1e-9)
 
-    single = RLInitializer(model=agent, episodes=1, start="chordal", refine="lm", iters=10)
-    single.initialize(graph, values)
-    assert rl.last_chi2 <= single.last_chi2  # episode 0 of both is the same rollout
+    pose_graph = PoseGraph2D.from_gtsam(graph, values)
+    result = RLInitializer(model=agent, episodes=3, start="chordal").run(pose_graph)
+    assert result.method == "rl@chordal"
+    _assert_same_poses(result.values, guess, atol=0.0)
+    costs = result.details["rollout_chi2"]
+    assert len(costs) == 3 and result.chi2 == min(costs) == costs[result.details["chosen_rollout"]]
+    assert result.chi2 == pytest.approx(chi2(graph, guess))
+    assert result.seconds > 0
+
+    single = RLInitializer(model=agent, episodes=1, start="chordal").run(pose_graph)
+    assert single.details["rollout_chi2"] == costs[:1]  # episode 0 of both is the same rollout
 
 
 def test_rl_initializer_is_deterministic(graph_file, agent):
@@ -255,8 +259,8 @@ def test_rl_initializer_is_deterministic(graph_file, agent):
 
 
 @pytest.mark.parametrize("options", [
-    {"start": "magic"}, {"refine": "x"}, {"episodes": 0}, {"episodes": -1}, {"cycles": 0},
-], ids=["start", "refine", "episodes_zero", "episodes_negative", "cycles_zero"])
+    {"start": "magic"}, {"start": "rl"}, {"episodes": 0}, {"episodes": -1}, {"cycles": 0},
+], ids=["start", "start_rl", "episodes_zero", "episodes_negative", "cycles_zero"])
 def test_rl_initializer_rejects_bad_arguments(agent, options):
     with pytest.raises(RlpgoError):
         RLInitializer(model=agent, **options)

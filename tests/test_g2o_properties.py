@@ -11,9 +11,6 @@
    writing the read-back graph again gives the same text.
 3. Whatever ``write_g2o`` writes (poses and information over the whole float range, ids up
    to 2**63 - 1, FIX priors) ``read_g2o`` reads.
-
-Behaviour that is wrong today is pinned by explicit examples in tests marked
-``xfail(strict=True)``, so that a fix shows up as XPASS.
 """
 
 from __future__ import annotations

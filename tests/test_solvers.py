@@ -2,7 +2,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from rlpgo_gtsam import SolverError, chi2, read_g2o, refine
+from rlpgo_gtsam import SolverError, chi2, make_initializer, read_g2o, refine
 from tests.conftest import dataset
 
 
@@ -17,7 +17,8 @@ def test_lm30_from_m3500_vertices_matches_gtsam_reference():
 
 
 def test_gn_iteration_cap_is_respected(small_exact):
-    result = refine(small_exact.graph, small_exact.initial, "gn", 3)
+    start = make_initializer("chordal").initialize(small_exact.graph, small_exact.initial)
+    result = refine(small_exact.graph, start, "gn", 3)
     assert result.iterations <= 3
     assert result.chi2 < result.chi2_trace[0]
 
@@ -75,3 +76,52 @@ def test_compare_reports_failing_methods_and_keeps_the_others():
         "linear solve failed: Indeterminate linear system detected while working near variable")
     assert len(results[1].failure) < 150
     assert results[0].init_chi2 is not None and results[0].failure is not None
+
+
+def test_a_soft_prior_on_a_non_anchor_pose_is_honoured_as_gtsam_does(small_noisy):
+    graph = gtsam.NonlinearFactorGraph(small_noisy.graph)
+    graph.add(gtsam.PriorFactorPose2(0, small_noisy.initial.atPose2(0),
+                                     gtsam.noiseModel.Isotropic.Sigma(3, 0.01)))
+    graph.add(gtsam.PriorFactorPose2(2, gtsam.Pose2(5.0, -3.0, 0.4),
+                                     gtsam.noiseModel.Isotropic.Sigma(3, 0.5)))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(50)
+    ours = refine(graph, small_noisy.initial, params)
+    theirs = gtsam.LevenbergMarquardtOptimizer(graph, small_noisy.initial, params).optimize()
+    assert ours.chi2 == pytest.approx(2.0 * graph.error(theirs), rel=1e-9)
+    plain = refine(small_noisy.graph, small_noisy.initial, params)
+    assert abs(ours.chi2 - plain.chi2) > 1.0  # the prior changed the result
+    assert params.iterationHook is None  # the caller's params come back unchanged
+
+
+def test_fixed_poses_are_held_by_initializers_and_refinement(tmp_path, small_noisy):
+    from rlpgo_gtsam import write_g2o
+
+    path = tmp_path / "fixed.g2o"
+    write_g2o(path, small_noisy.graph, small_noisy.initial)
+    path.write_text(path.read_text() + "FIX 0 5\n")
+    graph, values = read_g2o(path)
+    held = values.atPose2(5)
+    for method in ("chordal", "lago", "odometry"):
+        guess = make_initializer(method).initialize(graph, values)
+        result = refine(graph, guess, "lm", 30)
+        for poses in (guess, result.values):
+            assert poses.atPose2(5).equals(held, 1e-6), method
+        assert result.chi2 == pytest.approx(chi2(graph, result.values))
+
+
+def test_robust_models_and_missing_keys_are_typed_errors(small_noisy):
+    from rlpgo_gtsam import GraphError
+
+    robust = gtsam.NonlinearFactorGraph(small_noisy.graph)
+    huber = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.0),
+                                           gtsam.noiseModel.Unit.Create(3))
+    robust.add(gtsam.BetweenFactorPose2(0, 7, gtsam.Pose2(), huber))
+    with pytest.raises(GraphError, match="between factor 0-7 has a Robust noise model"):
+        refine(robust, small_noisy.initial)
+    missing = gtsam.NonlinearFactorGraph(small_noisy.graph)
+    missing.add(gtsam.PriorFactorPose2(999, gtsam.Pose2(), gtsam.noiseModel.Unit.Create(3)))
+    with pytest.raises(GraphError, match="prior factor on key 999: the key has no value"):
+        make_initializer("chordal").initialize(missing, small_noisy.initial)
+    with pytest.raises(GraphError, match="key \"999\""):
+        chi2(missing, small_noisy.initial)

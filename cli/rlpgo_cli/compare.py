@@ -2,23 +2,23 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
 import numpy as np
 
 from rlpgo_cli.errors import RlpgoCommand
-from rlpgo_cli.output import write_json
+from rlpgo_cli.output import RunFiles
 from rlpgo_gtsam.comparison import MethodResult, compare_methods
-from rlpgo_gtsam.errors import OutputError
+from rlpgo_gtsam.errors import OutputError, RlpgoError
 from rlpgo_gtsam.g2o import read_g2o
-from rlpgo_gtsam.initializers import initializer_names
-from rlpgo_gtsam.rl_initializer import DEFAULT_MODEL, STARTS
+from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
+from rlpgo_gtsam.models import DEFAULT_MODEL, model_path
 from rlpgo_gtsam.solvers import SOLVERS
 from rlpgo_gtsam.synthetic import generate
 
-DEFAULT_METHODS = "odometry,lago,chordal,shonan"
+DEFAULT_METHODS = ",".join(CLASSICAL)
 # The graph compared when no file is given: the paper's n = 300 lawn mower with heavy
 # rotation noise and noisy measurements, where odometry and the classical starts differ.
 DEMO = dict(n=300, sigma_r=0.3, sigma_t=0.05, d=3.0, lc=0.5, noisy_measurements=True)
@@ -41,69 +41,39 @@ def _table(results: list[MethodResult]) -> str:
     return "\n".join(lines)
 
 
-def _methods(text: str) -> list[str]:
+def _methods(text: str, start: str) -> list[str]:
     methods = [m.strip() for m in text.split(",") if m.strip()]
-    known = initializer_names()
-    for method in methods:
-        base, _, start = method.partition("@")
-        if base not in known:
-            raise click.BadParameter(f"unknown method '{method}'; choose from {', '.join(known)}")
-        if start and (base != "rl" or start not in STARTS):
-            raise click.BadParameter(
-                f"'{method}': only rl takes a start, one of {', '.join(STARTS)}"
-            )
     if not methods:
-        raise click.BadParameter("give at least one method")
+        raise click.BadParameter("give at least one method", param_hint="--methods")
+    methods = [f"rl@{start}" if m == "rl" else m for m in methods]
+    for method in methods:
+        try:
+            check_method(method)
+        except RlpgoError as error:
+            raise click.BadParameter(str(error), param_hint="--methods") from None
     return methods
 
 
 @click.command(cls=RlpgoCommand)
 @click.argument("files", nargs=-1, type=click.Path(path_type=Path))
-@click.option(
-    "--solver",
-    type=click.Choice(SOLVERS),
-    default="lm",
-    show_default=True,
-    help="GTSAM solver run after each initializer.",
-)
-@click.option(
-    "--iters",
-    type=click.IntRange(min=0),
-    default=30,
-    show_default=True,
-    help="Iteration cap of the solver.",
-)
-@click.option(
-    "--methods",
-    default=DEFAULT_METHODS,
-    show_default=True,
-    help="Comma-separated initializers to compare.",
-)
-@click.option(
-    "--json",
-    "json_path",
-    type=click.Path(path_type=Path),
-    help="Write every row as a JSON list of records.",
-)
-@click.option(
-    "--plot",
-    "plot_dir",
-    type=click.Path(path_type=Path),
-    help="Write one PNG per file: the initial guess and each refined trajectory.",
-)
-@click.option(
-    "--seed",
-    type=int,
-    default=1,
-    show_default=True,
-    help="Seed of the generated graph used when no FILE is given.",
-)
+@click.option("--solver", type=click.Choice(SOLVERS), default="lm", show_default=True,
+              help="GTSAM solver run after each initializer.")
+@click.option("--iters", type=click.IntRange(min=0), default=30, show_default=True,
+              help="Iteration cap of the solver.")
+@click.option("--methods", default=DEFAULT_METHODS, show_default=True,
+              help="Comma-separated initializers to compare.")
+@click.option("--json", "json_path", type=click.Path(path_type=Path),
+              help="Write every row as a JSON list of records.")
+@click.option("--plot", "plot_dir", type=click.Path(path_type=Path),
+              help="Write one PNG per file: the initial guess and each refined trajectory.")
+@click.option("--seed", type=int, default=1, show_default=True,
+              help="Seed of the generated graph used when no FILE is given.")
 @click.option("--model", default=DEFAULT_MODEL, show_default=True,
               help="Agent of the rl methods: a shipped model name or a model file.")
 @click.option("--episodes", type=click.IntRange(min=1), default=1, show_default=True,
               help="Rollouts of the rl methods (lowest chi2 kept).")
-@click.option("--start", type=click.Choice(STARTS), default="odometry", show_default=True,
-              help="Start of method rl (rl@<start> names it per method).")
+@click.option("--start", type=click.Choice(start_names()), default="odometry",
+              show_default=True, help="Start of method rl (rl@<start> names it per method).")
 @click.option("--cycles", type=click.IntRange(min=1), default=None,
               help="Passes over the edges of the rl methods [default: the model's test cycles].")
 def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episodes, start,
@@ -113,42 +83,49 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episod
     Each method's guess is refined by the same GTSAM solver; costs are g2o chi2
     (2 x GTSAM error). With no FILE, a generated lawn-mower graph is compared.
     """
-    method_list = _methods(methods)
+    method_list = _methods(methods, start)
+    run = RunFiles(files)
+    uses_agent = any(m.partition("@")[0] == "rl" for m in method_list)
+    if uses_agent:
+        run.add_input(model_path(model))
+    plots = []
     if plot_dir is not None:
         if plot_dir.exists() and not plot_dir.is_dir():
             raise OutputError(f"{plot_dir}: exists and is not a folder")
-        plot_dir.mkdir(parents=True, exist_ok=True)
+        names = [path.stem for path in files] or ["generated"]
+        plots = [plot_dir / f"{name}.png" for name in names]
+        if plot_dir.is_dir():
+            run.check(*plots)
+    run.check(json_path)
     inputs = [(path.name, *read_g2o(path)) for path in files]  # all validated before any run
     if not inputs:
         demo = generate(rng=np.random.default_rng(seed), **DEMO)
         inputs = [(f"generated n={DEMO['n']} seed={seed}", demo.graph, demo.initial)]
+    if plot_dir is not None:
+        plot_dir.mkdir(parents=True, exist_ok=True)
+    options = {"rl": {"model": model, "episodes": episodes, "cycles": cycles}}
     records, failed = [], False
-    for name, graph, values in inputs:
-        rl_options = {"model": model, "episodes": episodes, "cycles": cycles}
-        results = compare_methods(
-            graph, values, [f"rl@{start}" if m == "rl" else m for m in method_list], solver,
-            iters, dataset=name, rl_options=rl_options,
-        )
-        click.echo(
-            f"\n{name}: {results[0].poses} poses, {results[0].edges} edges, {solver.upper()}{iters}"
-        )
+    for index, (name, graph, values) in enumerate(inputs):
+        pose_graph = PoseGraph2D.from_gtsam(graph, values)
+        results = compare_methods(graph, values, method_list, solver, iters, dataset=name,
+                                  options=options, pose_graph=pose_graph)
+        click.echo(f"\n{name}: {pose_graph.num_poses} poses, {pose_graph.num_edges} edges, "
+                   f"{solver.upper()}{iters}")
         click.echo(_table(results))
         records.extend(r.record() for r in results)
         failed = failed or any(r.failure for r in results)
-        if plot_dir is not None:
+        if plots:
             from rlpgo_gtsam.plotting import plot_trajectories
 
             panels = [("initial guess", values)] + [
                 (f"{r.method}+{solver.upper()}{iters}: {r.refined_chi2:.4g}", r.refined)
-                for r in results
-                if r.refined is not None
+                for r in results if r.refined is not None
             ]
-            plot_trajectories(plot_dir / f"{Path(name).stem}.png", graph, panels, title=name)
+            run.write_bytes(plots[index], plot_trajectories(pose_graph, panels, title=name))
     if json_path is not None:
-        write_json(json_path, records)
+        run.write_json(json_path, records)
     if failed:
-        click.echo("Error: at least one method failed (see FAILED above)", err=True)
-        sys.exit(1)
+        raise RlpgoError("at least one method failed (see FAILED above)")
 
 
 if __name__ == "__main__":

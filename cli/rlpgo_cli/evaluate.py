@@ -7,10 +7,9 @@ from pathlib import Path
 import click
 
 from rlpgo_cli.errors import RlpgoCommand
-from rlpgo_cli.output import write_json
-from rlpgo_gtsam.env import PRESETS
-from rlpgo_gtsam.evaluation import evaluate
-from rlpgo_gtsam.models import DEFAULT_PRESET_MODEL, resolve_model
+from rlpgo_cli.output import RunFiles
+from rlpgo_gtsam.episode import PRESETS
+from rlpgo_gtsam.models import DEFAULT_PRESET_MODEL, model_path, resolve_model
 
 
 @click.command(cls=RlpgoCommand)
@@ -23,7 +22,11 @@ from rlpgo_gtsam.models import DEFAULT_PRESET_MODEL, resolve_model
 @click.option("--json", "json_path", type=click.Path(path_type=Path))
 def main(model, preset, graphs, seed, noisy_measurements, json_path):
     """Deterministic rollouts on fresh graphs of a preset; mean initial and best OC."""
+    from rlpgo_gtsam.evaluation import evaluate
+
     name = model or DEFAULT_PRESET_MODEL.format(preset=preset)
+    run = RunFiles([model_path(name)])
+    run.check(json_path)
     loaded = resolve_model(name)
     overrides = {"noisy_measurements": True} if noisy_measurements else {}
     result = evaluate(loaded, preset, graphs, seed, overrides)
@@ -38,7 +41,7 @@ def main(model, preset, graphs, seed, noisy_measurements, json_path):
     if json_path is not None:
         keys = ["model", "preset", "graphs", "seed", "initial_oc_mean", "agent_best_oc_mean",
                 "random_best_oc_mean", "greedy_best_oc_mean"]
-        write_json(json_path, {k: record[k] for k in keys})
+        run.write_json(json_path, {k: record[k] for k in keys})
 
 
 if __name__ == "__main__":

@@ -8,9 +8,9 @@ import click
 import numpy as np
 
 from rlpgo_cli.errors import RlpgoCommand
-from rlpgo_gtsam.errors import OutputError
-from rlpgo_gtsam.files import check_output
-from rlpgo_gtsam.g2o import write_g2o
+from rlpgo_cli.output import RunFiles
+from rlpgo_gtsam.files import write_together
+from rlpgo_gtsam.g2o import g2o_text
 from rlpgo_gtsam.graph import chi2
 from rlpgo_gtsam.synthetic import generate
 
@@ -35,16 +35,14 @@ from rlpgo_gtsam.synthetic import generate
               help="g2o file for the graph with the ground-truth poses.")
 def main(n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_truth):
     """Generate a lawn-mower pose graph as in the RL-PGO paper."""
-    check_output(output)
-    if ground_truth is not None:
-        check_output(ground_truth)
-        if ground_truth.resolve() == output.resolve():
-            raise OutputError(f"{output}: given as both -o and --ground-truth")
+    run = RunFiles()
+    run.check(output, ground_truth)
     sample = generate(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
                       noisy_measurements=noisy_measurements)
-    write_g2o(output, sample.graph, sample.initial)
+    files = [(output, g2o_text(sample.graph, sample.initial).encode())]
     if ground_truth is not None:
-        write_g2o(ground_truth, sample.graph, sample.ground_truth)
+        files.append((ground_truth, g2o_text(sample.graph, sample.ground_truth).encode()))
+    write_together(files)  # both files or neither
     click.echo(f"{output}: {n} poses, {sample.graph.size()} edges, initial chi2 "
                f"{chi2(sample.graph, sample.initial):.6g}, ground-truth chi2 "
                f"{chi2(sample.graph, sample.ground_truth):.6g}")

@@ -8,15 +8,13 @@ from pathlib import Path
 import click
 
 from rlpgo_cli.errors import RlpgoCommand
+from rlpgo_cli.output import RunFiles
 from rlpgo_gtsam.comparison import best_of, compare_methods
-from rlpgo_gtsam.files import check_output
-from rlpgo_gtsam.g2o import read_g2o, write_g2o
-from rlpgo_gtsam.graph import chi2
-from rlpgo_gtsam.initializers import initializer_names
-from rlpgo_gtsam.models import resolve_model
-from rlpgo_gtsam.rl_initializer import DEFAULT_MODEL, STARTS
-
-CLASSICAL = ["odometry", "lago", "chordal", "shonan"]
+from rlpgo_gtsam.errors import RlpgoError
+from rlpgo_gtsam.g2o import read_g2o
+from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
+from rlpgo_gtsam.models import DEFAULT_MODEL, model_path
 
 
 def _progress_bar():
@@ -39,12 +37,23 @@ def _progress_bar():
     return progress
 
 
+def _method_list(method: str, start: str) -> list[str]:
+    if method == "best":
+        return [*CLASSICAL, *(f"rl@{s}" for s in CLASSICAL)]
+    name = f"rl@{start}" if method == "rl" else method
+    try:
+        check_method(name)
+    except RlpgoError as error:
+        raise click.BadParameter(str(error), param_hint="--method") from None
+    return [name]
+
+
 @click.command(cls=RlpgoCommand)
 @click.argument("input_path", metavar="INPUT.g2o", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
               help="g2o file to write (never the input).")
 @click.option("--method", default="best", show_default=True,
-              help="best (every method, keep the lowest chi2), rl, or a classical "
+              help="best (every method, keep the lowest chi2), rl, rl@<start>, or a classical "
                    "initializer: " + ", ".join(CLASSICAL) + ".")
 @click.option("--model", default=DEFAULT_MODEL, show_default=True,
               help="Agent: a shipped model name or a model file.")
@@ -52,8 +61,8 @@ def _progress_bar():
               help="Passes over the edges [default: the model's test cycles].")
 @click.option("--episodes", type=click.IntRange(min=1), default=1, show_default=True,
               help="Rollouts differing in their initial last action; lowest chi2 kept.")
-@click.option("--start", type=click.Choice(STARTS), default="odometry", show_default=True,
-              help="Orientations the agent starts from (with --method rl).")
+@click.option("--start", type=click.Choice(start_names()), default="odometry",
+              show_default=True, help="Orientations the agent starts from (with --method rl).")
 @click.option("--refine", type=click.Choice(["none", "gn", "lm"]), default="lm",
               show_default=True, help="GTSAM refinement of the guess that is written.")
 @click.option("--iters", type=click.IntRange(min=0), default=30, show_default=True,
@@ -67,22 +76,25 @@ def main(input_path, output, method, model, cycles, episodes, start, refine, ite
     the agent from each of them), refines each with --refine, writes the lowest-chi2 one
     and prints the ranking. The paper's behaviour is --method rl --start odometry.
     """
-    if method not in ("best", "rl", *CLASSICAL) and method not in initializer_names():
-        raise click.BadParameter(f"unknown method '{method}'", param_hint="--method")
+    methods = _method_list(method, start)
+    run = RunFiles([input_path])
+    if any(m.partition("@")[0] == "rl" for m in methods):
+        run.add_input(model_path(model))
+    run.check(output)  # fail before minutes of work, not after
     graph, values = read_g2o(input_path)
-    check_output(output)  # fail before minutes of work, not after
-    if method in ("best", "rl"):
-        resolve_model(model)  # a bad --model is an error, not a row of failed methods
     began = time.perf_counter()
-    methods = CLASSICAL + [f"rl@{s}" for s in STARTS] if method == "best" else \
-        [f"rl@{start}" if method == "rl" else method]
+    pose_graph = PoseGraph2D.from_gtsam(graph, values)
     solver = None if refine == "none" else refine
-    rl_options = {"model": model, "cycles": cycles, "episodes": episodes, "seed": seed,
-                  "progress": _progress_bar()}
-    results = compare_methods(graph, values, methods, solver, iters,
-                              dataset=input_path.name, rl_options=rl_options)
+    options = {"rl": {"model": model, "cycles": cycles, "episodes": episodes, "seed": seed,
+                      "progress": _progress_bar()}}
+    if len(methods) > 1 or methods[0].startswith("rl"):
+        from rlpgo_gtsam.models import resolve_model
+
+        resolve_model(model)  # a bad --model is an error, not a row of failed methods
+    results = compare_methods(graph, values, methods, solver, iters, dataset=input_path.name,
+                              options=options, pose_graph=pose_graph)
     chosen = best_of(results)
-    write_g2o(output, graph, chosen.refined)
+    run.write_g2o(output, graph, chosen.refined)
     seconds = time.perf_counter() - began
     if len(results) > 1:
         click.echo(f"{'rank':<6}{'method':<14}{'guess chi2':>14}{'result chi2':>14}")
@@ -93,7 +105,7 @@ def main(input_path, output, method, model, cycles, episodes, start, refine, ite
             result = "-" if r.refined_chi2 is None else f"{r.refined_chi2:.6g}"
             click.echo(f"{rank:<6}{r.method:<14}{guess:>14}{result:>14}{tail}")
     step = "" if solver is None else f" + {solver.upper()}{iters}"
-    click.echo(f"input chi2 {chi2(graph, values):.6g}; {chosen.method}{step}: chi2 "
+    click.echo(f"input chi2 {2.0 * graph.error(values):.6g}; {chosen.method}{step}: chi2 "
                f"{chosen.refined_chi2:.6g}; {seconds:.2f} s; wrote {output}")
 
 

@@ -1,13 +1,63 @@
-"""Writing the CLIs' JSON outputs atomically."""
+"""The commands' output policy: every file a run writes is checked before any work starts,
+never replaces one of the run's inputs (however the path names it), and is written
+atomically by the library."""
 
 from __future__ import annotations
 
 import json
 import os
+from collections.abc import Iterable
+from pathlib import Path
 
-from rlpgo_gtsam.files import write_text
+import gtsam
+
+from rlpgo_gtsam.errors import OutputError
+from rlpgo_gtsam.files import check_output, write_bytes, write_text
+from rlpgo_gtsam.g2o import write_g2o
 
 
-def write_json(path: str | os.PathLike[str], data: object) -> None:
-    """Write ``data`` as indented JSON to ``path``, atomically."""
-    write_text(path, json.dumps(data, indent=2) + "\n")
+class RunFiles:
+    """The inputs of one command run, and the checks and writes of its outputs."""
+
+    def __init__(self, inputs: Iterable[str | os.PathLike[str]] = ()) -> None:
+        self.inputs = [Path(path) for path in inputs]
+
+    def add_input(self, path: str | os.PathLike[str]) -> None:
+        self.inputs.append(Path(path))
+
+    def is_input(self, path: str | os.PathLike[str]) -> bool:
+        """True if ``path`` names the same file as an input (symlink, relative path, hard link)."""
+        for source in self.inputs:
+            try:
+                if os.path.samefile(source, path):
+                    return True
+            except OSError:
+                continue
+        return False
+
+    def check(self, *paths: str | os.PathLike[str] | None) -> None:
+        """Refuse, before any work, outputs that could not be written or would replace an input."""
+        seen: list[Path] = []
+        for path in paths:
+            if path is None:
+                continue
+            path = Path(path)
+            check_output(path)
+            if self.is_input(path):
+                raise OutputError(f"{path}: is an input of this run; refusing to overwrite it")
+            if any(os.path.abspath(path) == os.path.abspath(other) for other in seen):
+                raise OutputError(f"{path}: given as two different outputs")
+            seen.append(path)
+
+    def write_g2o(self, path: Path, graph: gtsam.NonlinearFactorGraph,
+                  values: gtsam.Values) -> None:
+        self.check(path)
+        write_g2o(path, graph, values)
+
+    def write_json(self, path: Path, data: object) -> None:
+        self.check(path)
+        write_text(path, json.dumps(data, indent=2) + "\n")
+
+    def write_bytes(self, path: Path, data: bytes) -> None:
+        self.check(path)
+        write_bytes(path, data)

@@ -8,9 +8,8 @@ import sys
 import click
 
 from rlpgo_cli.errors import RlpgoCommand
-from rlpgo_gtsam.agent.sac import SacConfig
-from rlpgo_gtsam.env import PRESETS
-from rlpgo_gtsam.train import TrainConfig, train
+from rlpgo_gtsam.agent.config import SacConfig
+from rlpgo_gtsam.episode import PRESETS
 
 
 @click.command(cls=RlpgoCommand)
@@ -34,6 +33,8 @@ from rlpgo_gtsam.train import TrainConfig, train
 def main(preset, episodes, seed, out, resume, hidden, batch_size, gradient_steps,
          noisy_measurements, validation_graphs):
     """Train an agent; writes <out>.zip (the model), <out>.csv and <out>.png (the log)."""
+    from rlpgo_gtsam.train import TrainConfig, train
+
     out = out or f"models/preset{preset}"
     config = TrainConfig(
         preset=preset, episodes=episodes, seed=seed, out=out,

@@ -15,12 +15,13 @@ import os
 import zipfile
 import zlib
 from dataclasses import asdict
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import torch
 
 from rlpgo_gtsam.agent.networks import Actor
-from rlpgo_gtsam.env import EnvConfig
+from rlpgo_gtsam.episode import EnvConfig
 from rlpgo_gtsam.errors import ModelError
 from rlpgo_gtsam.files import write_bytes
 
@@ -30,6 +31,14 @@ FORMAT_VERSION = 1
 _CONFIG, _WEIGHTS = "config.json", "actor.pt"
 _RESERVED = ("format", "package_version", "torch_version", "hidden", "env")
 _MAX_HIDDEN = 4096
+
+
+def package_version() -> str:
+    """The installed rlpgo-gtsam's version (``unknown`` when run from a bare checkout)."""
+    try:
+        return version("rlpgo-gtsam")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 class LoadedModel:
@@ -45,14 +54,12 @@ class LoadedModel:
 def save_model(path: str | os.PathLike[str], actor: Actor, env_config: EnvConfig,
                metadata: dict) -> None:
     """Write a model zip atomically; ``metadata`` must be JSON-serializable."""
-    from rlpgo_gtsam import __version__
-
     reserved = set(metadata) & set(_RESERVED)
     if reserved:
         raise ValueError(f"metadata may not set {', '.join(sorted(reserved))}")
     config = {
         "format": FORMAT_VERSION,
-        "package_version": __version__,
+        "package_version": package_version(),
         "torch_version": torch.__version__,
         "hidden": actor.trunk.hidden,
         "env": asdict(env_config),

@@ -8,10 +8,14 @@ arithmetic. :class:`NumpyPolicy` copies the actor's weights once and evaluates
 
 from __future__ import annotations
 
-import numpy as np
-import torch
+from typing import TYPE_CHECKING
 
-from rlpgo_gtsam.agent.networks import Actor
+import numpy as np
+
+if TYPE_CHECKING:  # the policy reads an actor's weights but never needs torch itself
+    import torch
+
+    from rlpgo_gtsam.agent.networks import Actor
 
 __all__ = ["NumpyPolicy"]
 

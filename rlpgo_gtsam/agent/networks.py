@@ -13,9 +13,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from rlpgo_gtsam.env import OBSERVATION_SIZE
+from rlpgo_gtsam.episode import ACTION_SIZE, OBSERVATION_SIZE
 
-ACTION_SIZE = 2
 ENCODING_SIZE = 20
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0
 
