@@ -25,7 +25,14 @@ import gtsam
 import numpy as np
 
 from benchmarks.common import DATASETS, RESULTS, machine
-from rlpgo_gtsam import RLInitializer, chi2, make_initializer, read_g2o, refine
+from rlpgo_gtsam import (
+    PoseGraph2D,
+    RLInitializer,
+    chi2,
+    make_initializer,
+    read_g2o,
+    refine,
+)
 from rlpgo_gtsam.synthetic import generate
 
 SIGMA_T = [0.2, 0.1, 0.05, 0.03, 0.01]
@@ -60,11 +67,11 @@ def run_case(case: Case, model: str, episodes: int, cycles: int | None, long_sol
     row[f"{name.upper()}{iters}"] = long_result.chi2
     row["seconds_long_solver"] = long_seconds
     rl = RLInitializer(model=model, cycles=cycles, episodes=episodes, start=rl_start, seed=0)
-    guess, rl_seconds = _timed(lambda: rl.initialize(g, v))
+    result, rl_seconds = _timed(lambda: rl.run(PoseGraph2D.from_gtsam(g, v)))
     tag = short_name.upper() + str(short_iters)
-    row["RL"] = float(np.mean(rl.last_costs))
-    row["RL best"] = rl.last_chi2
-    row[f"RL+{tag}"] = refine(g, guess, short_name, short_iters).chi2
+    row["RL"] = float(np.mean(result.details["rollout_chi2"]))
+    row["RL best"] = result.chi2
+    row[f"RL+{tag}"] = refine(g, result.values, short_name, short_iters).chi2
     row["RL seconds / solver seconds"] = rl_seconds / long_seconds
     for method in ("lago", "chordal"):
         initial, seconds = _timed(lambda m=method: make_initializer(m).initialize(g, v))

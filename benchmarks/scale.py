@@ -33,6 +33,7 @@ def _peak_mb() -> float:
 def _stage(stage: str, path: str, model: str) -> dict:
     """Run one stage in this process; returns seconds and peak memory growth."""
     from rlpgo_gtsam import RLInitializer, make_initializer, read_g2o, refine, write_g2o
+    from rlpgo_gtsam.episode import rollout
     from rlpgo_gtsam.graph import PoseGraph2D
 
     before = _peak_mb()
@@ -50,7 +51,8 @@ def _stage(stage: str, path: str, model: str) -> dict:
             rl = RLInitializer(model=model, cycles=1)
             pose_graph = PoseGraph2D.from_gtsam(graph, values)
             start = time.perf_counter()  # the RL pass alone: the rollout over one cycle
-            rl.rollout(pose_graph, pose_graph.poses[:, 2])
+            rollout(rl.policy, pose_graph, pose_graph.poses[:, 2], 1,
+                    rl.model.env_config.action_range_rad, rl.last_actions())
         elif stage == "write":
             with tempfile.TemporaryDirectory() as folder:
                 write_g2o(Path(folder) / "out.g2o", graph, values)

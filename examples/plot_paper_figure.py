@@ -10,7 +10,7 @@ import sys
 
 import matplotlib
 
-matplotlib.use("Agg")
+matplotlib.use("Agg")  # a script may choose the backend; the library never does
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 

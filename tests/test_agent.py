@@ -8,12 +8,14 @@ import numpy as np
 import pytest
 import torch
 
-from rlpgo_gtsam.agent.buffer import EpisodeReplay
+from rlpgo_gtsam.agent.buffer import EpisodeBatch, EpisodeReplay
 from rlpgo_gtsam.agent.checkpoint import load_model
+from rlpgo_gtsam.agent.config import SacConfig
 from rlpgo_gtsam.agent.inference import NumpyPolicy
 from rlpgo_gtsam.agent.networks import Actor, GraphEncoder, QNetwork
-from rlpgo_gtsam.agent.sac import SacAgent, SacConfig, run_episode
-from rlpgo_gtsam.env import PRESETS, PoseGraphEnv
+from rlpgo_gtsam.agent.sac import SacAgent, run_episode
+from rlpgo_gtsam.env import PoseGraphEnv
+from rlpgo_gtsam.episode import PRESETS
 from rlpgo_gtsam.errors import ModelError
 from rlpgo_gtsam.train import CSV_FIELDS, TrainConfig, train
 
@@ -217,6 +219,39 @@ def test_episode_replay_is_a_ring_buffer():
 
 def _flat(module: torch.nn.Module) -> torch.Tensor:
     return torch.cat([p.detach().reshape(-1).clone() for p in module.parameters()])
+
+
+def _constant(critic: QNetwork, value: float) -> None:
+    """Make a critic output ``value`` whatever its input (last layer: zero weights)."""
+    with torch.no_grad():
+        critic.head[-1].weight.zero_()
+        critic.head[-1].bias.fill_(value)
+
+
+def test_critic_targets_bootstrap_from_the_lower_target_critic_and_stop_at_done():
+    """With constant critics, the critic loss is known in closed form: it catches a dropped
+    (1 - done), the online critics used as targets, max instead of min, a lost reward scale."""
+    config = SacConfig(hidden=8, gamma=0.9, reward_scale=0.5)
+    agent = SacAgent(config, seed=0)
+    with torch.no_grad():
+        agent.log_alpha.fill_(-40.0)  # alpha ~ 4e-18: the entropy term vanishes
+    online, target_1, target_2 = 1.0, 3.0, 2.0
+    for critic in (agent.q1, agent.q2):
+        _constant(critic, online)
+    _constant(agent.q1_target, target_1)
+    _constant(agent.q2_target, target_2)
+    steps = 5
+    rewards = torch.tensor([[1.0], [2.0], [3.0], [4.0], [5.0]])
+    dones = torch.tensor([[0.0], [0.0], [0.0], [1.0], [1.0]])  # ends at step 3, then padding
+    mask = torch.tensor([[1.0], [1.0], [1.0], [1.0], [0.0]])
+    batch = EpisodeBatch(
+        observations=torch.randn(1, steps + 1, 4), last_actions=torch.zeros(1, steps + 1, 2),
+        actions=torch.zeros(1, steps, 2), rewards=rewards[None], dones=dones[None],
+    )
+    losses = agent._gradient_step(batch, mask[None])
+    target = rewards * 0.5 + 0.9 * (1.0 - dones) * min(target_1, target_2)
+    expected = float((2.0 * (online - target) ** 2 * mask).sum() / mask.sum())
+    assert losses["q_loss"] == pytest.approx(expected, rel=1e-6)
 
 
 def test_one_gradient_round_learns_and_moves_the_targets():

@@ -27,7 +27,7 @@ from click.testing import CliRunner
 from rlpgo_cli.compare import main
 from rlpgo_cli.init import main as init_main
 
-from rlpgo_gtsam.errors import G2oFormatError, OutputError
+from rlpgo_gtsam.errors import G2oFormatError
 from rlpgo_gtsam.g2o import read_g2o, write_g2o
 
 INFO = "1 0 0 1 0 1"

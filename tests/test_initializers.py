@@ -4,8 +4,10 @@ import pytest
 
 from rlpgo_gtsam import (
     GraphError,
+    PoseGraph2D,
     RlpgoError,
     chi2,
+    generate,
     initializer_names,
     make_initializer,
     read_g2o,
@@ -13,6 +15,7 @@ from rlpgo_gtsam import (
     register,
 )
 from rlpgo_gtsam.initializers import OdometryInitializer
+from rlpgo_gtsam.rotations import wrap
 from tests.conftest import dataset
 
 LOWEST_KNOWN = {"M3500A.g2o": 912.2, "M3500B.g2o": 2055.4, "Intel.g2o": 212.7, "MIT.g2o": 41.21}
@@ -78,3 +81,46 @@ def test_non_pose2_factor_is_refused(small_noisy):
     graph.add(gtsam.PriorFactorPoint2(1, np.zeros(2), gtsam.noiseModel.Unit.Create(2)))
     with pytest.raises(GraphError, match="unsupported factor PriorFactorPoint2"):
         make_initializer("lago").initialize(graph, small_noisy.initial)
+
+
+def test_lago_matches_gtsams_own_lago_on_a_diagonal_noise_graph():
+    """gtsam.lago.initialize also re-solves the angles in its linear pose step, so the two
+    guesses differ; the orientation step is the same and LM reaches the same optimum."""
+    sample = generate(300, 0.2, 0.05, 3.0, 0.5, np.random.default_rng(4), noisy_measurements=True)
+    anchored = gtsam.NonlinearFactorGraph(sample.graph)
+    anchored.add(gtsam.PriorFactorPose2(0, sample.initial.atPose2(0),
+                                        gtsam.noiseModel.Unit.Create(3)))
+    orientations = gtsam.lago.initializeOrientations(anchored)
+    pose_graph = PoseGraph2D.from_gtsam(sample.graph, sample.initial)
+    ours = make_initializer("lago").run(pose_graph)
+    theirs_theta = np.array([orientations.at(k)[0] for k in range(pose_graph.num_poses)])
+    assert np.abs(wrap(ours.poses[:, 2] - theirs_theta)).max() < 1e-9
+    theirs = gtsam.lago.initialize(anchored)
+    assert refine(sample.graph, ours.values, "lm", 50).chi2 == pytest.approx(
+        refine(sample.graph, theirs, "lm", 50).chi2, rel=1e-7)
+
+
+def test_chordal_then_lm_reaches_the_ground_truth_started_optimum():
+    """Noisy measurements: the optimum is not the ground truth, but LM from the ground truth
+    finds the basin a good initializer must reach."""
+    sample = generate(300, 0.2, 0.05, 3.0, 0.5, np.random.default_rng(5), noisy_measurements=True)
+    reference = refine(sample.graph, sample.ground_truth, "lm", 100).chi2
+    for method in ("chordal", "lago"):
+        guess = make_initializer(method).initialize(sample.graph, sample.initial)
+        assert refine(sample.graph, guess, "lm", 100).chi2 == pytest.approx(reference, rel=1e-6)
+
+
+def test_results_carry_chi2_seconds_and_the_start(small_noisy):
+    pose_graph = PoseGraph2D.from_gtsam(small_noisy.graph, small_noisy.initial)
+    result = make_initializer("chordal").run(pose_graph)
+    assert result.method == "chordal" and result.seconds > 0
+    assert result.chi2 == pytest.approx(chi2(small_noisy.graph, result.values))
+    assert np.allclose(PoseGraph2D.from_gtsam(small_noisy.graph, result.values).poses,
+                       result.poses)
+
+
+def test_unknown_options_are_named():
+    with pytest.raises(RlpgoError, match="method 'chordal' does not take episodes"):
+        make_initializer("chordal", episodes=3)
+    with pytest.raises(RlpgoError, match="'lago@chordal': method lago takes no start"):
+        make_initializer("lago@chordal")

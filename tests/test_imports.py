@@ -1,0 +1,83 @@
+"""The package's import graph: layered, no module imports one above it, so no cycles; the
+light entry points load neither torch nor gymnasium."""
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import rlpgo_gtsam
+
+PACKAGE = Path(rlpgo_gtsam.__file__).parent
+
+# Lowest first. A module may import only modules listed before it (at top level, inside a
+# function, or under TYPE_CHECKING alike). The package root (__init__) is the facade above all.
+LAYERS = [
+    "errors", "rotations", "graph", "linear", "files", "g2o", "synthetic", "translations",
+    "solvers", "initializers", "episode", "agent", "agent.config",
+    "agent.networks", "agent.buffer", "agent.inference", "agent.checkpoint", "models", "env",
+    "agent.sac", "rl_initializer", "comparison", "evaluation", "plotting", "train",
+]
+
+
+def _modules() -> dict[str, Path]:
+    modules = {}
+    for path in PACKAGE.rglob("*.py"):
+        parts = path.relative_to(PACKAGE).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        modules[name] = path
+    return modules
+
+
+def _imports(path: Path) -> set[str]:
+    """Every rlpgo_gtsam module ``path`` imports, by its name inside the package."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        names = []
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names = [node.module]
+        for name in names:
+            if name == "rlpgo_gtsam" or name.startswith("rlpgo_gtsam."):
+                found.add(name.removeprefix("rlpgo_gtsam").removeprefix("."))
+            if name.split(".")[0] == "rlpgo_cli":
+                found.add("<cli>")
+    return found
+
+
+def test_every_module_has_a_layer():
+    assert set(_modules()) - {""} == set(LAYERS)
+
+
+@pytest.mark.parametrize("module", LAYERS)
+def test_no_module_imports_one_above_it(module):
+    allowed = set(LAYERS[: LAYERS.index(module)])
+    imported = _imports(_modules()[module])
+    assert imported <= allowed, f"{module} imports {sorted(imported - allowed)}"
+
+
+def _loaded_after(code: str) -> set[str]:
+    script = f"import sys\n{code}\nprint(' '.join(sorted(sys.modules)))"
+    output = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                            check=True, timeout=120).stdout
+    return set(output.split())
+
+
+@pytest.mark.parametrize("code", [
+    "import rlpgo_gtsam; rlpgo_gtsam.read_g2o",
+    "import rlpgo_gtsam; rlpgo_gtsam.make_initializer('chordal')",
+    "import rlpgo_cli.init, rlpgo_cli.compare, rlpgo_cli.generate, rlpgo_cli.train, "
+    "rlpgo_cli.evaluate",
+])
+def test_light_entry_points_load_neither_torch_nor_gymnasium(code):
+    loaded = _loaded_after(code)
+    assert not {"torch", "gymnasium", "matplotlib"} & loaded
+
+
+def test_the_environment_registers_on_first_use():
+    loaded = _loaded_after("import gymnasium, rlpgo_gtsam; assert rlpgo_gtsam.ENV_ID in "
+                           "gymnasium.registry")
+    assert "gymnasium" in loaded and "torch" not in loaded
