@@ -67,6 +67,41 @@ class MethodResult:
         return record
 
 
+def run_method(
+    graph: gtsam.NonlinearFactorGraph,
+    pose_graph: PoseGraph2D,
+    method: str,
+    solver: str | None = "lm",
+    iters: int = 30,
+    dataset: str = "graph",
+    options: dict[str, Any] | None = None,
+    start: InitResult | None = None,
+) -> MethodResult:
+    """One initializer then ``refine``: a row, with ``failure`` set instead of raising.
+
+    Args:
+        method: an initializer name (``rl@chordal`` names a start).
+        options: options for the initializer's factory.
+        start: the guess to start from, for initializers that take one.
+    """
+    row = MethodResult(dataset, pose_graph.num_poses, pose_graph.num_edges, method, None, solver)
+    try:
+        row.init = make_initializer(method, **(options or {})).run(pose_graph, start)
+    except RlpgoError as error:
+        row.failure = str(error)
+        return row
+    if solver is None:
+        row.iters, row.refined_chi2, row.refine_seconds = 0, row.init.chi2, 0.0
+        row.refined = row.init.values
+        return row
+    began = time.perf_counter()
+    refined = refine(graph, row.init.values, solver=solver, iters=iters, pose_graph=pose_graph)
+    row.refine_seconds = time.perf_counter() - began
+    row.iters, row.refined_chi2 = refined.iterations, refined.chi2
+    row.refined, row.failure = refined.values, refined.failure
+    return row
+
+
 def compare_methods(
     graph: gtsam.NonlinearFactorGraph,
     values: gtsam.Values,
@@ -85,34 +120,20 @@ def compare_methods(
         options: per base method name, options for its factory (``{"rl": {"episodes": 4}}``).
         pose_graph: the graph's extraction, if the caller has it.
 
-    A method that starts from another (``initializer.start``) reuses that method's guess
-    where it ran earlier in the list and is charged its seconds. A method that fails (an
+    A method that starts from another (``rl@chordal``) reuses that method's guess where it
+    ran earlier in the list and is charged its seconds. A method that fails (an
     indeterminate system, a diverging solver) gets a row with ``failure`` set; the others
     still run.
     """
     g = pose_graph if pose_graph is not None else PoseGraph2D.from_gtsam(graph, values)
-    results: list[MethodResult] = []
-    guesses: dict[str, InitResult] = {}
+    rows: dict[str, MethodResult] = {}
+    results = []
     for method in methods:
-        row = MethodResult(dataset, g.num_poses, g.num_edges, method, None, solver)
-        try:
-            initializer = make_initializer(method,
-                                           **(options or {}).get(method.partition("@")[0], {}))
-            start = guesses.get(initializer.start) if initializer.start else None
-            row.init = guesses[method] = initializer.run(g, start)
-        except RlpgoError as error:
-            row.failure = str(error)
-            results.append(row)
-            continue
-        if solver is None:
-            row.iters, row.refined_chi2, row.refine_seconds = 0, row.init.chi2, 0.0
-            row.refined = row.init.values
-        else:
-            began = time.perf_counter()
-            refined = refine(graph, row.init.values, solver=solver, iters=iters, pose_graph=g)
-            row.refine_seconds = time.perf_counter() - began
-            row.iters, row.refined_chi2 = refined.iterations, refined.chi2
-            row.refined, row.failure = refined.values, refined.failure
+        base, _, start = method.partition("@")
+        earlier = rows.get(start) if start else None
+        row = run_method(graph, g, method, solver, iters, dataset, (options or {}).get(base),
+                         earlier.init if earlier is not None else None)
+        rows[method] = row
         results.append(row)
     return results
 

@@ -156,6 +156,10 @@ class PoseGraph2D:
             values.insert(key, gtsam.Pose2(x, y, theta))
         return values
 
+    def poses_of(self, values: gtsam.Values) -> np.ndarray:
+        """(n, 3) x, y, theta of ``values`` in this graph's pose order."""
+        return np.array([_pose_array(values.atPose2(key)) for key in self.keys.tolist()])
+
     def chi2(self, poses: np.ndarray) -> float:
         """g2o chi2 of the given (n, 3) poses: 2 x GTSAM error of the whole graph."""
         if self.graph is None:

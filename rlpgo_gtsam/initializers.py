@@ -47,6 +47,8 @@ __all__ = [
     "LagoInitializer",
     "ChordalInitializer",
     "ShonanInitializer",
+    "CertifiedInitializer",
+    "FastSyncInitializer",
     "CLASSICAL",
     "register",
     "make_initializer",
@@ -272,6 +274,63 @@ class ShonanInitializer(OrientationInitializer):
         return best_theta
 
 
+class CertifiedInitializer(Initializer):
+    """The SE(2) synchronization relaxation with an optimality certificate (SE-Sync in 2D).
+
+    The relaxation (:mod:`rlpgo_gtsam.certified`) is solved from the chordal estimate; its
+    rounded orientations get positions from the translation step, and the result carries
+    the :class:`~rlpgo_gtsam.certified.Certificate`: whether the relaxation was exact (the
+    rounded estimate is then the global optimum of the relaxation's cost), its dual lower
+    bound and the estimate's suboptimality bound, all in the relaxation's cost, which is
+    not GTSAM's (see :mod:`rlpgo_gtsam.certified`).
+
+    Args:
+        max_rank: highest rank of the Riemannian staircase.
+    """
+
+    name = "certified"
+
+    def __init__(self, max_rank: int = 10) -> None:
+        self.max_rank = max_rank
+
+    def estimate(self, pose_graph: PoseGraph2D, start_poses: np.ndarray | None) -> Estimate:
+        from rlpgo_gtsam.certified import synchronize  # scipy: loaded when first used
+
+        start_theta = chordal_orientations(pose_graph) if start_poses is None else \
+            start_poses[:, 2]
+        theta, certificate = synchronize(pose_graph, start_theta, max_rank=self.max_rank)
+        return Estimate(poses_with_orientations(pose_graph, theta), certificate.record(),
+                        certificate)
+
+
+class FastSyncInitializer(Initializer):
+    """GTSAM's own ``gtsam.fastSyncPose2``: a sparse chordal initializer of whole poses.
+
+    It takes isotropic noise models only, so it runs on a copy of the graph whose edges get
+    an isotropic precision equal to their rotation weight; its poses are then moved rigidly
+    so that the anchor gets its pose, and held poses keep theirs.
+    """
+
+    name = "fastsync"
+
+    def estimate(self, pose_graph: PoseGraph2D, start_poses: np.ndarray | None) -> Estimate:
+        g = pose_graph
+        isotropic = gtsam.NonlinearFactorGraph()
+        for (i, j), z, w in zip(g.edges.tolist(), g.measured, rotation_weights(g), strict=True):
+            isotropic.add(gtsam.BetweenFactorPose2(
+                i, j, gtsam.Pose2(*z), gtsam.noiseModel.Isotropic.Precision(3, float(w))))
+        try:
+            result = gtsam.fastSyncPose2(isotropic)
+        except RuntimeError as error:
+            raise SolverError(f"fastSyncPose2 failed: {one_line(error)}") from None
+        poses = [result.atPose2(k) for k in range(g.num_poses)]
+        held, held_poses = g.held
+        shift = gtsam.Pose2(*held_poses[0]).compose(poses[held[0]].inverse())
+        moved = np.array([[p.x(), p.y(), p.theta()] for p in (shift.compose(q) for q in poses)])
+        moved[held] = held_poses
+        return Estimate(moved)
+
+
 CLASSICAL = ("odometry", "lago", "chordal", "shonan")
 
 # The one list of method names. Name -> factory, or "module:attribute" for one imported on
@@ -282,6 +341,8 @@ _REGISTRY: dict[str, Callable[..., Initializer] | str] = {
     "lago": LagoInitializer,
     "chordal": ChordalInitializer,
     "shonan": ShonanInitializer,
+    "fastsync": FastSyncInitializer,
+    "certified": CertifiedInitializer,
     "rl": "rlpgo_gtsam.rl_initializer:RLInitializer",
 }
 # Methods that start from another method's guess (``name@start``); the others can be starts.

@@ -73,7 +73,12 @@ def refine(
 
     Args:
         solver: "lm", "gn", or a ``gtsam.LevenbergMarquardtParams`` /
-            ``gtsam.GaussNewtonParams`` used as given (``iters`` is then ignored).
+            ``gtsam.GaussNewtonParams`` run by GTSAM's own ``optimize()`` as given
+            (``iters`` is then ignored). "gn" differs from GTSAM's own Gauss-Newton in one
+            way, g2o's: GTSAM's GN declares convergence at the first step that raises the
+            error and returns that worse iterate, so from a poor start it stops after one
+            step; "gn" keeps iterating (GTSAM's ``iterate()``) until the error changes by
+            less than 1e-10 (relative or absolute) or ``iters`` steps ran.
         iters: iteration cap of "lm" / "gn".
         pose_graph: the graph's extraction, if the caller has it (saves a second one).
 
@@ -105,7 +110,10 @@ def refine(
             optimizer = gtsam.GaussNewtonOptimizer(optimized, values, params)
         else:
             optimizer = gtsam.LevenbergMarquardtOptimizer(optimized, values, params)
-        optimizer.optimize()
+        if solver == "gn":
+            _iterate_through_increases(optimizer, params.getMaxIterations(), after_iteration)
+        else:
+            optimizer.optimize()
     except RuntimeError as error:
         failure = f"{name} failed: {one_line(error)}"
     finally:
@@ -117,6 +125,21 @@ def refine(
     iterations = 0 if optimizer is None else optimizer.iterations()
     trace = [start_chi2] + [after_iteration[k] for k in sorted(after_iteration)]
     return RefineResult(result, final, iterations, trace, failure)
+
+
+def _iterate_through_increases(optimizer, iters: int, after_iteration: dict) -> None:
+    """g2o's Gauss-Newton loop over GTSAM's ``iterate()``: an error increase does not stop it."""
+    previous = optimizer.error()
+    for k in range(1, iters + 1):
+        optimizer.iterate()
+        current = optimizer.error()
+        after_iteration[k] = 2.0 * current
+        if not math.isfinite(current):
+            return
+        decrease = abs(previous - current)
+        if decrease <= _TOLERANCE or decrease <= _TOLERANCE * previous:
+            return
+        previous = current
 
 
 def _has_prior(graph: gtsam.NonlinearFactorGraph) -> bool:

@@ -17,6 +17,7 @@ import pytest
 import torch
 from click.testing import CliRunner, Result
 from rlpgo_cli.compare import main as compare_main
+from rlpgo_cli.init import ALL
 from rlpgo_cli.init import main as init_main
 
 from rlpgo_gtsam import (
@@ -34,8 +35,7 @@ from rlpgo_gtsam.agent.checkpoint import save_model
 from rlpgo_gtsam.agent.networks import Actor
 from rlpgo_gtsam.synthetic import generate
 
-ALL_METHODS = {"odometry", "lago", "chordal", "shonan",
-               "rl@odometry", "rl@lago", "rl@chordal", "rl@shonan"}
+ALL_METHODS = set(ALL)
 SUMMARY = re.compile(
     r"^input chi2 (?P<input>\S+); (?P<method>\S+)(?: \+ (?P<step>[A-Z]+\d+))?: chi2 "
     r"(?P<result>\S+); \d+\.\d\d s; wrote (?P<output>.+)$"
@@ -119,9 +119,9 @@ def _assert_same_poses(first: gtsam.Values, second: gtsam.Values, atol: float) -
 # --------------------------------------------------------------------------- rlpgo-init
 
 
-def test_init_best_ranks_every_method_and_writes_the_lowest(tmp_path, graph_file, agent):
+def test_init_all_ranks_every_method_and_writes_the_lowest(tmp_path, graph_file, agent):
     output = tmp_path / "out.g2o"
-    result = run_init(graph_file, "-o", output, "--model", agent)
+    result = run_init(graph_file, "-o", output, "--model", agent, "--method", "all")
     _ok(result)
     lines = result.stdout.rstrip("\n").splitlines()
     assert lines[0].split() == ["rank", "method", "guess", "chi2", "result", "chi2"]
@@ -212,7 +212,7 @@ def test_init_missing_model_with_method_rl(tmp_path, graph_file):
     _check_missing_model(result, model, output)
 
 
-def test_init_missing_model_with_method_best(tmp_path, graph_file):
+def test_init_missing_model_with_method_auto(tmp_path, graph_file):
     model, output = tmp_path / "nope.zip", tmp_path / "out.g2o"
     result = run_init(graph_file, "-o", output, "--model", model)
     _check_missing_model(result, model, output)

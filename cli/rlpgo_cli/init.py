@@ -9,12 +9,16 @@ import click
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
-from rlpgo_gtsam.comparison import best_of, compare_methods
-from rlpgo_gtsam.errors import RlpgoError
+from rlpgo_gtsam.comparison import MethodResult, best_of, compare_methods
+from rlpgo_gtsam.errors import ModelError, RlpgoError
 from rlpgo_gtsam.g2o import read_g2o
-from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.graph import PoseGraph2D, chi2
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
 from rlpgo_gtsam.models import DEFAULT_MODEL, model_path
+from rlpgo_gtsam.staged import DEFAULT_BUDGET_S, staged_initialize
+
+# --method all: every initializer, and the agent from each classical start.
+ALL = [*CLASSICAL, "fastsync", "certified", *(f"rl@{s}" for s in (*CLASSICAL, "certified"))]
 
 
 def _progress_bar():
@@ -38,8 +42,10 @@ def _progress_bar():
 
 
 def _method_list(method: str, start: str) -> list[str]:
-    if method == "best":
-        return [*CLASSICAL, *(f"rl@{s}" for s in CLASSICAL)]
+    if method == "auto":
+        return ["certified", "chordal", "shonan", "rl"]
+    if method == "all":
+        return ALL
     name = f"rl@{start}" if method == "rl" else method
     try:
         check_method(name)
@@ -48,13 +54,35 @@ def _method_list(method: str, start: str) -> list[str]:
     return [name]
 
 
+def describe(certificate) -> str:
+    """One line on a certificate, in the relaxation's cost."""
+    verdict = "certified optimal" if certificate.certified else "NOT certified"
+    return (f"{verdict} (relaxation cost {certificate.estimate_cost:.6g}, lower bound "
+            f"{certificate.lower_bound:.6g}, suboptimality bound "
+            f"{certificate.suboptimality_bound:.3g}; lambda_min {certificate.min_eigenvalue:.3g}, "
+            f"tolerance {certificate.tolerance:.3g}, rank {certificate.rank})")
+
+
+def _print_stage(row: MethodResult, reason: str) -> None:
+    guess = "-" if row.init_chi2 is None else f"{row.init_chi2:.6g}"
+    result = "-" if row.refined_chi2 is None else f"{row.refined_chi2:.6g}"
+    seconds = (row.init_seconds or 0.0) + (row.refine_seconds or 0.0)
+    click.echo(f"stage {row.method}: guess chi2 {guess}, result chi2 {result}, {seconds:.2f} s"
+               f" ({reason})" + (f"  FAILED: {row.failure}" if row.failure else ""))
+    if row.init is not None and row.init.certificate is not None:
+        click.echo(f"  certificate: {describe(row.init.certificate)}")
+
+
 @click.command(cls=RlpgoCommand)
 @click.argument("input_path", metavar="INPUT.g2o", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
               help="g2o file to write (never the input).")
-@click.option("--method", default="best", show_default=True,
-              help="best (every method, keep the lowest chi2), rl, rl@<start>, or a classical "
-                   "initializer: " + ", ".join(CLASSICAL) + ".")
+@click.option("--method", default="auto", show_default=True,
+              help="auto (certify, else search), all (every method, keep the lowest chi2), rl, "
+                   "rl@<start>, or one initializer: " + ", ".join(
+                       [*CLASSICAL, "fastsync", "certified"]) + ".")
+@click.option("--budget", type=click.FloatRange(min=0, max=1e6), default=DEFAULT_BUDGET_S,
+              show_default=True, help="--method auto: no search starts after this many seconds.")
 @click.option("--model", default=DEFAULT_MODEL, show_default=True,
               help="Agent: a shipped model name or a model file.")
 @click.option("--cycles", type=click.IntRange(min=1), default=None,
@@ -69,12 +97,15 @@ def _method_list(method: str, start: str) -> list[str]:
               help="Iteration cap of the refinement.")
 @click.option("--seed", type=int, default=0, show_default=True,
               help="Seed of the rollouts' initial last actions.")
-def main(input_path, output, method, model, cycles, episodes, start, refine, iters, seed):
+def main(input_path, output, method, budget, model, cycles, episodes, start, refine, iters,
+         seed):
     """Write an initial guess for INPUT.g2o to OUTPUT.
 
-    The default, --method best, runs every initializer (odometry, LAGO, chordal, Shonan, and
-    the agent from each of them), refines each with --refine, writes the lowest-chi2 one
-    and prints the ranking. The paper's behaviour is --method rl --start odometry.
+    The default, --method auto, runs the certified SE(2) relaxation and stops if its
+    certificate holds; otherwise it escalates (chordal, Shonan and the agent from the best
+    result so far), each refined with --refine, until --budget, and writes the lowest chi2.
+    --method all runs every initializer and prints the ranking. The paper's behaviour is
+    --method rl --start odometry --refine none.
     """
     methods = _method_list(method, start)
     run = RunFiles([input_path])
@@ -87,16 +118,31 @@ def main(input_path, output, method, model, cycles, episodes, start, refine, ite
     solver = None if refine == "none" else refine
     options = {"rl": {"model": model, "cycles": cycles, "episodes": episodes, "seed": seed,
                       "progress": _progress_bar()}}
-    if len(methods) > 1 or methods[0].startswith("rl"):
+    if method == "auto":  # the agent may not run: check the file, load torch only if it does
+        path = model_path(model)
+        if not path.is_file():
+            raise ModelError(f"{path}: no such model file")
+    elif any(m.startswith("rl") for m in methods):
         from rlpgo_gtsam.models import resolve_model
 
         resolve_model(model)  # a bad --model is an error, not a row of failed methods
-    results = compare_methods(graph, values, methods, solver, iters, dataset=input_path.name,
-                              options=options, pose_graph=pose_graph)
-    chosen = best_of(results)
+    if method == "auto":
+        staged = staged_initialize(graph, values, solver=solver or "lm",
+                                   iters=iters if solver else 0, budget_s=budget,
+                                   options=options, dataset=input_path.name,
+                                   pose_graph=pose_graph, on_stage=_print_stage)
+        click.echo(f"stopped: {staged.stopped}")
+        results, chosen = staged.rows, staged.best
+    else:
+        results = compare_methods(graph, values, methods, solver, iters,
+                                  dataset=input_path.name, options=options,
+                                  pose_graph=pose_graph)
+        chosen = best_of(results)
+        if len(results) == 1 and chosen.init.certificate is not None:
+            click.echo(f"certificate: {describe(chosen.init.certificate)}")
     run.write_g2o(output, graph, chosen.refined)
     seconds = time.perf_counter() - began
-    if len(results) > 1:
+    if len(results) > 1 and method != "auto":
         click.echo(f"{'rank':<6}{'method':<14}{'guess chi2':>14}{'result chi2':>14}")
         ranked = sorted(results, key=lambda r: (r.refined_chi2 is None, r.refined_chi2 or 0))
         for rank, r in enumerate(ranked, start=1):
@@ -105,7 +151,7 @@ def main(input_path, output, method, model, cycles, episodes, start, refine, ite
             result = "-" if r.refined_chi2 is None else f"{r.refined_chi2:.6g}"
             click.echo(f"{rank:<6}{r.method:<14}{guess:>14}{result:>14}{tail}")
     step = "" if solver is None else f" + {solver.upper()}{iters}"
-    click.echo(f"input chi2 {2.0 * graph.error(values):.6g}; {chosen.method}{step}: chi2 "
+    click.echo(f"input chi2 {chi2(graph, values):.6g}; {chosen.method}{step}: chi2 "
                f"{chosen.refined_chi2:.6g}; {seconds:.2f} s; wrote {output}")
 
 
