@@ -138,11 +138,16 @@ def compare_methods(
     return results
 
 
+# Refined costs this close count as the same minimum: the earlier (cheaper) row wins.
+TIE_RELATIVE = 1e-6
+
+
 def best_of(results: list[MethodResult]) -> MethodResult:
-    """The row with the lowest refined chi2 among those that did not fail; ties go to the
-    earlier (cheaper) row."""
+    """The row with the lowest refined chi2 among those that did not fail; rows within a
+    relative 1e-6 of the lowest are a tie, won by the earliest (the cheaper method)."""
     usable = [r for r in results if r.failure is None and r.refined_chi2 is not None]
     if not usable:
         raise RlpgoError("every method failed: " + "; ".join(
             f"{r.method}: {r.failure}" for r in results))
-    return min(usable, key=lambda r: r.refined_chi2)
+    lowest = min(r.refined_chi2 for r in usable)
+    return next(r for r in usable if r.refined_chi2 <= lowest + TIE_RELATIVE * abs(lowest))

@@ -32,9 +32,9 @@ def test_a_failed_certificate_escalates_and_keeps_the_lowest(heavy):
     assert [r.method for r in run.rows] == ["certified", "chordal", "shonan@best", "rl@best"]
     assert run.rows[0].init.certificate.suboptimality_bound > 0
     refined = [r.refined_chi2 for r in run.rows]
-    assert run.best.refined_chi2 == min(refined)
-    assert run.best is run.rows[refined.index(min(refined))]  # ties: the earlier stage
-    assert chi2(heavy.graph, run.values) == pytest.approx(min(refined))
+    ties = [k for k, value in enumerate(refined) if value <= min(refined) * (1 + 1e-6)]
+    assert run.best is run.rows[ties[0]]  # the lowest; a tie goes to the earlier stage
+    assert chi2(heavy.graph, run.values) == pytest.approx(min(refined), rel=1e-6)
     assert all("not certified" in reason for reason in run.reasons[1:])
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
-from rlpgo_gtsam.comparison import MethodResult, compare_methods
+from rlpgo_gtsam.comparison import MethodResult, best_of, compare_methods
 from rlpgo_gtsam.errors import OutputError, RlpgoError
 from rlpgo_gtsam.g2o import read_g2o
 from rlpgo_gtsam.graph import PoseGraph2D
@@ -39,7 +39,7 @@ def _certificate(row: MethodResult) -> str:
 def _table(results: list[MethodResult]) -> str:
     """One row per method; ``*`` marks the lowest refined chi2 (ties: the earlier row)."""
     usable = [r for r in results if r.failure is None and r.refined_chi2 is not None]
-    best = min(usable, key=lambda r: r.refined_chi2) if usable else None
+    best = best_of(usable) if usable else None
     header = (f"  {'method':<14}{'init chi2':>14}{'init s':>9}{'refined chi2':>15}"
               f"{'refine s':>10}{'iters':>7}  certified (bound)")
     lines = [header, "-" * len(header)]
