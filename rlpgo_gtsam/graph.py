@@ -160,12 +160,6 @@ class PoseGraph2D:
         """(n, 3) x, y, theta of ``values`` in this graph's pose order."""
         return np.array([_pose_array(values.atPose2(key)) for key in self.keys.tolist()])
 
-    def chi2(self, poses: np.ndarray) -> float:
-        """g2o chi2 of the given (n, 3) poses: 2 x GTSAM error of the whole graph."""
-        if self.graph is None:
-            raise GraphError("this PoseGraph2D was not extracted from a GTSAM graph")
-        return 2.0 * self.graph.error(self.to_values(poses))
-
 
 def rotation_weights(pose_graph: PoseGraph2D) -> np.ndarray:
     """The weight of each edge's rotation error, the one convention of every initializer.
