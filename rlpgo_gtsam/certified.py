@@ -63,7 +63,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator, eigsh, splu
 
 from rlpgo_gtsam.errors import GraphError, SolverError
-from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.graph import PoseGraph2D, rotation_weights
 from rlpgo_gtsam.rotations import wrap
 
 __all__ = ["Certificate", "synchronize", "certify", "relaxation_cost"]
@@ -189,11 +189,6 @@ def relaxation_cost(pose_graph: PoseGraph2D, theta: np.ndarray) -> float:
 
 # --- the problem ---------------------------------------------------------------------------
 
-def _rotation_weights(pose_graph: PoseGraph2D) -> np.ndarray:
-    """kappa of each edge: the conditional rotational information ``information[2, 2]``."""
-    return pose_graph.information[:, 2, 2]
-
-
 def _translation_weights(pose_graph: PoseGraph2D) -> np.ndarray:
     """tau = 2 / trace(info_tt^-1) = 2 det(info_tt) / trace(info_tt) (0 if info_tt is 0)."""
     info = pose_graph.information
@@ -215,7 +210,7 @@ class _Problem:
         n = g.num_poses
         if n < 2:
             raise GraphError(f"a pose graph for the relaxation needs 2 poses or more, got {n}")
-        kappa = np.asarray(_rotation_weights(g), float)
+        kappa = np.asarray(rotation_weights(g), float)
         tau = _translation_weights(g)
         if not (np.all(np.isfinite(kappa)) and np.all(np.isfinite(tau))
                 and np.all(np.isfinite(g.measured))):
@@ -350,7 +345,7 @@ def _trust_region(problem: _Problem, y: np.ndarray, max_iterations: int,
         def hess(v: np.ndarray, y=y, lam=lam) -> np.ndarray:
             return 2.0 * (_project(y, problem.apply(v)) - lam[:, None] * v)
 
-        def pre(v: np.ndarray, y=y) -> np.ndarray:
+        def pre(v: np.ndarray, y=y, precon=precon) -> np.ndarray:
             return 0.5 * _project(y, _Problem.solve_shifted(precon, v))
 
         if radius is None:
