@@ -1,5 +1,6 @@
 """Certify, else search: the staged default on generated graphs."""
 
+import json
 import subprocess
 import sys
 
@@ -73,9 +74,15 @@ def test_rlpgo_init_auto_reports_each_stage(tmp_path, heavy):
 def test_compare_marks_the_best_row_and_shows_certificates(tmp_path, small_exact):
     path = tmp_path / "in.g2o"
     write_g2o(path, small_exact.graph, small_exact.initial)
+    json_path = tmp_path / "out.json"
     result = CliRunner().invoke(compare_main, [str(path), "--methods",
-                                               "odometry,chordal,certified"])
+                                               "odometry,chordal,certified", "--json",
+                                               str(json_path)])
     assert result.exit_code == 0, result.output
+    records = {r["method"]: r for r in json.loads(json_path.read_text())}
+    assert records["certified"]["certificate"]["certified"] is True
+    assert records["certified"]["certificate"]["suboptimality_bound"] < 1e-6
+    assert "certificate" not in records["chordal"]
     rows = {line[2:].split()[0]: line for line in result.stdout.splitlines()
             if line[2:].split()[:1] in (["odometry"], ["chordal"], ["certified"])}
     marked = [name for name, line in rows.items() if line.startswith("*")]
