@@ -89,3 +89,15 @@ def test_compare_marks_the_best_row_and_shows_certificates(tmp_path, small_exact
     assert len(marked) == 1 and marked != ["odometry"]
     assert rows["certified"].rstrip().endswith("yes")
     assert rows["odometry"].rstrip().endswith("-")
+
+
+def test_ties_go_to_the_earlier_cheaper_row():
+    from rlpgo_gtsam.comparison import MethodResult, best_of
+
+    def row(method, value):
+        return MethodResult("g", 2, 1, method, None, "lm", refined_chi2=value)
+
+    rows = [row("cheap", 100.00005), row("dear", 100.0), row("failed", 1.0)]
+    rows[2].failure = "boom"
+    assert best_of(rows).method == "cheap"  # within 1e-6 relative: a tie
+    assert best_of([row("a", 101.0), row("b", 100.0)]).method == "b"
