@@ -33,6 +33,9 @@ from rlpgo_gtsam.graph import disconnection
 
 __all__ = ["read_g2o", "write_g2o", "g2o_text"]
 
+# The longest line the reader takes: an EDGE_SE2 line with 64-bit ids and 11 numbers written
+# with 17 significant digits is under 300 bytes; 64 KiB leaves room for any comment.
+MAX_LINE_BYTES = 65536
 _EDGE_NUMBERS = 11
 _VERTEX_NUMBERS = 4
 _3D_TAGS = ("VERTEX_SE3", "EDGE_SE3", "VERTEX3", "EDGE3", "VERTEX_TRACKXYZ", "EDGE_SE3_")
@@ -105,7 +108,17 @@ def _lines(path: Path) -> Iterator[tuple[int, str]]:
     with handle:
         if path.is_dir():
             raise G2oFormatError(path, None, "is a directory, not a g2o file")
-        for number, raw in enumerate(handle, start=1):
+        number = 0
+        while True:
+            # readline with a limit: a file without newlines (/dev/zero, a huge sparse file)
+            # costs at most MAX_LINE_BYTES of memory before it is refused.
+            raw = handle.readline(MAX_LINE_BYTES + 1)
+            if not raw:
+                return
+            number += 1
+            if len(raw) > MAX_LINE_BYTES:
+                raise G2oFormatError(path, number,
+                                     f"line longer than {MAX_LINE_BYTES} bytes (not a g2o file?)")
             if number == 1 and raw.startswith(b"\xef\xbb\xbf"):  # a UTF-8 byte-order mark
                 raw = raw[3:]
             if b"\x00" in raw:
@@ -215,13 +228,19 @@ def _parse_edge(path: Path, line: int, fields: list[str], parsed: _Parsed) -> No
 
 
 def _positive_definite(matrix: np.ndarray) -> bool:
+    """Positive definite, judged on the matrix scaled to a unit diagonal: an information
+    like diag(1e-6, 1e6, 1) is well conditioned for what it measures and accepted; a matrix
+    whose scaled form is singular to rounding is not."""
+    diagonal = np.diag(matrix)
+    if not np.all(diagonal > 0):
+        return False
+    scale = 1.0 / np.sqrt(diagonal)
+    scaled = matrix * scale[:, None] * scale[None, :]
     try:
-        np.linalg.cholesky(matrix)
+        np.linalg.cholesky(scaled)
     except np.linalg.LinAlgError:
         return False
-    # Cholesky succeeds on matrices whose smallest eigenvalue is lost in rounding.
-    eigenvalues = np.linalg.eigvalsh(matrix)
-    return bool(eigenvalues[0] > 1e-12 * max(abs(eigenvalues[-1]), 1e-300))
+    return bool(np.linalg.eigvalsh(scaled)[0] > 1e-12)
 
 
 def _check_edges(path: Path, parsed: _Parsed) -> None:

@@ -9,6 +9,7 @@ import numpy as np
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
+from rlpgo_cli.types import COUNT, ITERATIONS, SEED
 from rlpgo_gtsam.comparison import MethodResult, best_of, compare_methods
 from rlpgo_gtsam.errors import OutputError, RlpgoError
 from rlpgo_gtsam.g2o import read_g2o
@@ -71,7 +72,7 @@ def _methods(text: str, start: str) -> list[str]:
 @click.argument("files", nargs=-1, type=click.Path(path_type=Path))
 @click.option("--solver", type=click.Choice(SOLVERS), default="lm", show_default=True,
               help="GTSAM solver run after each initializer.")
-@click.option("--iters", type=click.IntRange(min=0), default=30, show_default=True,
+@click.option("--iters", type=ITERATIONS, default=30, show_default=True,
               help="Iteration cap of the solver.")
 @click.option("--methods", default=DEFAULT_METHODS, show_default=True,
               help="Comma-separated initializers to compare.")
@@ -79,15 +80,15 @@ def _methods(text: str, start: str) -> list[str]:
               help="Write every row as a JSON list of records.")
 @click.option("--plot", "plot_dir", type=click.Path(path_type=Path),
               help="Write one PNG per file: the initial guess and each refined trajectory.")
-@click.option("--seed", type=int, default=1, show_default=True,
+@click.option("--seed", type=SEED, default=1, show_default=True,
               help="Seed of the generated graph used when no FILE is given.")
 @click.option("--model", default=DEFAULT_MODEL, show_default=True,
               help="Agent of the rl methods: a shipped model name or a model file.")
-@click.option("--episodes", type=click.IntRange(min=1), default=1, show_default=True,
+@click.option("--episodes", type=COUNT, default=1, show_default=True,
               help="Rollouts of the rl methods (lowest chi2 kept).")
 @click.option("--start", type=click.Choice(start_names()), default="odometry",
               show_default=True, help="Start of method rl (rl@<start> names it per method).")
-@click.option("--cycles", type=click.IntRange(min=1), default=None,
+@click.option("--cycles", type=click.IntRange(1, 10_000), default=None,
               help="Passes over the edges of the rl methods [default: the model's test cycles].")
 def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episodes, start,
          cycles):

@@ -8,6 +8,7 @@ import click
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
+from rlpgo_cli.types import COUNT, SEED
 from rlpgo_gtsam.episode import PRESETS
 from rlpgo_gtsam.models import DEFAULT_PRESET_MODEL, model_path, resolve_model
 
@@ -16,8 +17,8 @@ from rlpgo_gtsam.models import DEFAULT_PRESET_MODEL, model_path, resolve_model
 @click.option("--model", default=None,
               help="Shipped model name or model file [default: the preset's shipped agent].")
 @click.option("--preset", type=click.IntRange(1, len(PRESETS)), required=True)
-@click.option("--graphs", type=click.IntRange(min=1), default=50, show_default=True)
-@click.option("--seed", type=int, default=1000, show_default=True)
+@click.option("--graphs", type=COUNT, default=50, show_default=True)
+@click.option("--seed", type=SEED, default=1000, show_default=True)
 @click.option("--noisy-measurements", is_flag=True, help="Evaluate on noisy-measurement graphs.")
 @click.option("--json", "json_path", type=click.Path(path_type=Path))
 def main(model, preset, graphs, seed, noisy_measurements, json_path):

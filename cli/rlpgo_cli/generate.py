@@ -9,6 +9,7 @@ import numpy as np
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
+from rlpgo_cli.types import SEED, FiniteFloat
 from rlpgo_gtsam.files import write_together
 from rlpgo_gtsam.g2o import g2o_text
 from rlpgo_gtsam.graph import chi2
@@ -16,19 +17,19 @@ from rlpgo_gtsam.synthetic import generate
 
 
 @click.command(cls=RlpgoCommand)
-@click.option("--n", type=click.IntRange(min=2), default=300, show_default=True,
+@click.option("--n", type=click.IntRange(2, 10_000_000), default=300, show_default=True,
               help="Number of poses.")
-@click.option("--sigma-r", type=click.FloatRange(min=0, min_open=True), default=0.3,
+@click.option("--sigma-r", type=FiniteFloat(0.0, 3.2, min_open=True), default=0.3,
               show_default=True, help="Rotation noise, radians.")
-@click.option("--sigma-t", type=click.FloatRange(min=0, min_open=True), default=0.05,
+@click.option("--sigma-t", type=FiniteFloat(0.0, 1e6, min_open=True), default=0.05,
               show_default=True, help="Translation noise per axis, metres.")
-@click.option("--d", type=click.FloatRange(min=0, min_open=True), default=3.0,
+@click.option("--d", type=FiniteFloat(0.0, 1e6, min_open=True), default=3.0,
               show_default=True, help="Spacing of poses and rows, metres.")
-@click.option("--lc", type=click.FloatRange(0, 1), default=0.5, show_default=True,
+@click.option("--lc", type=FiniteFloat(0.0, 1.0), default=0.5, show_default=True,
               help="Fraction of loop-closure candidates kept.")
 @click.option("--noisy-measurements", is_flag=True,
               help="Perturb the measurements too (the paper's graphs have exact ones).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Random seed.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
               help="g2o file for the graph and its noisy initial guess.")
 @click.option("--ground-truth", type=click.Path(path_type=Path),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -9,6 +10,7 @@ import click
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
+from rlpgo_cli.types import COUNT, ITERATIONS, SEED, FiniteFloat
 from rlpgo_gtsam.comparison import MethodResult, best_of, compare_methods
 from rlpgo_gtsam.errors import ModelError, RlpgoError
 from rlpgo_gtsam.g2o import read_g2o
@@ -30,7 +32,7 @@ def _progress_bar():
             return
         if "bar" not in bars:
             bars["bar"] = click.progressbar(length=total, label="agent",
-                                            file=click.get_text_stream("stderr"))
+                                            file=sys.stderr)
             bars["bar"].__enter__()
         bar = bars["bar"]
         bar.update(done - bar.pos)
@@ -81,21 +83,21 @@ def _print_stage(row: MethodResult, reason: str) -> None:
               help="auto (certify, else search), all (every method, keep the lowest chi2), rl, "
                    "rl@<start>, or one initializer: " + ", ".join(
                        [*CLASSICAL, "fastsync", "certified"]) + ".")
-@click.option("--budget", type=click.FloatRange(min=0, max=1e6), default=DEFAULT_BUDGET_S,
+@click.option("--budget", type=FiniteFloat(0.0, 1e6), default=DEFAULT_BUDGET_S,
               show_default=True, help="--method auto: no search starts after this many seconds.")
 @click.option("--model", default=DEFAULT_MODEL, show_default=True,
               help="Agent: a shipped model name or a model file.")
-@click.option("--cycles", type=click.IntRange(min=1), default=None,
+@click.option("--cycles", type=click.IntRange(1, 10_000), default=None,
               help="Passes over the edges [default: the model's test cycles].")
-@click.option("--episodes", type=click.IntRange(min=1), default=1, show_default=True,
+@click.option("--episodes", type=COUNT, default=1, show_default=True,
               help="Rollouts differing in their initial last action; lowest chi2 kept.")
 @click.option("--start", type=click.Choice(start_names()), default="odometry",
               show_default=True, help="Orientations the agent starts from (with --method rl).")
 @click.option("--refine", type=click.Choice(["none", "gn", "lm"]), default="lm",
               show_default=True, help="GTSAM refinement of the guess that is written.")
-@click.option("--iters", type=click.IntRange(min=0), default=30, show_default=True,
+@click.option("--iters", type=ITERATIONS, default=30, show_default=True,
               help="Iteration cap of the refinement.")
-@click.option("--seed", type=int, default=0, show_default=True,
+@click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the rollouts' initial last actions.")
 def main(input_path, output, method, budget, model, cycles, episodes, start, refine, iters,
          seed):

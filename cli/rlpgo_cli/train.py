@@ -8,6 +8,7 @@ import sys
 import click
 
 from rlpgo_cli.errors import RlpgoCommand
+from rlpgo_cli.types import COUNT, SEED
 from rlpgo_gtsam.agent.config import SacConfig
 from rlpgo_gtsam.episode import PRESETS
 
@@ -15,19 +16,19 @@ from rlpgo_gtsam.episode import PRESETS
 @click.command(cls=RlpgoCommand)
 @click.option("--preset", type=click.IntRange(1, len(PRESETS)), required=True,
               help="The paper's training environment (Table I).")
-@click.option("--episodes", type=click.IntRange(min=1), default=300, show_default=True)
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--episodes", type=COUNT, default=300, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--out", default=None, help="Path stem of the outputs [default: models/presetP].")
 @click.option("--resume", is_flag=True, help="Continue from <out>.train.pt.")
-@click.option("--hidden", type=click.IntRange(min=4), default=SacConfig.hidden,
+@click.option("--hidden", type=click.IntRange(4, 4096), default=SacConfig.hidden,
               show_default=True, help="Width of the layers and LSTMs (the paper: 512).")
-@click.option("--batch-size", type=click.IntRange(min=1), default=SacConfig.batch_size,
+@click.option("--batch-size", type=click.IntRange(1, 4096), default=SacConfig.batch_size,
               show_default=True, help="Episodes per gradient step.")
-@click.option("--gradient-steps", type=click.IntRange(min=1), default=SacConfig.gradient_steps,
+@click.option("--gradient-steps", type=click.IntRange(1, 10_000), default=SacConfig.gradient_steps,
               show_default=True, help="Gradient steps after each episode.")
 @click.option("--noisy-measurements", is_flag=True,
               help="Train on graphs with noisy measurements (not in the paper).")
-@click.option("--validation-graphs", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--validation-graphs", type=click.IntRange(0, 10_000), default=0, show_default=True,
               help="Ship the checkpoint that does best on this many validation graphs "
                    "(0: ship the last one).")
 def main(preset, episodes, seed, out, resume, hidden, batch_size, gradient_steps,

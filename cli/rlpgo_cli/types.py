@@ -1,0 +1,41 @@
+"""Option types shared by the commands: finite, bounded numbers, checked at parse time."""
+
+from __future__ import annotations
+
+import math
+
+import click
+
+# Bounds of the integer options: large enough for any real use, small enough that no
+# value reaches an overflow or an allocation that cannot succeed.
+SEED = click.IntRange(0, 2**32 - 1)
+ITERATIONS = click.IntRange(0, 100_000)
+COUNT = click.IntRange(1, 1_000_000)
+
+
+class FiniteFloat(click.ParamType):
+    """A float within [minimum, maximum] (``minimum`` excluded if ``min_open``), never nan or
+    inf; the range shows in ``--help``."""
+
+    name = "float"
+
+    def __init__(self, minimum: float, maximum: float, min_open: bool = False) -> None:
+        self.minimum, self.maximum, self.min_open = minimum, maximum, min_open
+
+    def get_metavar(self, param: click.Parameter, ctx: click.Context | None = None) -> str:
+        low = "(" if self.min_open else "["
+        return f"FLOAT {low}{self.minimum:g}, {self.maximum:g}]"
+
+    def convert(self, value, param, ctx) -> float:
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is not a number", param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        below = number <= self.minimum if self.min_open else number < self.minimum
+        if below or number > self.maximum:
+            low = "(" if self.min_open else "["
+            self.fail(f"{number:g} is not in {low}{self.minimum:g}, {self.maximum:g}]", param,
+                      ctx)
+        return number

@@ -1,0 +1,97 @@
+"""Bounded resources and validated options: one-line errors, no traceback, nothing written."""
+
+import os
+import resource
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from rlpgo_cli.compare import main as compare_main
+from rlpgo_cli.generate import main as generate_main
+from rlpgo_cli.init import main as init_main
+from rlpgo_cli.train import main as train_main
+
+from rlpgo_gtsam import generate, read_g2o, write_g2o
+from rlpgo_gtsam.g2o import MAX_LINE_BYTES
+
+
+def _clean_failure(result, code: int, text: str) -> None:
+    assert result.exit_code == code, result.output
+    assert "Traceback" not in result.output
+    assert text in result.output
+
+
+def test_an_overlong_line_is_refused_with_its_number(tmp_path):
+    path, output = tmp_path / "long.g2o", tmp_path / "out.g2o"
+    path.write_bytes(b"# ok\n" + b"a" * (MAX_LINE_BYTES + 10))
+    result = CliRunner().invoke(init_main, [str(path), "-o", str(output), "--method", "chordal"])
+    _clean_failure(result, 1, f"{path}:2: line longer than {MAX_LINE_BYTES} bytes")
+    assert result.stderr.count("\n") == 1 and not output.exists()
+
+
+def test_dev_zero_is_refused_in_bounded_memory(tmp_path):
+    output = tmp_path / "out.g2o"
+    done = subprocess.run([sys.executable, "-m", "rlpgo_cli.init", "/dev/zero", "-o",
+                           str(output), "--method", "chordal"], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 1
+    assert done.stderr == (f"Error: /dev/zero:1: line longer than {MAX_LINE_BYTES} bytes "
+                           "(not a g2o file?)\n")
+    peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    assert peak_mb < 500
+    assert not output.exists()
+
+
+def test_a_well_conditioned_unbalanced_information_is_accepted(tmp_path):
+    path = tmp_path / "g.g2o"
+    path.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\n"
+                    "EDGE_SE2 0 1 1 0 0 1e-06 0 0 1000000 0 1\n")
+    graph, _ = read_g2o(path)
+    assert np.allclose(np.diag(graph.at(0).noiseModel().information()), [1e-6, 1e6, 1.0])
+
+
+@pytest.mark.parametrize(("command", "args", "option"), [
+    (init_main, ["--iters", "2147483648"], "--iters"),
+    (init_main, ["--seed", "-1"], "--seed"),
+    (init_main, ["--budget", "nan"], "--budget"),
+    (compare_main, ["--iters", "2147483648"], "--iters"),
+    (compare_main, ["--seed", "-1"], "--seed"),
+    (generate_main, ["--sigma-t", "nan"], "--sigma-t"),
+    (generate_main, ["--d", "1e308"], "--d"),
+    (generate_main, ["--sigma-r", "inf"], "--sigma-r"),
+    (generate_main, ["--seed", "-1"], "--seed"),
+    (train_main, ["--preset", "1", "--hidden", "1000000000"], "--hidden"),
+    (train_main, ["--preset", "1", "--seed", "-1"], "--seed"),
+])
+def test_option_values_are_validated_at_parse_time(tmp_path, command, args, option):
+    output = tmp_path / "out.g2o"
+    extra = {init_main: [str(tmp_path / "in.g2o"), "-o", str(output)],
+             compare_main: [], generate_main: ["-o", str(output)],
+             train_main: ["--out", str(tmp_path / "model")]}[command]
+    result = CliRunner().invoke(command, [*extra, *args])
+    _clean_failure(result, 2, option)
+    assert not output.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_sigterm_ends_a_run_with_one_line_and_no_temporary_file(tmp_path):
+    """The agent's rollout is a Python loop: the signal lands at once (inside a long GTSAM
+    call it would wait for the call to return)."""
+    sample = generate(1000, 0.3, 0.05, 3.0, 0.5, np.random.default_rng(0),
+                      noisy_measurements=True)
+    path, output = tmp_path / "in.g2o", tmp_path / "out.g2o"
+    write_g2o(path, sample.graph, sample.initial)
+    process = subprocess.Popen([sys.executable, "-m", "rlpgo_cli.init", str(path), "-o",
+                                str(output), "--method", "rl", "--cycles", "1000"],
+                               stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    time.sleep(3.0)
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert stderr.splitlines()[-1] == "Error: interrupted"  # after the agent's progress bar
+    assert "Traceback" not in stderr
+    assert sorted(os.listdir(tmp_path)) == ["in.g2o"]
