@@ -95,3 +95,17 @@ def test_sigterm_ends_a_run_with_one_line_and_no_temporary_file(tmp_path):
     assert stderr.splitlines()[-1] == "Error: interrupted"  # after the agent's progress bar
     assert "Traceback" not in stderr
     assert sorted(os.listdir(tmp_path)) == ["in.g2o"]
+
+
+def test_model_members_are_capped_before_they_are_read(tmp_path, monkeypatch):
+    from rlpgo_gtsam import ModelError
+    from rlpgo_gtsam.agent import checkpoint
+    from rlpgo_gtsam.agent.networks import Actor
+    from rlpgo_gtsam.episode import PRESETS
+
+    path = tmp_path / "m.zip"
+    checkpoint.save_model(path, Actor(16), PRESETS[1], {})
+    checkpoint.load_model(path)  # fits the real caps
+    monkeypatch.setattr(checkpoint, "_MAX_WEIGHTS_BYTES", 1000)
+    with pytest.raises(ModelError, match="member actor.pt is larger than 1000 bytes"):
+        checkpoint.load_model(path)

@@ -31,6 +31,11 @@ FORMAT_VERSION = 1
 _CONFIG, _WEIGHTS = "config.json", "actor.pt"
 _RESERVED = ("format", "package_version", "torch_version", "hidden", "env")
 _MAX_HIDDEN = 4096
+# Caps on the uncompressed members (a 4096-unit actor's weights are about 540 MB in float32;
+# the shipped ones are 0.2 MB): checked before reading, and the read itself is bounded, so a
+# zip bomb or a lying header cannot inflate memory.
+_MAX_CONFIG_BYTES = 1 << 20
+_MAX_WEIGHTS_BYTES = 1 << 30
 
 
 def package_version() -> str:
@@ -74,6 +79,17 @@ def save_model(path: str | os.PathLike[str], actor: Actor, env_config: EnvConfig
     write_bytes(path, archive.getvalue())
 
 
+def _read_bounded(zf: zipfile.ZipFile, name: str, limit: int, path: Path) -> bytes:
+    """A member's bytes, refused if it declares or inflates to more than ``limit`` bytes."""
+    if zf.getinfo(name).file_size > limit:
+        raise ModelError(f"{path}: member {name} is larger than {limit} bytes uncompressed")
+    with zf.open(name) as member:
+        data = member.read(limit + 1)
+    if len(data) > limit:
+        raise ModelError(f"{path}: member {name} is larger than {limit} bytes uncompressed")
+    return data
+
+
 def load_model(path: str | os.PathLike[str]) -> LoadedModel:
     """Load a model zip without unpickling anything.
 
@@ -89,10 +105,12 @@ def load_model(path: str | os.PathLike[str]) -> LoadedModel:
             names = set(zf.namelist())
             if _CONFIG not in names or _WEIGHTS not in names:
                 raise ModelError(f"{path}: not an rlpgo model (needs {_CONFIG} and {_WEIGHTS})")
-            config = json.loads(zf.read(_CONFIG))
-            weights = zf.read(_WEIGHTS)
-    except (zipfile.BadZipFile, EOFError, OSError, zlib.error) as error:
-        raise ModelError(f"{path}: not a readable model zip ({error})") from None
+            config = json.loads(_read_bounded(zf, _CONFIG, _MAX_CONFIG_BYTES, path))
+            weights = _read_bounded(zf, _WEIGHTS, _MAX_WEIGHTS_BYTES, path)
+    except (zipfile.BadZipFile, EOFError, OSError, zlib.error, NotImplementedError,
+            RuntimeError) as error:  # RuntimeError: an encrypted member
+        first = " ".join(str(error).split())[:200]
+        raise ModelError(f"{path}: not a readable model zip ({first})") from None
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError):
         raise ModelError(f"{path}: {_CONFIG} is not valid JSON") from None
     if not isinstance(config, dict):
