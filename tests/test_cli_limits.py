@@ -109,3 +109,11 @@ def test_model_members_are_capped_before_they_are_read(tmp_path, monkeypatch):
     monkeypatch.setattr(checkpoint, "_MAX_WEIGHTS_BYTES", 1000)
     with pytest.raises(ModelError, match="member actor.pt is larger than 1000 bytes"):
         checkpoint.load_model(path)
+
+
+def test_a_file_name_with_a_newline_gives_one_escaped_line(tmp_path):
+    path = tmp_path / "bad\nname.g2o"
+    path.write_text("VERTEX_SE2 0 0 0 0\n")
+    result = CliRunner().invoke(init_main, [str(path), "-o", str(tmp_path / "out.g2o")])
+    _clean_failure(result, 1, "bad\\nname.g2o: holds no EDGE_SE2 line")
+    assert result.stderr.count("\n") == 1

@@ -9,6 +9,15 @@ import click
 from rlpgo_gtsam.errors import RlpgoError
 
 INTERRUPTED_EXIT = 130
+_LONGEST_MESSAGE = 1000
+
+
+def one_line(text: str) -> str:
+    """``text`` as one printable line: control characters (a newline in a file name)
+    escaped, and cut to 1000 characters."""
+    escaped = "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii")
+                      for c in text)
+    return escaped if len(escaped) <= _LONGEST_MESSAGE else escaped[:_LONGEST_MESSAGE] + "..."
 
 
 class _Terminated(Exception):
@@ -28,10 +37,10 @@ class RlpgoCommand(click.Command):
         try:
             return super().invoke(ctx)
         except RlpgoError as error:
-            raise click.ClickException(str(error)) from None
+            raise click.ClickException(one_line(str(error))) from None
         except OSError as error:
             where = f"{error.filename}: " if error.filename else ""
-            raise click.ClickException(f"{where}{error.strerror or error}") from None
+            raise click.ClickException(one_line(f"{where}{error.strerror or error}")) from None
         except (KeyboardInterrupt, _Terminated):
             click.echo("Error: interrupted", err=True)
             ctx.exit(INTERRUPTED_EXIT)
