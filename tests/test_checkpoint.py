@@ -216,18 +216,47 @@ def test_weights_of_another_size(tmp_path):
 
 @pytest.mark.parametrize(
     "change",
-    [{"hidden": "wide"}, {"hidden": None}, {"hidden": -1}, {"env": {"bogus": 1}},
-     {"env": [1, 2]}, {"env": None}],
+    [({"hidden": "wide"}, "hidden size must be an integer"),
+     ({"hidden": None}, "hidden size must be an integer"),
+     ({"hidden": -1}, "hidden size must be an integer"),
+     ({"env": {"bogus": 1}}, "unknown env field"),
+     ({"env": [1, 2]}, "config field env must be an object"),
+     ({"env": None}, "config field env must be an object"),
+     ({"test_cycles": float("inf")}, "config field test_cycles must be a int"),
+     ({"test_cycles": 10**12}, "config field test_cycles must be a int"),
+     ({"env": {"action_range_rad": "abc"}}, "config field env.action_range_rad must be a float"),
+     ({"env": {"cycles": float("nan")}}, "config field env.cycles must be a int"),
+     ({"env": {"noisy_measurements": 1}}, "env.noisy_measurements must be true or false")],
     ids=["hidden-str", "hidden-null", "hidden-negative", "env-unknown-key", "env-list",
-         "env-null"],
+         "env-null", "test-cycles-inf", "test-cycles-huge",
+         "action-range-str", "cycles-nan", "noisy-int"],
 )
 def test_bad_config_values(model, tmp_path, change):
+    change, expected = change
+    config = _config(model)
+    if isinstance(change.get("env"), dict) and "bogus" not in change["env"]:
+        change = {"env": {**config["env"], **change["env"]}}
     broken = _rewrite(model, tmp_path / "broken.zip",
-                      {"config.json": json.dumps({**_config(model), **change})})
-    expected = "hidden size must be an integer" if "hidden" in change else \
-        "weights do not match the config"
+                      {"config.json": json.dumps({**config, **change})})
     with pytest.raises(ModelError, match=expected):
         load_model(broken)
+
+
+def test_a_5000_digit_integer_is_refused(model, tmp_path):
+    text = json.dumps(_config(model))[:-1] + ', "test_cycles": ' + "9" * 5000 + "}"
+    broken = _rewrite(model, tmp_path / "broken.zip", {"config.json": text})
+    with pytest.raises(ModelError, match="not valid JSON"):
+        load_model(broken)
+
+
+def test_non_finite_weights_are_refused(tmp_path):
+    actor = Actor(8)
+    with torch.no_grad():
+        actor.mean.bias.fill_(float("nan"))
+    path = tmp_path / "nan.zip"
+    save_model(path, actor, PRESETS[1], {})
+    with pytest.raises(ModelError, match="NaN or infinite"):
+        load_model(path)
 
 
 @pytest.mark.parametrize("key", ["hidden", "env"])
@@ -236,7 +265,7 @@ def test_config_without_a_required_key(model, tmp_path, key):
     del config[key]
     broken = _rewrite(model, tmp_path / "broken.zip", {"config.json": json.dumps(config)})
     expected = "hidden size must be an integer" if key == "hidden" else \
-        "weights do not match the config"
+        "config field env must be an object"
     with pytest.raises(ModelError, match=expected):
         load_model(broken)
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import zipfile
 import zlib
@@ -79,6 +80,41 @@ def save_model(path: str | os.PathLike[str], actor: Actor, env_config: EnvConfig
     write_bytes(path, archive.getvalue())
 
 
+# The schema of config.json's "env" (EnvConfig): type and inclusive range of every field.
+_ENV_SCHEMA = {
+    "n": (int, 2, 10_000_000), "sigma_r": (float, 0.0, 3.2), "sigma_t": (float, 0.0, 1e6),
+    "d": (float, 0.0, 1e6), "lc": (float, 0.0, 1.0), "cycles": (int, 1, 10_000),
+    "action_range_rad": (float, 0.0, 3.2), "noisy_measurements": (bool, None, None),
+}
+_MAX_CYCLES = 10_000
+
+
+def _check_number(path: Path, name: str, value, kind: type, low, high) -> None:
+    """Raise ModelError unless ``value`` is a ``kind`` within [low, high] (finite)."""
+    if kind is bool:
+        if type(value) is not bool:
+            raise ModelError(f"{path}: config field {name} must be true or false")
+        return
+    allowed = (int,) if kind is int else (int, float)
+    if type(value) not in allowed or (kind is float and not math.isfinite(value)) or \
+            not low <= value <= high:
+        shown = repr(value)
+        shown = shown if len(shown) <= 40 else shown[:40] + "..."
+        raise ModelError(f"{path}: config field {name} must be a {kind.__name__} in "
+                         f"[{low:g}, {high:g}], got {shown}")
+
+
+def _env_config(path: Path, env) -> EnvConfig:
+    if not isinstance(env, dict):
+        raise ModelError(f"{path}: config field env must be an object")
+    unknown = sorted(set(env) - set(_ENV_SCHEMA))
+    if unknown:
+        raise ModelError(f"{path}: unknown env field(s) {', '.join(unknown)[:200]}")
+    for name, value in env.items():
+        _check_number(path, f"env.{name}", value, *_ENV_SCHEMA[name])
+    return EnvConfig(**env)
+
+
 def _read_bounded(zf: zipfile.ZipFile, name: str, limit: int, path: Path) -> bytes:
     """A member's bytes, refused if it declares or inflates to more than ``limit`` bytes."""
     if zf.getinfo(name).file_size > limit:
@@ -111,8 +147,9 @@ def load_model(path: str | os.PathLike[str]) -> LoadedModel:
             RuntimeError) as error:  # RuntimeError: an encrypted member
         first = " ".join(str(error).split())[:200]
         raise ModelError(f"{path}: not a readable model zip ({first})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError):
-        raise ModelError(f"{path}: {_CONFIG} is not valid JSON") from None
+    except (ValueError, RecursionError):  # JSONDecodeError, bad UTF-8, a 5000-digit integer
+        raise ModelError(f"{path}: {_CONFIG} is not valid JSON (or holds an absurd number)") \
+            from None
     if not isinstance(config, dict):
         raise ModelError(f"{path}: {_CONFIG} is not a JSON object")
     if type(config.get("format")) is not int or config["format"] != FORMAT_VERSION:
@@ -132,12 +169,15 @@ def load_model(path: str | os.PathLike[str]) -> LoadedModel:
     fc = state.get("trunk.fc.weight") if isinstance(state, dict) else None
     if not isinstance(fc, torch.Tensor) or fc.shape[0] != hidden:
         raise ModelError(f"{path}: weights do not match the config (hidden {hidden})")
+    env_config = _env_config(path, config.get("env"))
+    _check_number(path, "test_cycles", config.get("test_cycles", 1), int, 1, _MAX_CYCLES)
     try:
-        env_config = EnvConfig(**config["env"])
         actor = Actor(hidden)
         actor.load_state_dict(state, strict=True)
     except (KeyError, TypeError, ValueError, RuntimeError) as error:
         first = str(error).strip().splitlines()[0]
         raise ModelError(f"{path}: weights do not match the config: {first}") from None
+    if not all(bool(torch.isfinite(tensor).all()) for tensor in actor.state_dict().values()):
+        raise ModelError(f"{path}: the weights hold NaN or infinite values")
     actor.eval()
     return LoadedModel(actor, env_config, config, path)
