@@ -14,10 +14,14 @@ from rlpgo_gtsam.errors import OutputError
 
 __all__ = ["write_text", "write_bytes", "write_together", "check_output"]
 
+_LONGEST_NAME = 255  # bytes: the usual file-name limit (ext4, xfs, btrfs)
+
 
 def check_output(path: str | os.PathLike[str]) -> None:
     """Raise :class:`OutputError` now if ``path`` could not be written later."""
     path = Path(path)
+    if len(os.fsencode(path.name)) > _LONGEST_NAME:
+        raise OutputError(f"{path}: file name longer than {_LONGEST_NAME} bytes")
     if path.is_dir():
         raise OutputError(f"{path}: is a directory; give a file name for the output")
     folder = path.parent
@@ -43,10 +47,20 @@ def write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
     """
     path = Path(path)
     check_output(path)
-    if path.exists() and not path.is_file():
+    if _is_stream(path):
         _write_through(path, data)
     else:
         _write_atomic(path, data)
+
+
+def _is_stream(path: Path) -> bool:
+    """A device, pipe or /dev, /proc name (``/dev/stdout`` is a symlink to /proc/self/fd/1,
+    which may point at a regular file: replacing it would replace the symlink)."""
+    if path.exists() and not path.is_file():
+        return True
+    resolved = str(path.resolve())
+    return resolved.startswith(("/dev/", "/proc/")) or str(path.absolute()).startswith(
+        ("/dev/", "/proc/"))
 
 
 def write_together(items: list[tuple[str | os.PathLike[str], bytes]]) -> None:
@@ -65,7 +79,7 @@ def write_together(items: list[tuple[str | os.PathLike[str], bytes]]) -> None:
         for path, data in items:
             path = Path(path)
             check_output(path)
-            if path.exists() and not path.is_file():
+            if _is_stream(path):
                 through.append((path, data))
             else:
                 staged.append((_stage(path, data), path))
@@ -86,7 +100,9 @@ def write_together(items: list[tuple[str | os.PathLike[str], bytes]]) -> None:
 def _stage(path: Path, data: bytes) -> str:
     """A synced temporary file beside ``path`` holding ``data``; returns its name."""
     try:
-        descriptor, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+        # A short temporary name: one derived from a 250-byte output name would be too long.
+        descriptor, temp_name = tempfile.mkstemp(prefix=".rlpgo-", suffix=".tmp",
+                                                 dir=path.parent)
     except OSError as error:
         raise OutputError(f"{path}: cannot write: {error.strerror or error}") from None
     try:

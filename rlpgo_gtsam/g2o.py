@@ -311,6 +311,10 @@ def g2o_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
     fixed = []
     for index in range(graph.size()):
         factor = graph.at(index)
+        for key in [] if factor is None else factor.keys():
+            if not values.exists(key):
+                raise OutputError(f"factor {index} refers to key {key}, which has no value: "
+                                  "the file would not read back")
         if isinstance(factor, gtsam.BetweenFactorPose2):
             i, j = factor.keys()
             z = factor.measured()

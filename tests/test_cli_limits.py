@@ -117,3 +117,41 @@ def test_a_file_name_with_a_newline_gives_one_escaped_line(tmp_path):
     result = CliRunner().invoke(init_main, [str(path), "-o", str(tmp_path / "out.g2o")])
     _clean_failure(result, 1, "bad\\nname.g2o: holds no EDGE_SE2 line")
     assert result.stderr.count("\n") == 1
+
+
+def test_long_output_names_work_and_too_long_ones_fail_before_the_work(tmp_path, small_noisy):
+    path = tmp_path / "in.g2o"
+    write_g2o(path, small_noisy.graph, small_noisy.initial)
+    longest = tmp_path / ("x" * 251 + ".g2o")  # 255 bytes
+    result = CliRunner().invoke(init_main, [str(path), "-o", str(longest), "--method",
+                                            "chordal"])
+    assert result.exit_code == 0, result.output
+    assert read_g2o(longest)[1].size() == small_noisy.initial.size()
+    too_long = tmp_path / ("y" * 252 + ".g2o")
+    result = CliRunner().invoke(init_main, [str(path), "-o", str(too_long), "--method",
+                                            "chordal"])
+    _clean_failure(result, 1, "file name longer than 255 bytes")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["in.g2o", longest.name])
+
+
+def test_write_g2o_refuses_a_factor_whose_key_has_no_value(tmp_path, small_noisy):
+    import gtsam
+
+    from rlpgo_gtsam import OutputError
+
+    values = gtsam.Values(small_noisy.initial)
+    values.erase(7)
+    with pytest.raises(OutputError, match="refers to key 7, which has no value"):
+        write_g2o(tmp_path / "out.g2o", small_noisy.graph, values)
+    assert not (tmp_path / "out.g2o").exists()
+
+
+def test_dev_stdout_is_written_as_a_stream_not_replaced():
+    from pathlib import Path
+
+    from rlpgo_gtsam.files import write_text
+
+    link = Path("/dev/stdout")
+    before = (link.is_symlink(), os.readlink(link) if link.is_symlink() else None)
+    write_text(link, "")  # through whatever fd 1 is, a pipe or pytest's capture file
+    assert (link.is_symlink(), os.readlink(link) if link.is_symlink() else None) == before

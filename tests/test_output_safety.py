@@ -3,7 +3,7 @@
 Covered: ``rlpgo-init`` and ``rlpgo-generate`` (through click's CliRunner) and
 :func:`write_g2o` directly. For the CLIs a failed write must give exit code 1, exactly one
 ``Error: ...`` line on stderr, nothing on stdout and no traceback; the input and any file
-already at the output path must keep their bytes, and no temporary file (``.name.*``) may
+already at the output path must keep their bytes, and no temporary file (``.rlpgo-*.tmp``) may
 be left beside the output.
 """
 
@@ -445,7 +445,7 @@ def test_write_g2o_failure_keeps_the_existing_file(tmp_path, input_file, monkeyp
         write_g2o(output, graph, values)
     assert str(excinfo.value) == f"{output}: cannot write: Input/output error"
     assert output.read_bytes() == OLD
-    assert sorted(p.name for p in folder.iterdir()) == ["out.g2o"]  # no .out.g2o.* left
+    assert sorted(p.name for p in folder.iterdir()) == ["out.g2o"]  # no temporary file left
 
 
 def test_write_g2o_failure_creates_nothing(tmp_path, input_file, monkeypatch):

@@ -42,7 +42,7 @@ class RunFiles:
             if path is None:
                 continue
             path = Path(path)
-            check_output(path)
+            check_output(path)  # first: a name the system cannot hold fails here, clearly
             if self.is_input(path):
                 raise OutputError(f"{path}: is an input of this run; refusing to overwrite it")
             if any(os.path.abspath(path) == os.path.abspath(other) for other in seen):
