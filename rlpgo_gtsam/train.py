@@ -83,9 +83,14 @@ def train(
     rng = np.random.default_rng(config.seed)
     start_episode, elapsed, best_validation = 0, 0.0, float("inf")
     if resume and paths[".train.pt"].exists():
-        state = torch.load(paths[".train.pt"], weights_only=True)
-        agent.load_state_dict(state["agent"])
-        start_episode, elapsed = int(state["episode"]), float(state["seconds"])
+        state = _training_state(paths[".train.pt"], config)
+        try:
+            agent.load_state_dict(state["agent"])
+        except (KeyError, TypeError, ValueError, RuntimeError) as error:
+            first = " ".join(str(error).split())[:200]
+            raise ModelError(f"{paths['.train.pt']}: training state does not fit this "
+                             f"configuration: {first}") from None
+        start_episode, elapsed = state["episode"], float(state["seconds"])
         best_validation = float(state.get("best_validation", float("inf")))
         rng = np.random.default_rng([config.seed, start_episode])
     elif resume:
@@ -140,6 +145,31 @@ def train(
         writer.close()
     _plot_rewards(paths[".csv"], paths[".png"], config)
     return paths[".zip"]
+
+
+def _training_state(path: Path, config: TrainConfig) -> dict:
+    """The checkpoint at ``path``, loaded without unpickling code and checked field by field.
+
+    Raises:
+        ModelError: unreadable, not a dict of the expected fields, or out of range.
+    """
+    try:
+        state = torch.load(path, weights_only=True, map_location="cpu")
+    except Exception as error:  # torch raises UnpicklingError, RuntimeError, EOFError, ...
+        first = " ".join(str(error).split())[:200] or type(error).__name__
+        raise ModelError(f"{path}: not a readable training state ({first})") from None
+    if not isinstance(state, dict) or not isinstance(state.get("agent"), dict):
+        raise ModelError(f"{path}: not a training state (needs agent, episode, seconds)")
+    episode, seconds = state.get("episode"), state.get("seconds")
+    if type(episode) is not int or not 0 <= episode <= config.episodes:
+        raise ModelError(f"{path}: episode must be an integer in 0..{config.episodes}, "
+                         f"got {str(episode)[:40]}")
+    if type(seconds) not in (int, float) or not 0 <= seconds < float("inf"):
+        raise ModelError(f"{path}: seconds must be a finite number >= 0")
+    best = state.get("best_validation", float("inf"))
+    if type(best) not in (int, float) or best != best:
+        raise ModelError(f"{path}: best_validation must be a number")
+    return state
 
 
 def _validate(agent: SacAgent, config: TrainConfig) -> float:

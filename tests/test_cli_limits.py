@@ -155,3 +155,24 @@ def test_dev_stdout_is_written_as_a_stream_not_replaced():
     before = (link.is_symlink(), os.readlink(link) if link.is_symlink() else None)
     write_text(link, "")  # through whatever fd 1 is, a pipe or pytest's capture file
     assert (link.is_symlink(), os.readlink(link) if link.is_symlink() else None) == before
+
+
+@pytest.mark.parametrize("content", [
+    ["a", "list"], {}, b"garbage", {"agent": {}, "episode": -3, "seconds": 1.0},
+    {"agent": {"actor": 1}, "episode": 1, "seconds": 1.0},
+], ids=["list", "empty-dict", "garbage", "negative-episode", "wrong-agent"])
+def test_resume_from_a_corrupt_training_state_is_one_line(tmp_path, content):
+    import torch
+
+    state = tmp_path / "m.train.pt"
+    if isinstance(content, bytes):
+        state.write_bytes(content)
+    else:
+        torch.save(content, state)
+    before = state.read_bytes()
+    result = CliRunner().invoke(train_main, ["--preset", "1", "--episodes", "2", "--hidden", "8",
+                                             "--out", str(tmp_path / "m"), "--resume"])
+    _clean_failure(result, 1, f"{state}: ")
+    assert result.stderr.count("\n") == 1
+    assert state.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.train.pt"]

@@ -19,11 +19,11 @@ from rlpgo_gtsam.synthetic import generate
 @click.command(cls=RlpgoCommand)
 @click.option("--n", type=click.IntRange(2, 10_000_000), default=300, show_default=True,
               help="Number of poses.")
-@click.option("--sigma-r", type=FiniteFloat(0.0, 3.2, min_open=True), default=0.3,
+@click.option("--sigma-r", type=FiniteFloat(1e-9, 3.2), default=0.3,
               show_default=True, help="Rotation noise, radians.")
-@click.option("--sigma-t", type=FiniteFloat(0.0, 1e6, min_open=True), default=0.05,
+@click.option("--sigma-t", type=FiniteFloat(1e-9, 1e6), default=0.05,
               show_default=True, help="Translation noise per axis, metres.")
-@click.option("--d", type=FiniteFloat(0.0, 1e6, min_open=True), default=3.0,
+@click.option("--d", type=FiniteFloat(1e-6, 1e6), default=3.0,
               show_default=True, help="Spacing of poses and rows, metres.")
 @click.option("--lc", type=FiniteFloat(0.0, 1.0), default=0.5, show_default=True,
               help="Fraction of loop-closure candidates kept.")
