@@ -11,6 +11,9 @@ Supported lines::
     FIX id [id ...]
     # comment
 
+Lines longer than :data:`MAX_LINE_BYTES` (64 KiB) are refused, so that a file without
+newlines is read in bounded memory.
+
 A ``FIX``-ed vertex becomes a :class:`gtsam.PriorFactorPose2` with a constrained noise
 model: the pose is held where its vertex line puts it (the first FIXed pose is the anchor;
 a held pose adds nothing to :func:`~rlpgo_gtsam.graph.chi2`).

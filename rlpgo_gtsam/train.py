@@ -10,6 +10,7 @@ pass ``on_episode`` to show progress). The training state is checkpointed to
 from __future__ import annotations
 
 import csv
+import io
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -26,7 +27,7 @@ from rlpgo_gtsam.env import PoseGraphEnv
 from rlpgo_gtsam.episode import PRESETS, EnvConfig
 from rlpgo_gtsam.errors import ModelError
 from rlpgo_gtsam.evaluation import best_oc_ratios
-from rlpgo_gtsam.files import write_bytes
+from rlpgo_gtsam.files import write_bytes, write_text
 
 __all__ = ["TrainConfig", "train", "CSV_FIELDS"]
 
@@ -96,51 +97,51 @@ def train(
     elif resume:
         raise ModelError(f"{paths['.train.pt']}: nothing to resume")
     writer = _tensorboard(out)
-    mode = "a" if start_episode else "w"
-    with paths[".csv"].open(mode, newline="") as log:
-        csv_writer = csv.writer(log)
-        if not start_episode:
-            csv_writer.writerow(CSV_FIELDS)
-        env.reset(seed=config.seed + start_episode)
-        warmup = config.sac.warmup_episodes
-        for episode_index in range(start_episode, config.episodes):
-            began = time.perf_counter()
-            # A resumed run starts with an empty replay (it is not checkpointed): it refills
-            # from the current policy, sampled with replacement until it grows.
-            episode = run_episode(env, None if episode_index < warmup else agent.actor, rng)
-            agent.replay.add(episode.observations, episode.last_actions, episode.actions,
-                             episode.rewards)
-            losses = agent.update() if episode_index + 1 >= warmup else {}
-            elapsed += time.perf_counter() - began
-            reward = float(episode.rewards.sum())
-            csv_writer.writerow([episode_index + 1, f"{reward:.4f}", f"{episode.initial_oc:.6g}",
-                                 f"{episode.best_oc:.6g}", f"{episode.final_oc:.6g}",
-                                 f"{elapsed:.2f}"])
-            log.flush()
-            if writer is not None:
-                writer.add_scalar("episode/reward", reward, episode_index + 1)
-                writer.add_scalar("episode/best_oc_ratio",
-                                  episode.best_oc / max(episode.initial_oc, 1e-12),
-                                  episode_index + 1)
-                for name, value in losses.items():
-                    writer.add_scalar(f"loss/{name}", value, episode_index + 1)
-            if on_episode is not None:
-                on_episode(episode_index + 1, episode, elapsed)
-            done = episode_index + 1
-            if done % config.checkpoint_every == 0 or done == config.episodes:
-                metadata = _metadata(config, done, elapsed)
-                if config.validation_graphs:
-                    score = _validate(agent, config)
-                    if writer is not None:
-                        writer.add_scalar("validation/best_oc_ratio", score, done)
-                    if score < best_validation:
-                        best_validation = score
-                        metadata |= {"validation_best_oc_ratio": score, "selected_episode": done}
-                        save_model(paths[".zip"], agent.actor, config.env_config, metadata)
-                else:
+    # The log is kept in memory and written atomically with each checkpoint, so that the zip,
+    # the CSV and the training state on disk always belong to the same run and episode: an
+    # interrupted run leaves the previous checkpoint's files as they were.
+    rows = _log_rows(paths[".csv"], start_episode) if start_episode else []
+    env.reset(seed=config.seed + start_episode)
+    warmup = config.sac.warmup_episodes
+    for episode_index in range(start_episode, config.episodes):
+        began = time.perf_counter()
+        # A resumed run starts with an empty replay (it is not checkpointed): it refills
+        # from the current policy, sampled with replacement until it grows.
+        episode = run_episode(env, None if episode_index < warmup else agent.actor, rng)
+        agent.replay.add(episode.observations, episode.last_actions, episode.actions,
+                         episode.rewards)
+        losses = agent.update() if episode_index + 1 >= warmup else {}
+        elapsed += time.perf_counter() - began
+        reward = float(episode.rewards.sum())
+        rows.append([episode_index + 1, f"{reward:.4f}", f"{episode.initial_oc:.6g}",
+                     f"{episode.best_oc:.6g}", f"{episode.final_oc:.6g}", f"{elapsed:.2f}"])
+        if writer is not None:
+            writer.add_scalar("episode/reward", reward, episode_index + 1)
+            writer.add_scalar("episode/best_oc_ratio",
+                              episode.best_oc / max(episode.initial_oc, 1e-12),
+                              episode_index + 1)
+            for name, value in losses.items():
+                writer.add_scalar(f"loss/{name}", value, episode_index + 1)
+        if on_episode is not None:
+            on_episode(episode_index + 1, episode, elapsed)
+        done = episode_index + 1
+        if done % config.checkpoint_every == 0 or done == config.episodes:
+            metadata = _metadata(config, done, elapsed)
+            if config.validation_graphs:
+                score = _validate(agent, config)
+                if writer is not None:
+                    writer.add_scalar("validation/best_oc_ratio", score, done)
+                if score < best_validation:
+                    best_validation = score
+                    metadata |= {"validation_best_oc_ratio": score, "selected_episode": done}
                     save_model(paths[".zip"], agent.actor, config.env_config, metadata)
-                torch.save({"agent": agent.state_dict(), "episode": done, "seconds": elapsed,
-                            "best_validation": best_validation}, paths[".train.pt"])
+            else:
+                save_model(paths[".zip"], agent.actor, config.env_config, metadata)
+            _write_log(paths[".csv"], rows)
+            buffer = io.BytesIO()
+            torch.save({"agent": agent.state_dict(), "episode": done, "seconds": elapsed,
+                        "best_validation": best_validation}, buffer)
+            write_bytes(paths[".train.pt"], buffer.getvalue())
     if writer is not None:
         writer.close()
     _plot_rewards(paths[".csv"], paths[".png"], config)
@@ -198,6 +199,24 @@ def _tensorboard(out: Path):
     except ImportError:  # tensorboard is optional: pip install rlpgo-gtsam[train]
         return None
     return SummaryWriter(log_dir=str(out.parent / "runs" / out.name))
+
+
+def _log_rows(path: Path, episodes: int) -> list[list]:
+    """The rows of an earlier run's log up to ``episodes`` (those a resumed run keeps)."""
+    try:
+        with path.open(newline="") as handle:
+            rows = list(csv.reader(handle))[1:]
+    except OSError:
+        return []
+    return [row for row in rows if row and row[0].isdigit() and int(row[0]) <= episodes]
+
+
+def _write_log(path: Path, rows: list[list]) -> None:
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(CSV_FIELDS)
+    writer.writerows(rows)
+    write_text(path, text.getvalue())
 
 
 def _plot_rewards(csv_path: Path, png_path: Path, config: TrainConfig) -> None:

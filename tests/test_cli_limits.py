@@ -176,3 +176,26 @@ def test_resume_from_a_corrupt_training_state_is_one_line(tmp_path, content):
     assert result.stderr.count("\n") == 1
     assert state.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.train.pt"]
+
+
+def test_an_interrupted_training_leaves_the_earlier_run_consistent(tmp_path):
+    """Outputs are written together at checkpoints only: a run stopped before its first
+    checkpoint leaves the earlier run's log, model and state as they were."""
+    from rlpgo_gtsam.agent.config import SacConfig
+    from rlpgo_gtsam.train import TrainConfig, train
+
+    sac = SacConfig(hidden=8, batch_size=2, gradient_steps=1, warmup_episodes=1, window=8,
+                    burn_in=2)
+    first = TrainConfig(preset=1, episodes=2, out=str(tmp_path / "m"), sac=sac,
+                        checkpoint_every=2)
+    train(first)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+
+    def stop(episode_number, episode, seconds):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train(TrainConfig(preset=1, episodes=4, seed=1, out=str(tmp_path / "m"), sac=sac,
+                          checkpoint_every=2), on_episode=stop)
+    after = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    assert after == before

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import shlex
 import sys
+from pathlib import Path
 
 import click
 
 from rlpgo_cli.errors import RlpgoCommand
+from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import COUNT, SEED
 from rlpgo_gtsam.agent.config import SacConfig
 from rlpgo_gtsam.episode import PRESETS
@@ -37,6 +39,10 @@ def main(preset, episodes, seed, out, resume, hidden, batch_size, gradient_steps
     from rlpgo_gtsam.train import TrainConfig, train
 
     out = out or f"models/preset{preset}"
+    stem = Path(out)
+    if stem.parent.exists():  # train() creates a missing folder; its files are checked here
+        RunFiles().check(*(stem.with_name(stem.name + suffix)
+                           for suffix in (".zip", ".csv", ".png", ".train.pt")))
     config = TrainConfig(
         preset=preset, episodes=episodes, seed=seed, out=out,
         sac=SacConfig(hidden=hidden, batch_size=batch_size, gradient_steps=gradient_steps),
