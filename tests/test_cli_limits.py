@@ -199,3 +199,26 @@ def test_an_interrupted_training_leaves_the_earlier_run_consistent(tmp_path):
                           checkpoint_every=2), on_episode=stop)
     after = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
     assert after == before
+
+
+def test_a_trailing_slash_names_a_folder_and_is_refused(tmp_path, small_noisy):
+    path = tmp_path / "in.g2o"
+    write_g2o(path, small_noisy.graph, small_noisy.initial)
+    (tmp_path / "out").mkdir()
+    result = CliRunner().invoke(init_main, [str(path), "-o", f"{tmp_path}/out/new.g2o/"])
+    _clean_failure(result, 2, "names a folder; give a file name")
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_ctrl_c_while_a_command_is_still_importing_is_one_line():
+    """SIGINT 0.3 s after start lands in the imports (GTSAM, numpy, scipy)."""
+    process = subprocess.Popen([sys.executable, "-c", "from rlpgo_cli.launch import init; "
+                                "init()", "--help"], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    time.sleep(0.3)
+    process.send_signal(signal.SIGINT)
+    stdout, stderr = process.communicate(timeout=60)
+    assert "Traceback" not in stderr
+    # 0: --help answered first; -2: the signal came before Python's own handler was set up.
+    if process.returncode not in (0, -signal.SIGINT):
+        assert (process.returncode, stderr) == (130, "Error: interrupted\n")

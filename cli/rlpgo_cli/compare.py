@@ -9,7 +9,7 @@ import numpy as np
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
-from rlpgo_cli.types import COUNT, ITERATIONS, SEED
+from rlpgo_cli.types import COUNT, ITERATIONS, SEED, OutputFile
 from rlpgo_gtsam.comparison import MethodResult, best_of, compare_methods
 from rlpgo_gtsam.errors import OutputError, RlpgoError
 from rlpgo_gtsam.g2o import read_g2o
@@ -76,7 +76,7 @@ def _methods(text: str, start: str) -> list[str]:
               help="Iteration cap of the solver.")
 @click.option("--methods", default=DEFAULT_METHODS, show_default=True,
               help="Comma-separated initializers to compare.")
-@click.option("--json", "json_path", type=click.Path(path_type=Path),
+@click.option("--json", "json_path", type=OutputFile(),
               help="Write every row as a JSON list of records.")
 @click.option("--plot", "plot_dir", type=click.Path(path_type=Path),
               help="Write one PNG per file: the initial guess and each refined trajectory.")

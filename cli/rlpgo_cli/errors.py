@@ -6,9 +6,9 @@ import signal
 
 import click
 
+from rlpgo_cli.launch import INTERRUPTED_EXIT
 from rlpgo_gtsam.errors import RlpgoError
 
-INTERRUPTED_EXIT = 130
 _LONGEST_MESSAGE = 1000
 
 

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
-from rlpgo_cli.types import COUNT, SEED
+from rlpgo_cli.types import COUNT, SEED, OutputFile
 from rlpgo_gtsam.episode import PRESETS
 from rlpgo_gtsam.models import DEFAULT_PRESET_MODEL, model_path, resolve_model
 
@@ -20,7 +18,7 @@ from rlpgo_gtsam.models import DEFAULT_PRESET_MODEL, model_path, resolve_model
 @click.option("--graphs", type=COUNT, default=50, show_default=True)
 @click.option("--seed", type=SEED, default=1000, show_default=True)
 @click.option("--noisy-measurements", is_flag=True, help="Evaluate on noisy-measurement graphs.")
-@click.option("--json", "json_path", type=click.Path(path_type=Path))
+@click.option("--json", "json_path", type=OutputFile())
 def main(model, preset, graphs, seed, noisy_measurements, json_path):
     """Deterministic rollouts on fresh graphs of a preset; mean initial and best OC."""
     from rlpgo_gtsam.evaluation import evaluate

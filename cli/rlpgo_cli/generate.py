@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import click
 import numpy as np
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
-from rlpgo_cli.types import SEED, FiniteFloat
+from rlpgo_cli.types import SEED, FiniteFloat, OutputFile
 from rlpgo_gtsam.files import write_together
 from rlpgo_gtsam.g2o import g2o_text
 from rlpgo_gtsam.graph import chi2
@@ -30,9 +28,9 @@ from rlpgo_gtsam.synthetic import generate
 @click.option("--noisy-measurements", is_flag=True,
               help="Perturb the measurements too (the paper's graphs have exact ones).")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Random seed.")
-@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
+@click.option("-o", "--output", type=OutputFile(), required=True,
               help="g2o file for the graph and its noisy initial guess.")
-@click.option("--ground-truth", type=click.Path(path_type=Path),
+@click.option("--ground-truth", type=OutputFile(),
               help="g2o file for the graph with the ground-truth poses.")
 def main(n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_truth):
     """Generate a lawn-mower pose graph as in the RL-PGO paper."""

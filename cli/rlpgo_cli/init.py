@@ -10,7 +10,7 @@ import click
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
-from rlpgo_cli.types import COUNT, ITERATIONS, SEED, FiniteFloat
+from rlpgo_cli.types import COUNT, ITERATIONS, SEED, FiniteFloat, OutputFile
 from rlpgo_gtsam.comparison import MethodResult, best_of, compare_methods
 from rlpgo_gtsam.errors import ModelError, RlpgoError
 from rlpgo_gtsam.g2o import read_g2o
@@ -77,7 +77,7 @@ def _print_stage(row: MethodResult, reason: str) -> None:
 
 @click.command(cls=RlpgoCommand)
 @click.argument("input_path", metavar="INPUT.g2o", type=click.Path(path_type=Path))
-@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
+@click.option("-o", "--output", type=OutputFile(), required=True,
               help="g2o file to write (never the input).")
 @click.option("--method", default="auto", show_default=True,
               help="auto (certify, else search), all (every method, keep the lowest chi2), rl, "

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import os
+from pathlib import Path
 
 import click
 
@@ -39,3 +41,18 @@ class FiniteFloat(click.ParamType):
             self.fail(f"{number:g} is not in {low}{self.minimum:g}, {self.maximum:g}]", param,
                       ctx)
         return number
+
+
+class OutputFile(click.ParamType):
+    """A file to write, as a :class:`pathlib.Path`; a name ending in "/" (which names a
+    folder, and which ``pathlib`` would silently drop) is refused."""
+
+    name = "path"
+
+    def convert(self, value, param, ctx) -> Path:
+        if isinstance(value, Path):
+            return value
+        text = str(value)
+        if not text or text.endswith(("/", os.sep)):
+            self.fail(f"{text!r} names a folder; give a file name", param, ctx)
+        return Path(text)
