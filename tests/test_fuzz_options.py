@@ -61,7 +61,7 @@ JSON_VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12),
                         st.lists(st.integers(), max_size=2))
 
 
-@settings(max_examples=200, deadline=None,
+@settings(max_examples=120, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(env=st.dictionaries(st.sampled_from(["n", "sigma_r", "sigma_t", "d", "lc", "cycles",
                                             "action_range_rad", "noisy_measurements",
