@@ -1,7 +1,6 @@
 """Bounded resources and validated options: one-line errors, no traceback, nothing written."""
 
 import os
-import resource
 import signal
 import subprocess
 import sys
