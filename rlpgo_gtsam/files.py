@@ -12,16 +12,25 @@ from pathlib import Path
 
 from rlpgo_gtsam.errors import OutputError
 
-__all__ = ["write_text", "write_bytes", "write_together", "check_output"]
+__all__ = ["write_text", "write_bytes", "write_together", "check_output", "check_name"]
 
 _LONGEST_NAME = 255  # bytes: the usual file-name limit (ext4, xfs, btrfs)
+
+
+def check_name(path: str | os.PathLike[str]) -> None:
+    """Raise :class:`OutputError` if the name of ``path``, or of a folder on the way to it,
+    is longer than the usual file-system limit (255 bytes)."""
+    path = Path(path)
+    if len(os.fsencode(path.name)) > _LONGEST_NAME:
+        raise OutputError(f"{path}: file name longer than {_LONGEST_NAME} bytes")
+    if any(len(os.fsencode(part)) > _LONGEST_NAME for part in path.parent.parts):
+        raise OutputError(f"{path}: a folder name in it is longer than {_LONGEST_NAME} bytes")
 
 
 def check_output(path: str | os.PathLike[str]) -> None:
     """Raise :class:`OutputError` now if ``path`` could not be written later."""
     path = Path(path)
-    if len(os.fsencode(path.name)) > _LONGEST_NAME:
-        raise OutputError(f"{path}: file name longer than {_LONGEST_NAME} bytes")
+    check_name(path)
     if path.is_dir():
         raise OutputError(f"{path}: is a directory; give a file name for the output")
     folder = path.parent

@@ -12,10 +12,13 @@ if TYPE_CHECKING:  # loading a model needs torch; naming one does not
     from rlpgo_gtsam.agent.checkpoint import LoadedModel
 
 __all__ = ["models_dir", "resolve_model", "shipped_models", "DEFAULT_MODEL",
-           "DEFAULT_PRESET_MODEL"]
+           "DEFAULT_PRESET_MODEL", "MAX_HIDDEN"]
 
 DEFAULT_MODEL = "preset4"
 DEFAULT_PRESET_MODEL = "preset{preset}"
+# The widest network a model file may hold (the paper's is 512): a 1024-wide actor's weights
+# are 44 MiB, so loading any accepted model stays around 100 MB. rlpgo-train takes no wider.
+MAX_HIDDEN = 1024
 
 
 def models_dir() -> Path:

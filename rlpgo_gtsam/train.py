@@ -5,12 +5,18 @@ when it is installed, and to a PNG of the reward curve; nothing is printed (a ca
 pass ``on_episode`` to show progress). The training state is checkpointed to
 ``<out>.train.pt`` so that ``resume=True`` continues an interrupted run; the shipped model
 ``<out>.zip`` holds the actor only.
+
+Outputs are written only at checkpoints, all together (``files.write_together``): the
+files on disk always belong to one run and one checkpoint. A new run
+(``resume=False``) on an ``out`` that holds an earlier run's files replaces them at its first
+checkpoint; stopped before that, it leaves them as they were.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -19,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rlpgo_gtsam.agent.checkpoint import save_model
+from rlpgo_gtsam.agent.checkpoint import model_bytes
 from rlpgo_gtsam.agent.config import SacConfig
 from rlpgo_gtsam.agent.inference import NumpyPolicy
 from rlpgo_gtsam.agent.sac import Episode, SacAgent, run_episode
@@ -27,7 +33,7 @@ from rlpgo_gtsam.env import PoseGraphEnv
 from rlpgo_gtsam.episode import PRESETS, EnvConfig
 from rlpgo_gtsam.errors import ModelError
 from rlpgo_gtsam.evaluation import best_oc_ratios
-from rlpgo_gtsam.files import write_bytes, write_text
+from rlpgo_gtsam.files import write_together
 
 __all__ = ["TrainConfig", "train", "CSV_FIELDS"]
 
@@ -127,6 +133,7 @@ def train(
         done = episode_index + 1
         if done % config.checkpoint_every == 0 or done == config.episodes:
             metadata = _metadata(config, done, elapsed)
+            files = []
             if config.validation_graphs:
                 score = _validate(agent, config)
                 if writer is not None:
@@ -134,17 +141,20 @@ def train(
                 if score < best_validation:
                     best_validation = score
                     metadata |= {"validation_best_oc_ratio": score, "selected_episode": done}
-                    save_model(paths[".zip"], agent.actor, config.env_config, metadata)
+                    files.append((paths[".zip"], model_bytes(agent.actor, config.env_config,
+                                                             metadata)))
             else:
-                save_model(paths[".zip"], agent.actor, config.env_config, metadata)
-            _write_log(paths[".csv"], rows)
+                files.append((paths[".zip"], model_bytes(agent.actor, config.env_config,
+                                                         metadata)))
             buffer = io.BytesIO()
             torch.save({"agent": agent.state_dict(), "episode": done, "seconds": elapsed,
                         "best_validation": best_validation}, buffer)
-            write_bytes(paths[".train.pt"], buffer.getvalue())
+            files += [(paths[".csv"], _log_text(rows).encode()),
+                      (paths[".png"], _plot_rewards(rows, config)),
+                      (paths[".train.pt"], buffer.getvalue())]
+            write_together(files)  # all of a checkpoint's files, or none of them
     if writer is not None:
         writer.close()
-    _plot_rewards(paths[".csv"], paths[".png"], config)
     return paths[".zip"]
 
 
@@ -208,22 +218,31 @@ def _log_rows(path: Path, episodes: int) -> list[list]:
             rows = list(csv.reader(handle))[1:]
     except OSError:
         return []
-    return [row for row in rows if row and row[0].isdigit() and int(row[0]) <= episodes]
+    return [row for row in rows if _log_row(row) and int(row[0]) <= episodes]
 
 
-def _write_log(path: Path, rows: list[list]) -> None:
+def _log_row(row: list[str]) -> bool:
+    """A well-formed log row: an episode number and five numbers (a hand-edited or
+    truncated earlier log loses its bad rows, not the resumed run)."""
+    if len(row) != len(CSV_FIELDS) or not (row[0].isdigit() and len(row[0]) <= 12):
+        return False
+    try:
+        return all(math.isfinite(float(value)) for value in row[1:])
+    except ValueError:
+        return False
+
+
+def _log_text(rows: list[list]) -> str:
     text = io.StringIO()
     writer = csv.writer(text, lineterminator="\n")
     writer.writerow(CSV_FIELDS)
     writer.writerows(rows)
-    write_text(path, text.getvalue())
+    return text.getvalue()
 
 
-def _plot_rewards(csv_path: Path, png_path: Path, config: TrainConfig) -> None:
+def _plot_rewards(rows: list[list], config: TrainConfig) -> bytes:
+    """The PNG of the reward curve of the log ``rows``."""
     from rlpgo_gtsam.plotting import plot_training_curve
 
-    with csv_path.open() as handle:
-        rows = list(csv.DictReader(handle))
-    if rows:
-        write_bytes(png_path, plot_training_curve(
-            rows, title=f"preset {config.preset}, seed {config.seed}"))
+    records = [dict(zip(CSV_FIELDS, map(str, row), strict=True)) for row in rows]
+    return plot_training_curve(records, title=f"preset {config.preset}, seed {config.seed}")

@@ -224,7 +224,7 @@ def test_weights_of_another_size(tmp_path):
      ({"env": None}, "config field env must be an object"),
      ({"test_cycles": float("inf")}, "config field test_cycles must be an integer"),
      ({"test_cycles": 10**12}, "config field test_cycles must be an integer"),
-     ({"env": {"action_range_rad": "abc"}}, "config field env.action_range_rad must be a finite number"),
+     ({"env": {"action_range_rad": "abc"}}, "env.action_range_rad must be a finite number"),
      ({"env": {"cycles": float("nan")}}, "config field env.cycles must be an integer"),
      ({"env": {"noisy_measurements": 1}}, "env.noisy_measurements must be true or false")],
     ids=["hidden-str", "hidden-null", "hidden-negative", "env-unknown-key", "env-list",
@@ -378,3 +378,10 @@ def test_metadata_cannot_break_reserved_keys(tmp_path, metadata):
     loaded = load_model(path)
     assert loaded.metadata["format"] == FORMAT_VERSION
     assert loaded.actor.trunk.hidden == HIDDEN
+
+
+def test_the_width_limit_is_the_one_the_commands_show():
+    from rlpgo_gtsam.agent import checkpoint
+    from rlpgo_gtsam.models import MAX_HIDDEN
+
+    assert checkpoint._MAX_HIDDEN == MAX_HIDDEN

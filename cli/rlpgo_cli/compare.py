@@ -9,9 +9,10 @@ import numpy as np
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
-from rlpgo_cli.types import COUNT, ITERATIONS, SEED, OutputFile
+from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, OutputFile
 from rlpgo_gtsam.comparison import MethodResult, best_of, compare_methods
 from rlpgo_gtsam.errors import OutputError, RlpgoError
+from rlpgo_gtsam.files import check_name
 from rlpgo_gtsam.g2o import read_g2o
 from rlpgo_gtsam.graph import PoseGraph2D
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
@@ -84,7 +85,7 @@ def _methods(text: str, start: str) -> list[str]:
               help="Seed of the generated graph used when no FILE is given.")
 @click.option("--model", default=DEFAULT_MODEL, show_default=True,
               help="Agent of the rl methods: a shipped model name or a model file.")
-@click.option("--episodes", type=COUNT, default=1, show_default=True,
+@click.option("--episodes", type=ROLLOUTS, default=1, show_default=True,
               help="Rollouts of the rl methods (lowest chi2 kept).")
 @click.option("--start", type=click.Choice(start_names()), default="odometry",
               show_default=True, help="Start of method rl (rl@<start> names it per method).")
@@ -108,9 +109,13 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episod
             raise OutputError(f"{plot_dir}: exists and is not a folder")
         names = [path.stem for path in files] or ["generated"]
         plots = [plot_dir / f"{name}.png" for name in names]
-        if plot_dir.is_dir():
-            run.check(*plots)
-    run.check(json_path)
+        if len(set(plots)) < len(plots):
+            raise OutputError(f"{plot_dir}: two FILES have the same name; their plots would "
+                              "overwrite each other")
+        for plot in plots:  # in a folder still to be made, the names are what can be checked
+            check_name(plot)
+    # One check of every output: a PNG that is an input or is also --json is refused.
+    run.check(*(plots if plot_dir is not None and plot_dir.is_dir() else []), json_path)
     inputs = [(path.name, *read_g2o(path)) for path in files]  # all validated before any run
     if not inputs:
         demo = generate(rng=np.random.default_rng(seed), **DEMO)

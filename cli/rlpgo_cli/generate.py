@@ -15,8 +15,8 @@ from rlpgo_gtsam.synthetic import generate
 
 
 @click.command(cls=RlpgoCommand)
-@click.option("--n", type=click.IntRange(2, 10_000_000), default=300, show_default=True,
-              help="Number of poses.")
+@click.option("--n", type=click.IntRange(2, 1_000_000), default=300, show_default=True,
+              help="Number of poses (a million take minutes and about 1.5 GB).")
 @click.option("--sigma-r", type=FiniteFloat(1e-9, 3.2), default=0.3,
               show_default=True, help="Rotation noise, radians.")
 @click.option("--sigma-t", type=FiniteFloat(1e-9, 1e6), default=0.05,

@@ -10,7 +10,7 @@ import click
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
-from rlpgo_cli.types import COUNT, ITERATIONS, SEED, FiniteFloat, OutputFile
+from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, FiniteFloat, OutputFile
 from rlpgo_gtsam.comparison import MethodResult, best_of, compare_methods
 from rlpgo_gtsam.errors import ModelError, RlpgoError
 from rlpgo_gtsam.g2o import read_g2o
@@ -89,7 +89,7 @@ def _print_stage(row: MethodResult, reason: str) -> None:
               help="Agent: a shipped model name or a model file.")
 @click.option("--cycles", type=click.IntRange(1, 10_000), default=None,
               help="Passes over the edges [default: the model's test cycles].")
-@click.option("--episodes", type=COUNT, default=1, show_default=True,
+@click.option("--episodes", type=ROLLOUTS, default=1, show_default=True,
               help="Rollouts differing in their initial last action; lowest chi2 kept.")
 @click.option("--start", type=click.Choice(start_names()), default="odometry",
               show_default=True, help="Orientations the agent starts from (with --method rl).")

@@ -10,9 +10,11 @@ import click
 
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
-from rlpgo_cli.types import COUNT, SEED
+from rlpgo_cli.types import COUNT, SEED, OutputFile
 from rlpgo_gtsam.agent.config import SacConfig
 from rlpgo_gtsam.episode import PRESETS
+from rlpgo_gtsam.files import check_name
+from rlpgo_gtsam.models import MAX_HIDDEN
 
 
 @click.command(cls=RlpgoCommand)
@@ -20,9 +22,10 @@ from rlpgo_gtsam.episode import PRESETS
               help="The paper's training environment (Table I).")
 @click.option("--episodes", type=COUNT, default=300, show_default=True)
 @click.option("--seed", type=SEED, default=0, show_default=True)
-@click.option("--out", default=None, help="Path stem of the outputs [default: models/presetP].")
+@click.option("--out", type=OutputFile(), default=None,
+              help="Path stem of the outputs [default: models/presetP].")
 @click.option("--resume", is_flag=True, help="Continue from <out>.train.pt.")
-@click.option("--hidden", type=click.IntRange(4, 4096), default=SacConfig.hidden,
+@click.option("--hidden", type=click.IntRange(4, MAX_HIDDEN), default=SacConfig.hidden,
               show_default=True, help="Width of the layers and LSTMs (the paper: 512).")
 @click.option("--batch-size", type=click.IntRange(1, 4096), default=SacConfig.batch_size,
               show_default=True, help="Episodes per gradient step.")
@@ -38,11 +41,14 @@ def main(preset, episodes, seed, out, resume, hidden, batch_size, gradient_steps
     """Train an agent; writes <out>.zip (the model), <out>.csv and <out>.png (the log)."""
     from rlpgo_gtsam.train import TrainConfig, train
 
-    out = out or f"models/preset{preset}"
+    out = str(out or f"models/preset{preset}")
     stem = Path(out)
+    outputs = [stem.with_name(stem.name + suffix) for suffix in (".zip", ".csv", ".png",
+                                                                 ".train.pt")]
     if stem.parent.exists():  # train() creates a missing folder; its files are checked here
-        RunFiles().check(*(stem.with_name(stem.name + suffix)
-                           for suffix in (".zip", ".csv", ".png", ".train.pt")))
+        RunFiles().check(*outputs)
+    for path in outputs:
+        check_name(path)
     config = TrainConfig(
         preset=preset, episodes=episodes, seed=seed, out=out,
         sac=SacConfig(hidden=hidden, batch_size=batch_size, gradient_steps=gradient_steps),

@@ -13,6 +13,8 @@ import click
 SEED = click.IntRange(0, 2**32 - 1)
 ITERATIONS = click.IntRange(0, 100_000)
 COUNT = click.IntRange(1, 1_000_000)
+# Batched agent rollouts: each holds a copy of the graph's orientation state.
+ROLLOUTS = click.IntRange(1, 100)
 
 
 class FiniteFloat(click.ParamType):

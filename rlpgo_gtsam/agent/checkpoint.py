@@ -26,17 +26,20 @@ from rlpgo_gtsam.episode import EnvConfig
 from rlpgo_gtsam.errors import ModelError
 from rlpgo_gtsam.files import write_bytes
 
-__all__ = ["FORMAT_VERSION", "save_model", "load_model", "LoadedModel"]
+__all__ = ["FORMAT_VERSION", "save_model", "model_bytes", "load_model", "LoadedModel"]
 
 FORMAT_VERSION = 1
 _CONFIG, _WEIGHTS = "config.json", "actor.pt"
 _RESERVED = ("format", "package_version", "torch_version", "hidden", "env")
-_MAX_HIDDEN = 4096
-# Caps on the uncompressed members (a 4096-unit actor's weights are about 540 MB in float32;
-# the shipped ones are 0.2 MB): checked before reading, and the read itself is bounded, so a
-# zip bomb or a lying header cannot inflate memory.
+# The widest actor a model may hold (rlpgo_gtsam.models.MAX_HIDDEN, which the commands
+# import without torch; models sits above this module, and a test checks they agree).
+_MAX_HIDDEN = 1024
+# Caps on the uncompressed members, checked against the zip header before reading and
+# enforced by a bounded read (a zip bomb or a lying header cannot inflate memory). The
+# weights are further capped at what an actor of the config's hidden size needs.
 _MAX_CONFIG_BYTES = 1 << 20
-_MAX_WEIGHTS_BYTES = 1 << 30
+_MAX_WEIGHTS_BYTES = 64 << 20
+_WEIGHTS_FRAMING = 1 << 20  # torch.save's zip and pickle framing around the tensors
 
 
 def package_version() -> str:
@@ -57,9 +60,9 @@ class LoadedModel:
         self.path = path
 
 
-def save_model(path: str | os.PathLike[str], actor: Actor, env_config: EnvConfig,
-               metadata: dict) -> None:
-    """Write a model zip atomically; ``metadata`` must be JSON-serializable."""
+def model_bytes(actor: Actor, env_config: EnvConfig, metadata: dict) -> bytes:
+    """The bytes of a model zip (what :func:`save_model` writes); ``metadata`` must be
+    JSON-serializable and may not set the keys the package writes itself."""
     reserved = set(metadata) & set(_RESERVED)
     if reserved:
         raise ValueError(f"metadata may not set {', '.join(sorted(reserved))}")
@@ -77,42 +80,103 @@ def save_model(path: str | os.PathLike[str], actor: Actor, env_config: EnvConfig
     with zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED) as zf:
         zf.writestr(_CONFIG, json.dumps(config, indent=2))
         zf.writestr(_WEIGHTS, weights.getvalue())
-    write_bytes(path, archive.getvalue())
+    return archive.getvalue()
 
 
-# The schema of config.json's "env" (EnvConfig): type and inclusive range of every field.
+def save_model(path: str | os.PathLike[str], actor: Actor, env_config: EnvConfig,
+               metadata: dict) -> None:
+    """Write a model zip atomically; ``metadata`` must be JSON-serializable."""
+    write_bytes(path, model_bytes(actor, env_config, metadata))
+
+
+# The schema of config.json: type and inclusive range of every field the package reads or
+# writes. "env" (EnvConfig) is an object of its own; other top-level keys are free metadata
+# (save_model's ``metadata``), kept but never read.
+_MAX_CYCLES = 10_000
 _ENV_SCHEMA = {
-    "n": (int, 2, 10_000_000), "sigma_r": (float, 0.0, 3.2), "sigma_t": (float, 0.0, 1e6),
-    "d": (float, 0.0, 1e6), "lc": (float, 0.0, 1.0), "cycles": (int, 1, 10_000),
+    "n": (int, 2, 1_000_000), "sigma_r": (float, 0.0, 3.2), "sigma_t": (float, 0.0, 1e6),
+    "d": (float, 0.0, 1e6), "lc": (float, 0.0, 1.0), "cycles": (int, 1, _MAX_CYCLES),
     "action_range_rad": (float, 0.0, 3.2), "noisy_measurements": (bool, None, None),
 }
-_MAX_CYCLES = 10_000
+_TOP_SCHEMA = {
+    "format": (int, 0, 1_000_000), "hidden": (int, 1, _MAX_HIDDEN),
+    "test_cycles": (int, 1, _MAX_CYCLES), "preset": (int, 1, 5), "seed": (int, 0, 2**64 - 1),
+    "episodes": (int, 0, 10**9), "selected_episode": (int, 0, 10**9),
+    "train_seconds": (float, 0.0, 1e12), "validation_best_oc_ratio": (float, 0.0, 1e12),
+    "package_version": (str, 0, 200), "torch_version": (str, 0, 200),
+    "command": (str, 0, 100_000),
+}
+_REQUIRED = ("format", "hidden", "env")
 
 
-def _check_number(path: Path, name: str, value, kind: type, low, high) -> None:
-    """Raise ModelError unless ``value`` is a ``kind`` within [low, high] (finite)."""
+def _shown(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:40] + "..."
+
+
+def _check_field(path: Path, name: str, value, kind: type, low, high) -> None:
+    """Raise ModelError unless ``value`` is a ``kind`` within [low, high] (numbers finite;
+    for a string, [low, high] bounds its length)."""
     if kind is bool:
         if type(value) is not bool:
-            raise ModelError(f"{path}: config field {name} must be true or false")
+            raise ModelError(f"{path}: config field {name} must be true or false, "
+                             f"got {_shown(value)}")
+        return
+    if kind is str:
+        if type(value) is not str or not low <= len(value) <= high:
+            raise ModelError(f"{path}: config field {name} must be a string of at most "
+                             f"{high} characters, got {_shown(value)}")
         return
     allowed = (int,) if kind is int else (int, float)
     if type(value) not in allowed or (kind is float and not math.isfinite(value)) or \
             not low <= value <= high:
-        shown = repr(value)
-        shown = shown if len(shown) <= 40 else shown[:40] + "..."
-        raise ModelError(f"{path}: config field {name} must be a {kind.__name__} in "
-                         f"[{low:g}, {high:g}], got {shown}")
+        what = "an integer" if kind is int else "a finite number"
+        raise ModelError(f"{path}: config field {name} must be {what} in "
+                         f"[{low:g}, {high:g}], got {_shown(value)}")
 
 
-def _env_config(path: Path, env) -> EnvConfig:
+def _check_config(path: Path, config: dict) -> EnvConfig:
+    """Every known field of ``config`` against the schema; returns its EnvConfig."""
+    if type(config.get("format")) is not int or config["format"] != FORMAT_VERSION:
+        raise ModelError(
+            f"{path}: format {_shown(config.get('format'))}, this version reads format "
+            f"{FORMAT_VERSION}; use a matching rlpgo-gtsam"
+        )
+    hidden = config.get("hidden")
+    if type(hidden) is not int or not 1 <= hidden <= _MAX_HIDDEN:
+        raise ModelError(f"{path}: hidden size must be an integer in 1..{_MAX_HIDDEN}, "
+                         f"got {_shown(hidden)}")
+    for name, value in config.items():
+        if name in _TOP_SCHEMA:
+            _check_field(path, name, value, *_TOP_SCHEMA[name])
+        elif name in _ENV_SCHEMA:
+            raise ModelError(f"{path}: config field {name} belongs inside \"env\"")
+    sac = config.get("sac", {})
+    if not isinstance(sac, dict) or not all(
+            type(v) in (int, float, bool) and math.isfinite(v) for v in sac.values()):
+        raise ModelError(f"{path}: config field sac must be an object of finite numbers")
+    env = config.get("env")
     if not isinstance(env, dict):
         raise ModelError(f"{path}: config field env must be an object")
-    unknown = sorted(set(env) - set(_ENV_SCHEMA))
-    if unknown:
-        raise ModelError(f"{path}: unknown env field(s) {', '.join(unknown)[:200]}")
     for name, value in env.items():
-        _check_number(path, f"env.{name}", value, *_ENV_SCHEMA[name])
+        if name in _ENV_SCHEMA:
+            _check_field(path, f"env.{name}", value, *_ENV_SCHEMA[name])
+        elif name in _TOP_SCHEMA:
+            raise ModelError(f"{path}: env field {name} belongs at the top level of {_CONFIG}, "
+                             "not inside \"env\"")
+        else:
+            known = ", ".join(_ENV_SCHEMA)
+            raise ModelError(f"{path}: unknown env field {_shown(name)} (known: {known})")
     return EnvConfig(**env)
+
+
+def _weights_limit(hidden: int) -> int:
+    """The most bytes a saved actor of width ``hidden`` takes (counted on torch's "meta"
+    device, which allocates nothing), capped by :data:`_MAX_WEIGHTS_BYTES`."""
+    with torch.device("meta"):
+        actor = Actor(hidden)
+    tensors = sum(t.numel() * t.element_size() for t in actor.state_dict().values())
+    return min(tensors + _WEIGHTS_FRAMING, _MAX_WEIGHTS_BYTES)
 
 
 def _read_bounded(zf: zipfile.ZipFile, name: str, limit: int, path: Path) -> bytes:
@@ -129,9 +193,15 @@ def _read_bounded(zf: zipfile.ZipFile, name: str, limit: int, path: Path) -> byt
 def load_model(path: str | os.PathLike[str]) -> LoadedModel:
     """Load a model zip without unpickling anything.
 
+    The config is read and checked against its schema first; the weights member is then
+    read only up to what an actor of the config's width needs, so no file can make this
+    allocate more than about 100 MB.
+
     Raises:
-        ModelError: missing file, not a zip, no config or weights, another format
-            version, or weights that do not fit the network the config describes.
+        ModelError: missing file, not a zip (or an encrypted or unknown-compression one),
+            no config or weights, another format version, a config field of the wrong type
+            or out of range, or weights that are not finite or do not fit the network the
+            config describes.
     """
     path = Path(path)
     if not path.is_file():
@@ -141,41 +211,34 @@ def load_model(path: str | os.PathLike[str]) -> LoadedModel:
             names = set(zf.namelist())
             if _CONFIG not in names or _WEIGHTS not in names:
                 raise ModelError(f"{path}: not an rlpgo model (needs {_CONFIG} and {_WEIGHTS})")
-            config = json.loads(_read_bounded(zf, _CONFIG, _MAX_CONFIG_BYTES, path))
-            weights = _read_bounded(zf, _WEIGHTS, _MAX_WEIGHTS_BYTES, path)
-    except (zipfile.BadZipFile, EOFError, OSError, zlib.error, NotImplementedError,
-            RuntimeError) as error:  # RuntimeError: an encrypted member
-        first = " ".join(str(error).split())[:200]
+            try:
+                config = json.loads(_read_bounded(zf, _CONFIG, _MAX_CONFIG_BYTES, path))
+            except (ValueError, RecursionError):  # bad JSON or UTF-8, a 5000-digit integer
+                raise ModelError(f"{path}: {_CONFIG} is not valid JSON (or holds an absurd "
+                                 "number)") from None
+            if not isinstance(config, dict):
+                raise ModelError(f"{path}: {_CONFIG} is not a JSON object")
+            env_config = _check_config(path, config)
+            hidden = config["hidden"]
+            weights = _read_bounded(zf, _WEIGHTS, _weights_limit(hidden), path)
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, zlib.error,
+            NotImplementedError, RuntimeError, ValueError, OverflowError) as error:
+        # RuntimeError: an encrypted member; NotImplementedError: an unknown compression
+        first = " ".join(str(error).split())[:200] or type(error).__name__
         raise ModelError(f"{path}: not a readable model zip ({first})") from None
-    except (ValueError, RecursionError):  # JSONDecodeError, bad UTF-8, a 5000-digit integer
-        raise ModelError(f"{path}: {_CONFIG} is not valid JSON (or holds an absurd number)") \
-            from None
-    if not isinstance(config, dict):
-        raise ModelError(f"{path}: {_CONFIG} is not a JSON object")
-    if type(config.get("format")) is not int or config["format"] != FORMAT_VERSION:
-        raise ModelError(
-            f"{path}: format {config.get('format')}, this version reads format "
-            f"{FORMAT_VERSION}; use a matching rlpgo-gtsam"
-        )
     try:
         state = torch.load(io.BytesIO(weights), weights_only=True, map_location="cpu")
     except Exception as error:  # torch raises UnpicklingError, RuntimeError, ...
-        first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        first = " ".join(str(error).split())[:200] or type(error).__name__
         raise ModelError(f"{path}: weights refused by the safe loader: {first}") from None
-    hidden = config.get("hidden")
-    if type(hidden) is not int or not 1 <= hidden <= _MAX_HIDDEN:
-        raise ModelError(f"{path}: hidden size must be an integer in 1..{_MAX_HIDDEN}, "
-                         f"got {hidden!r}")
     fc = state.get("trunk.fc.weight") if isinstance(state, dict) else None
     if not isinstance(fc, torch.Tensor) or fc.shape[0] != hidden:
         raise ModelError(f"{path}: weights do not match the config (hidden {hidden})")
-    env_config = _env_config(path, config.get("env"))
-    _check_number(path, "test_cycles", config.get("test_cycles", 1), int, 1, _MAX_CYCLES)
     try:
         actor = Actor(hidden)
         actor.load_state_dict(state, strict=True)
     except (KeyError, TypeError, ValueError, RuntimeError) as error:
-        first = str(error).strip().splitlines()[0]
+        first = " ".join(str(error).split())[:200] or type(error).__name__
         raise ModelError(f"{path}: weights do not match the config: {first}") from None
     if not all(bool(torch.isfinite(tensor).all()) for tensor in actor.state_dict().values()):
         raise ModelError(f"{path}: the weights hold NaN or infinite values")
