@@ -13,29 +13,57 @@ the initial guess is noisy: dead reckoning of the motions, each perturbed by
 ``Exp([N(0, sigma_t), N(0, sigma_t), N(0, sigma_R)])``, as in the paper's tables. With
 ``noisy_measurements=True`` every measurement is perturbed that way instead and the initial
 guess chains the noisy odometry: graphs whose optimum is not the ground truth.
+
+Wrong loop closures (``outliers > 0``): ``int(outliers x edges)`` extra between factors,
+``edges`` the number of between factors of the outlier-free graph (odometry included: 5% of
+M3500's 5453 edges is 272 wrong closures), appended after every other factor and drawn from
+the same ``rng`` after everything else, so a seed gives the same outlier-free part with or
+without them. :func:`add_outliers` does the same to any graph (a benchmark file):
+
+- ``"random"``: a random pose pair (not consecutive keys, not already joined) with a random
+  relative pose: translation uniform in ``[-s, s]^2``, ``s`` the longer side of the map's
+  bounding box, angle uniform in ``[-pi, pi)``;
+- ``"plausible"``: a random pair of poses at least ``far`` apart (a tenth of the map's
+  diagonal, or three times the longest true closure if that is more), measured as a copy of
+  a randomly chosen true closure's measurement: a small offset of a true closure's magnitude
+  between places that are far apart (perceptual aliasing).
+
+Each wrong closure gets the noise model (information) of a randomly chosen true loop closure
+(of an odometry edge if the graph has none), so it looks like one.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import RlpgoError
+from rlpgo_gtsam.graph import PoseGraph2D
 
-__all__ = ["SyntheticGraph", "generate", "ROW_LENGTH"]
+__all__ = ["SyntheticGraph", "generate", "add_outliers", "OUTLIER_MODES", "ROW_LENGTH"]
 
 ROW_LENGTH = 10
+# How wrong loop closures are drawn (see the module docstring); the first is the default.
+OUTLIER_MODES = ("random", "plausible")
+# Pairs tried per wrong closure before giving up on a graph too small for the request.
+_TRIES_PER_OUTLIER = 1000
 
 
 @dataclass
 class SyntheticGraph:
-    """A generated graph: factors, the noisy initial guess and the ground truth, all GTSAM."""
+    """A generated graph: factors, the noisy initial guess and the ground truth, all GTSAM.
+
+    Attributes:
+        outlier_edges: factor indices (into ``graph``) of the wrong loop closures, in
+            ascending order; empty when the graph has none.
+    """
 
     graph: gtsam.NonlinearFactorGraph
     initial: gtsam.Values
     ground_truth: gtsam.Values
+    outlier_edges: list[int] = field(default_factory=list)
 
 
 def _true_poses(n: int, d: float) -> list[gtsam.Pose2]:
@@ -74,6 +102,8 @@ def generate(
     lc: float,
     rng: np.random.Generator,
     noisy_measurements: bool = False,
+    outliers: float = 0.0,
+    outlier_mode: str = OUTLIER_MODES[0],
 ) -> SyntheticGraph:
     """Generate one lawn-mower pose graph.
 
@@ -86,6 +116,9 @@ def generate(
         rng: the only source of randomness.
         noisy_measurements: perturb the measurements too (the ground truth is then not the
             optimum); by default measurements are exact and only the initial guess is noisy.
+        outliers: wrong loop closures to add, as a fraction of the outlier-free graph's
+            edges (``int(outliers x edges)`` of them), in [0, 1); drawn last.
+        outlier_mode: how they are drawn, one of :data:`OUTLIER_MODES`.
     """
     if n < 2:
         raise RlpgoError(f"a graph needs at least 2 poses, got n={n}")
@@ -93,6 +126,7 @@ def generate(
         raise RlpgoError("sigma_r, sigma_t and d must be positive")
     if not 0.0 <= lc <= 1.0:
         raise RlpgoError(f"lc must lie in [0, 1], got {lc}")
+    _check_outliers(outliers, outlier_mode)
     truth = _true_poses(n, d)
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma_t, sigma_t, sigma_r]))
     odometry = [truth[k].between(truth[k + 1]) for k in range(n - 1)]
@@ -122,4 +156,82 @@ def generate(
         initial.insert(k + 1, pose)
     for k, true_pose in enumerate(truth):
         ground_truth.insert(k, true_pose)
-    return SyntheticGraph(graph, initial, ground_truth)
+    outlier_edges: list[int] = []
+    if outliers > 0:
+        graph, outlier_edges = add_outliers(graph, ground_truth, outliers, rng, outlier_mode)
+    return SyntheticGraph(graph, initial, ground_truth, outlier_edges)
+
+
+def add_outliers(
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    fraction: float,
+    rng: np.random.Generator,
+    mode: str = OUTLIER_MODES[0],
+) -> tuple[gtsam.NonlinearFactorGraph, list[int]]:
+    """A copy of ``graph`` with ``int(fraction x edges)`` wrong loop closures appended.
+
+    Args:
+        graph: a planar pose graph (what :class:`~rlpgo_gtsam.graph.PoseGraph2D` accepts).
+        values: the poses that define the map's geometry (its extent, which poses are far
+            apart): the ground truth or the best known solution, not a drifting guess.
+        fraction: wrong closures per between factor of ``graph``, in [0, 1).
+        rng: the only source of randomness.
+        mode: one of :data:`OUTLIER_MODES` (see the module docstring).
+
+    Returns:
+        The new graph (``graph`` itself is not changed) and the factor indices of the wrong
+        closures in it, ascending (they follow every factor of ``graph``).
+
+    Raises:
+        RlpgoError: a fraction outside [0, 1), an unknown mode, or a graph with too few
+            pose pairs that qualify.
+        GraphError: a graph the package cannot read as a planar pose graph.
+    """
+    _check_outliers(fraction, mode)
+    g = PoseGraph2D.from_gtsam(graph, values)
+    count = int(fraction * g.num_edges)
+    result = gtsam.NonlinearFactorGraph(graph)
+    if count == 0:
+        return result, []
+    keys = g.keys.astype(np.int64)
+    pairs = keys[g.edges]
+    joined = {(min(a, b), max(a, b)) for a, b in pairs.tolist()}
+    is_closure = np.abs(pairs[:, 1] - pairs[:, 0]) != 1
+    templates = np.flatnonzero(is_closure) if is_closure.any() else np.arange(g.num_edges)
+    positions = g.poses[:, :2]
+    side = float(np.max(positions.max(axis=0) - positions.min(axis=0)))
+    side = side if side > 0 else 1.0
+    far = max(0.1 * np.hypot(*(positions.max(axis=0) - positions.min(axis=0))),
+              3.0 * float(np.max(np.hypot(*g.measured[templates, :2].T))))
+    start = result.size()
+    for drawn in range(count):
+        for _ in range(_TRIES_PER_OUTLIER):
+            i, j = rng.integers(0, g.num_poses, size=2).tolist()
+            pair = (min(keys[i], keys[j]), max(keys[i], keys[j]))
+            if abs(keys[i] - keys[j]) <= 1 or pair in joined:
+                continue
+            if mode == "plausible" and np.hypot(*(positions[i] - positions[j])) < far:
+                continue
+            break
+        else:
+            raise RlpgoError(
+                f"could not place wrong closure {drawn + 1} of {count} ({mode}) after "
+                f"{_TRIES_PER_OUTLIER} tries: the graph has too few pose pairs that qualify")
+        joined.add(pair)
+        template = int(templates[rng.integers(len(templates))])
+        if mode == "random":
+            dx, dy = rng.uniform(-side, side, size=2).tolist()
+            measured = gtsam.Pose2(dx, dy, float(rng.uniform(-np.pi, np.pi)))
+        else:
+            measured = gtsam.Pose2(*g.measured[template])
+        noise = gtsam.noiseModel.Gaussian.Information(g.information[template])
+        result.add(gtsam.BetweenFactorPose2(int(keys[i]), int(keys[j]), measured, noise))
+    return result, list(range(start, start + count))
+
+
+def _check_outliers(fraction: float, mode: str) -> None:
+    if not 0.0 <= fraction < 1.0:
+        raise RlpgoError(f"the fraction of wrong loop closures must lie in [0, 1), got {fraction}")
+    if mode not in OUTLIER_MODES:
+        raise RlpgoError(f"unknown outlier mode '{mode}'; choose from {', '.join(OUTLIER_MODES)}")
