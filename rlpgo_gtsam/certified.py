@@ -458,30 +458,28 @@ def _shifted_inverse(problem: _Problem, lam: np.ndarray, sigma: float) -> Linear
 
 def _nearest_above(problem, lam, sigma, start) -> tuple[float, np.ndarray]:
     """The smallest eigenvalue of S when all lie above sigma: the largest of (S - sigma)^-1."""
-    op = _shifted_inverse(problem, lam, sigma)
-    try:
-        values, vectors = eigsh(op, k=1, which="LA", v0=start, tol=1e-10, maxiter=2000)
-    except ArpackNoConvergence as error:
-        if len(error.eigenvalues) == 0:
-            raise SolverError("the minimum-eigenvalue computation did not converge") from None
-        values, vectors = error.eigenvalues, error.eigenvectors
-    except ArpackError as error:
-        raise SolverError(f"the minimum-eigenvalue computation failed: {error}") from None
+    values, vectors = _eigsh(_shifted_inverse(problem, lam, sigma), k=1, which="LA",
+                             v0=start, tol=1e-10)
     return float(sigma + 1.0 / np.real(values[0])), vectors[:, 0]
 
 
 def _below(problem, lam, sigma, count) -> tuple[np.ndarray, np.ndarray]:
     """The ``count`` eigenvalues of S below sigma: the most negative of (S - sigma)^-1."""
-    op = _shifted_inverse(problem, lam, sigma)
+    values, vectors = _eigsh(_shifted_inverse(problem, lam, sigma), k=count, which="SA",
+                             tol=1e-8)
+    return sigma + 1.0 / np.real(values), vectors
+
+
+def _eigsh(op: LinearOperator, **options) -> tuple[np.ndarray, np.ndarray]:
+    """ARPACK's eigenpairs of ``op``; a partial result is kept, a failure is a SolverError."""
     try:
-        values, vectors = eigsh(op, k=count, which="SA", tol=1e-8, maxiter=2000)
+        return eigsh(op, maxiter=2000, **options)
     except ArpackNoConvergence as error:
         if len(error.eigenvalues) == 0:
             raise SolverError("the minimum-eigenvalue computation did not converge") from None
-        values, vectors = error.eigenvalues, error.eigenvectors
+        return error.eigenvalues, error.eigenvectors
     except ArpackError as error:
         raise SolverError(f"the minimum-eigenvalue computation failed: {error}") from None
-    return sigma + 1.0 / np.real(values), vectors
 
 
 def _escape(problem: _Problem, y: np.ndarray, vector: np.ndarray, grad_tol: float) -> np.ndarray:
