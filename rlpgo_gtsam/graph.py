@@ -94,7 +94,7 @@ class PoseGraph2D:
         keys = np.array(sorted(values.keys()), dtype=np.uint64)
         index = {int(key): k for k, key in enumerate(keys)}
         try:
-            poses = np.array([_pose_array(values.atPose2(int(key))) for key in keys])
+            poses = _poses(values, keys.tolist())
         except RuntimeError as error:
             raise GraphError(f"values hold something other than Pose2: {error}") from None
         edges, measured, information = [], [], []
@@ -158,7 +158,7 @@ class PoseGraph2D:
 
     def poses_of(self, values: gtsam.Values) -> np.ndarray:
         """(n, 3) x, y, theta of ``values`` in this graph's pose order."""
-        return np.array([_pose_array(values.atPose2(key)) for key in self.keys.tolist()])
+        return _poses(values, self.keys.tolist())
 
 
 def rotation_weights(pose_graph: PoseGraph2D) -> np.ndarray:
@@ -181,6 +181,11 @@ def _information(factor, name: str) -> np.ndarray:
     if isinstance(model, gtsam.noiseModel.Constrained):
         raise GraphError(f"{name} has a constrained noise model; only priors may be hard")
     return model.information()
+
+
+def _poses(values: gtsam.Values, keys: list[int]) -> np.ndarray:
+    """(n, 3) x, y, theta of ``values`` at ``keys``, in that order."""
+    return np.array([_pose_array(values.atPose2(key)) for key in keys]).reshape(-1, 3)
 
 
 def _pose_array(pose: gtsam.Pose2) -> np.ndarray:

@@ -33,3 +33,26 @@ def small_exact() -> SyntheticGraph:
 def small_noisy() -> SyntheticGraph:
     """n = 60 lawn mower with noisy measurements."""
     return generate(60, 0.2, 0.05, 3.0, 0.5, np.random.default_rng(8), noisy_measurements=True)
+
+
+def model_with_config(folder: Path, edit, metadata: dict | None = None) -> Path:
+    """A real 8-unit model saved in ``folder``, rewritten with ``edit(config)`` applied to its
+    config.json (the weights kept): the fuzz tests' way to make odd model files."""
+    import json
+    import zipfile
+
+    from rlpgo_gtsam.agent.checkpoint import save_model
+    from rlpgo_gtsam.agent.networks import Actor
+    from rlpgo_gtsam.episode import PRESETS
+
+    path = folder / "m.zip"
+    save_model(path, Actor(8), PRESETS[1], metadata or {})
+    with zipfile.ZipFile(path) as zf:
+        config = json.loads(zf.read("config.json"))
+        weights = zf.read("actor.pt")
+    edit(config)
+    broken = folder / "broken.zip"
+    with zipfile.ZipFile(broken, "w") as zf:
+        zf.writestr("config.json", json.dumps(config))
+        zf.writestr("actor.pt", weights)
+    return broken

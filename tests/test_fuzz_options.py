@@ -1,7 +1,5 @@
 """Fuzzing the commands' option values and the model config: never a traceback."""
 
-import json
-import zipfile
 
 import numpy as np
 from click.testing import CliRunner
@@ -11,9 +9,8 @@ from rlpgo_cli.generate import main as generate_main
 from rlpgo_cli.init import main as init_main
 
 from rlpgo_gtsam import ModelError, generate, read_g2o, write_g2o
-from rlpgo_gtsam.agent.checkpoint import load_model, save_model
-from rlpgo_gtsam.agent.networks import Actor
-from rlpgo_gtsam.episode import PRESETS
+from rlpgo_gtsam.agent.checkpoint import load_model
+from tests.conftest import model_with_config
 
 NUMBERS = st.one_of(
     st.integers(-2**70, 2**70).map(str), st.floats(allow_nan=True, allow_infinity=True).map(str),
@@ -69,18 +66,11 @@ JSON_VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12),
        extra=st.dictionaries(st.sampled_from(["test_cycles", "hidden", "format"]), JSON_VALUES,
                              max_size=2))
 def test_model_configs(tmp_path_factory, env, extra):
-    folder = tmp_path_factory.mktemp("model")
-    path = folder / "m.zip"
-    save_model(path, Actor(8), PRESETS[1], {})
-    with zipfile.ZipFile(path) as zf:
-        config = json.loads(zf.read("config.json"))
-        weights = zf.read("actor.pt")
-    config["env"] = {**config["env"], **env}
-    config.update(extra)
-    broken = folder / "broken.zip"
-    with zipfile.ZipFile(broken, "w") as zf:
-        zf.writestr("config.json", json.dumps(config))
-        zf.writestr("actor.pt", weights)
+    def edit(config):
+        config["env"] = {**config["env"], **env}
+        config.update(extra)
+
+    broken = model_with_config(tmp_path_factory.mktemp("model"), edit)
     try:
         model = load_model(broken)
     except ModelError as error:

@@ -8,9 +8,6 @@ output check, before any work: the examples stay fast.
 
 from __future__ import annotations
 
-import json
-import zipfile
-
 from click.testing import CliRunner
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -19,9 +16,8 @@ from rlpgo_cli.evaluate import main as eval_main
 from rlpgo_cli.train import main as train_main
 
 from rlpgo_gtsam import ModelError
-from rlpgo_gtsam.agent.checkpoint import load_model, save_model
-from rlpgo_gtsam.agent.networks import Actor
-from rlpgo_gtsam.episode import PRESETS
+from rlpgo_gtsam.agent.checkpoint import load_model
+from tests.conftest import model_with_config
 
 VALUES = st.one_of(
     st.integers(-2**70, 2**70).map(str),
@@ -90,17 +86,9 @@ TOP_FIELDS = ["format", "hidden", "test_cycles", "preset", "seed", "episodes", "
 @given(changes=st.dictionaries(st.sampled_from(TOP_FIELDS), JSON_VALUES, min_size=1,
                                max_size=3))
 def test_top_level_model_config_fields(tmp_path_factory, changes):
-    folder = tmp_path_factory.mktemp("model")
-    path = folder / "m.zip"
-    save_model(path, Actor(8), PRESETS[1], {"test_cycles": 14, "seed": 0})
-    with zipfile.ZipFile(path) as zf:
-        config = json.loads(zf.read("config.json"))
-        weights = zf.read("actor.pt")
-    config.update(changes)
-    broken = folder / "broken.zip"
-    with zipfile.ZipFile(broken, "w") as zf:
-        zf.writestr("config.json", json.dumps(config))
-        zf.writestr("actor.pt", weights)
+    broken = model_with_config(tmp_path_factory.mktemp("model"),
+                               lambda config: config.update(changes),
+                               {"test_cycles": 14, "seed": 0})
     try:
         model = load_model(broken)
     except ModelError as error:
