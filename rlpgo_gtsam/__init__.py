@@ -20,7 +20,7 @@ from rlpgo_gtsam.errors import (
     RlpgoError,
     SolverError,
 )
-from rlpgo_gtsam.g2o import read_g2o, write_g2o
+from rlpgo_gtsam.g2o import read_g2o, read_g2o_lines, write_g2o
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, rotation_weights
 from rlpgo_gtsam.initializers import (
     ChordalInitializer,
@@ -84,6 +84,7 @@ __all__ = [
     "make_initializer",
     "poses_with_orientations",
     "read_g2o",
+    "read_g2o_lines",
     "refine",
     "register",
     "rotation_weights",

@@ -34,13 +34,16 @@ from rlpgo_gtsam.errors import G2oFormatError, OutputError
 from rlpgo_gtsam.files import write_text
 from rlpgo_gtsam.graph import disconnection
 
-__all__ = ["read_g2o", "write_g2o", "g2o_text"]
+__all__ = ["read_g2o", "read_g2o_lines", "write_g2o", "g2o_text", "g2o_text_lines",
+           "edge_list_text", "EDGE_LIST_LINE"]
 
 # The longest line the reader takes: an EDGE_SE2 line with 64-bit ids and 11 numbers written
 # with 17 significant digits is under 300 bytes; 64 KiB leaves room for any comment.
 MAX_LINE_BYTES = 65536
 _EDGE_NUMBERS = 11
 _VERTEX_NUMBERS = 4
+# A line of an edge list (:func:`edge_list_text`): L is the edge's line in its g2o file.
+EDGE_LIST_LINE = "line <L> EDGE_SE2 <id_i> <id_j>"
 _3D_TAGS = ("VERTEX_SE3", "EDGE_SE3", "VERTEX3", "EDGE3", "VERTEX_TRACKXYZ", "EDGE_SE3_")
 
 
@@ -73,6 +76,22 @@ def read_g2o(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph, 
         G2oFormatError: the file is missing, unreadable or malformed, or its graph is not
             connected; the message names the file and the line.
     """
+    graph, values, _lines = read_g2o_lines(path)
+    return graph, values
+
+
+def read_g2o_lines(
+    path: str | os.PathLike[str],
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int]]:
+    """:func:`read_g2o`, and the file line (1-based) each factor came from.
+
+    Factor ``k`` is the ``k``-th ``EDGE_SE2`` line for the edges, in file order; then one
+    :class:`gtsam.PriorFactorPose2` per id of the ``FIX`` lines, each with its ``FIX`` line.
+    ``lines[k]`` is the line of ``graph.at(k)``: what a message about a factor should name.
+
+    Raises:
+        G2oFormatError: as :func:`read_g2o`.
+    """
     path = Path(path)
     parsed = _parse(path)
     _check_edges(path, parsed)
@@ -86,17 +105,20 @@ def read_g2o(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph, 
                     "lines"
                 )
     graph = gtsam.NonlinearFactorGraph()
+    lines = []
     for edge in parsed.edges:
         noise = gtsam.noiseModel.Gaussian.Information(edge.information)
         graph.add(gtsam.BetweenFactorPose2(edge.i, edge.j, gtsam.Pose2(*edge.measured), noise))
+        lines.append(edge.line)
     values = gtsam.Values()
     for key in sorted(parsed.vertices):
         values.insert(key, gtsam.Pose2(*parsed.vertices[key]))
-    for key, _line in parsed.fixed:
+    for key, line in parsed.fixed:
         graph.add(
             gtsam.PriorFactorPose2(key, values.atPose2(key), gtsam.noiseModel.Constrained.All(3))
         )
-    return graph, values
+        lines.append(line)
+    return graph, values, lines
 
 
 def _lines(path: Path) -> Iterator[tuple[int, str]]:
@@ -307,7 +329,24 @@ def g2o_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
     Raises:
         OutputError: a factor or information that a g2o file cannot hold.
     """
+    return g2o_text_lines(graph, values)[0]
+
+
+def g2o_text_lines(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
+) -> tuple[str, list[int | None]]:
+    """:func:`g2o_text`, and the line (1-based) of that text which holds each factor.
+
+    ``lines[k]`` is the ``EDGE_SE2`` line of ``graph.at(k)``, or the one ``FIX`` line for a
+    prior, or None for an empty factor slot: the lines :func:`read_g2o_lines` names when it
+    reads the text back.
+
+    Raises:
+        OutputError: a factor or information that a g2o file cannot hold.
+    """
     lines = []
+    factor_lines: list[int | None] = []
+    priors = []
     for key in sorted(values.keys()):
         pose = values.atPose2(key)
         lines.append(f"VERTEX_SE2 {key} {pose.x()!r} {pose.y()!r} {_format_15(pose.theta())}")
@@ -330,16 +369,50 @@ def g2o_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
                 f"EDGE_SE2 {i} {j} {z.x()!r} {z.y()!r} {_format_15(z.theta())} "
                 + " ".join(_format_15(v) for v in upper)
             )
+            factor_lines.append(len(lines))
         elif isinstance(factor, gtsam.PriorFactorPose2):
             if not isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
                 raise OutputError(f"prior on key {factor.keys()[0]}: a soft prior has no planar "
                                   "g2o line (FIX holds a pose exactly)")
             fixed.append(factor.keys()[0])
+            priors.append(index)
+            factor_lines.append(None)  # the FIX line, numbered once every edge is written
         elif factor is not None:
             raise OutputError(f"cannot write a {type(factor).__name__} as a planar g2o line")
+        else:
+            factor_lines.append(None)
     if fixed:
         lines.append("FIX " + " ".join(str(key) for key in fixed))
-    return "\n".join(lines) + "\n"
+        for index in priors:
+            factor_lines[index] = len(lines)
+    return "\n".join(lines) + "\n", factor_lines
+
+
+def edge_list_text(
+    graph: gtsam.NonlinearFactorGraph, indices: list[int], lines: list[int | None], *,
+    title: str, g2o_name: str,
+) -> str:
+    """A list of some edges of a g2o file, one a line: ``line <L> EDGE_SE2 <id_i> <id_j>``.
+
+    ``L`` is the edge's line in the g2o file ``g2o_name`` (``lines[k]`` for factor ``k``, as
+    :func:`read_g2o_lines` or :func:`g2o_text_lines` give them), ``id_i`` and ``id_j`` its
+    vertex ids, in the order of ``indices``. One comment line opens the list: ``# <title>:``
+    and the format. Lines that start with ``#`` are comments; every other line has those five
+    fields.
+
+    Raises:
+        OutputError: an index that is not an edge with a line.
+    """
+    header = f"{title}: {EDGE_LIST_LINE}, L the edge's line in {g2o_name}"
+    rows = ["# " + " ".join(header.splitlines())]  # one line, whatever the name holds
+    for index in indices:
+        factor = graph.at(index) if 0 <= index < graph.size() else None
+        line = lines[index] if 0 <= index < len(lines) else None
+        if not isinstance(factor, gtsam.BetweenFactorPose2) or line is None:
+            raise OutputError(f"factor {index} is not an edge of the g2o file")
+        i, j = factor.keys()
+        rows.append(f"line {line} EDGE_SE2 {i} {j}")
+    return "\n".join(rows) + "\n"
 
 
 def write_g2o(

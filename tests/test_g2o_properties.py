@@ -10,7 +10,8 @@
    back exactly, angles and information within the writer's 15 significant digits, and
    writing the read-back graph again gives the same text.
 3. Whatever ``write_g2o`` writes (poses and information over the whole float range, ids up
-   to 2**63 - 1, FIX priors) ``read_g2o`` reads.
+   to 2**63 - 1, FIX priors) ``read_g2o`` reads, and finds each factor on the line the
+   writer says it wrote it.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
 
 from rlpgo_gtsam.errors import G2oFormatError, OutputError
-from rlpgo_gtsam.g2o import read_g2o, write_g2o
+from rlpgo_gtsam.g2o import g2o_text_lines, read_g2o, read_g2o_lines, write_g2o
 
 READ_SECONDS = 2.0  # the most one read of these small files may take
 HANG_SECONDS = 20  # a read still running after this long is stopped and reported as a hang
@@ -489,6 +490,8 @@ def test_written_file_always_reads(built):
         assert graph2.size() == graph.size()
         text2, _ = _write_read(graph2, values2, folder, "second.g2o")
         assert text2 == text
+        # each factor's line, as the writer counts it, is where the reader finds it
+        assert read_g2o_lines(folder / "first.g2o")[2] == g2o_text_lines(graph, values)[1]
 
 
 def _graph_with(key: int, information: np.ndarray):
