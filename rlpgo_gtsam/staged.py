@@ -8,6 +8,10 @@
    rotations); the agent (``rl``) started from the best result so far.
 3. The lowest refined chi2 wins; ties go to the earlier, cheaper stage. No stage starts once
    the time budget is spent.
+4. Without a certificate, the winner's per-edge residuals are tested for a heavier tail than
+   Gaussian noise gives (:func:`~rlpgo_gtsam.robust.outlier_suspicion`): wrong loop closures
+   are then likely, and the result carries a one-line hint to try the robust path. A
+   certified run skips the test.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from rlpgo_gtsam.comparison import MethodResult, best_of, run_method
 from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import PoseGraph2D
 from rlpgo_gtsam.initializers import InitResult
+from rlpgo_gtsam.robust import outlier_suspicion
 
 __all__ = ["StagedResult", "staged_initialize", "DEFAULT_BUDGET_S", "SEARCHES"]
 
@@ -42,6 +47,10 @@ class StagedResult:
         certified: whether the relaxation's certificate held.
         stopped: why no further stage ran.
         seconds: wall time of the whole run.
+        hint: without a certificate, a one-line hint when the best refined result fits the
+            edges with a heavier tail than Gaussian noise (wrong loop closures are likely);
+            None otherwise, and always None when certified or when nothing was refined
+            (``iters=0``).
     """
 
     rows: list[MethodResult] = field(default_factory=list)
@@ -50,6 +59,7 @@ class StagedResult:
     certified: bool = False
     stopped: str = ""
     seconds: float = 0.0
+    hint: str | None = None
 
     @property
     def values(self) -> gtsam.Values:
@@ -119,5 +129,7 @@ def staged_initialize(
         else:
             run.stopped = "every search ran"
     run.best = best_of(run.rows)
+    if not run.certified and iters > 0 and run.best.refined is not None:
+        run.hint = outlier_suspicion(g, run.best.refined)
     run.seconds = time.perf_counter() - began
     return run

@@ -1,13 +1,17 @@
-"""Shared fixtures: the shared benchmark folder and small generated graphs."""
+"""Shared fixtures and helpers: the shared benchmark folder, small generated graphs, checks of
+command runs."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
+import gtsam
 import numpy as np
 import pytest
+from click.testing import Result
 
+from rlpgo_gtsam.g2o import read_g2o
 from rlpgo_gtsam.synthetic import SyntheticGraph, generate
 
 DATASETS = Path(
@@ -56,3 +60,32 @@ def model_with_config(folder: Path, edit, metadata: dict | None = None) -> Path:
         zf.writestr("config.json", json.dumps(config))
         zf.writestr("actor.pt", weights)
     return broken
+
+
+def cli_ok(result: Result) -> None:
+    """A command run that succeeded: exit code 0, no exception, nothing on stderr."""
+    assert result.exception is None, repr(result.exception)
+    assert result.exit_code == 0, result.output
+    assert result.stderr == ""
+
+
+def _between_rows(graph: gtsam.NonlinearFactorGraph) -> list:
+    rows = []
+    for index in range(graph.size()):
+        factor = graph.at(index)
+        if isinstance(factor, gtsam.BetweenFactorPose2):
+            z = factor.measured()
+            rows.append((tuple(factor.keys()), (z.x(), z.y(), z.theta()),
+                         factor.noiseModel().information()))
+    return rows
+
+
+def assert_same_edges(source: Path, output: Path) -> None:
+    """``output`` holds the very edges of ``source``: the same EDGE_SE2 lines, in order."""
+    edges = [line for line in source.read_text().splitlines() if line.startswith("EDGE_SE2")]
+    written = [line for line in output.read_text().splitlines() if line.startswith("EDGE_SE2")]
+    assert written == edges  # same count and the very same text
+    rows, rows_out = _between_rows(read_g2o(source)[0]), _between_rows(read_g2o(output)[0])
+    assert [r[:2] for r in rows_out] == [r[:2] for r in rows]
+    for row, row_out in zip(rows, rows_out, strict=True):
+        np.testing.assert_allclose(row_out[2], row[2], rtol=1e-12, atol=0)

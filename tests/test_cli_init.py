@@ -34,6 +34,7 @@ from rlpgo_gtsam import (
 from rlpgo_gtsam.agent.checkpoint import save_model
 from rlpgo_gtsam.agent.networks import Actor
 from rlpgo_gtsam.synthetic import generate
+from tests.conftest import assert_same_edges, cli_ok
 
 ALL_METHODS = set(ALL)
 SUMMARY = re.compile(
@@ -70,12 +71,6 @@ def run_init(*args: str | Path) -> Result:
     return CliRunner().invoke(init_main, [str(a) for a in args])
 
 
-def _ok(result: Result) -> None:
-    assert result.exception is None, repr(result.exception)
-    assert result.exit_code == 0, result.output
-    assert result.stderr == ""
-
-
 def _summary(stdout: str) -> re.Match:
     last = stdout.rstrip("\n").splitlines()[-1]
     match = SUMMARY.match(last)
@@ -85,27 +80,6 @@ def _summary(stdout: str) -> re.Match:
 
 def _g6(value: float) -> str:
     return f"{value:.6g}"
-
-
-def _between_rows(graph: gtsam.NonlinearFactorGraph) -> list:
-    rows = []
-    for index in range(graph.size()):
-        factor = graph.at(index)
-        if isinstance(factor, gtsam.BetweenFactorPose2):
-            z = factor.measured()
-            rows.append((tuple(factor.keys()), (z.x(), z.y(), z.theta()),
-                         factor.noiseModel().information()))
-    return rows
-
-
-def _assert_same_edges(source: Path, output: Path) -> None:
-    edges = [line for line in source.read_text().splitlines() if line.startswith("EDGE_SE2")]
-    written = [line for line in output.read_text().splitlines() if line.startswith("EDGE_SE2")]
-    assert written == edges  # same count and the very same text
-    rows, rows_out = _between_rows(read_g2o(source)[0]), _between_rows(read_g2o(output)[0])
-    assert [r[:2] for r in rows_out] == [r[:2] for r in rows]
-    for row, row_out in zip(rows, rows_out, strict=True):
-        np.testing.assert_allclose(row_out[2], row[2], rtol=1e-12, atol=0)
 
 
 def _assert_same_poses(first: gtsam.Values, second: gtsam.Values, atol: float) -> None:
@@ -122,7 +96,7 @@ def _assert_same_poses(first: gtsam.Values, second: gtsam.Values, atol: float) -
 def test_init_all_ranks_every_method_and_writes_the_lowest(tmp_path, graph_file, agent):
     output = tmp_path / "out.g2o"
     result = run_init(graph_file, "-o", output, "--model", agent, "--method", "all")
-    _ok(result)
+    cli_ok(result)
     lines = result.stdout.rstrip("\n").splitlines()
     assert lines[0].split() == ["rank", "method", "guess", "chi2", "result", "chi2"]
     rows = [ROW.match(line) for line in lines[1:-1]]
@@ -141,7 +115,7 @@ def test_init_all_ranks_every_method_and_writes_the_lowest(tmp_path, graph_file,
     assert float(summary["result"]) == min(results)
     assert Path(summary["output"]) == output
 
-    _assert_same_edges(graph_file, output)
+    assert_same_edges(graph_file, output)
     out_graph, out_values = read_g2o(output)
     assert sorted(out_values.keys()) == sorted(values.keys())
     written_chi2 = chi2(out_graph, out_values)
@@ -156,7 +130,7 @@ def test_init_rl_without_refinement_writes_the_agents_guess(tmp_path, graph_file
     output = tmp_path / "out.g2o"
     result = run_init(graph_file, "-o", output, "--model", agent, "--method", "rl",
                       "--start", "odometry", "--refine", "none", "--cycles", "1")
-    _ok(result)
+    cli_ok(result)
     assert len(result.stdout.splitlines()) == 1  # one method: no ranking table
     summary = _summary(result.stdout)
     assert summary["method"] == "rl@odometry" and summary["step"] is None
@@ -168,7 +142,7 @@ def test_init_rl_without_refinement_writes_the_agents_guess(tmp_path, graph_file
     guess = rl.values
     assert summary["result"] == _g6(rl.chi2)
 
-    _assert_same_edges(graph_file, output)
+    assert_same_edges(graph_file, output)
     out_graph, out_values = read_g2o(output)
     _assert_same_poses(out_values, guess, atol=1e-12)
     assert _g6(chi2(out_graph, out_values)) == summary["result"]
@@ -180,7 +154,7 @@ def test_init_classical_method_with_gauss_newton(tmp_path, graph_file):
     output = tmp_path / "out.g2o"
     result = run_init(graph_file, "-o", output, "--method", "chordal", "--refine", "gn",
                       "--iters", "5")
-    _ok(result)
+    cli_ok(result)
     summary = _summary(result.stdout)
     assert (summary["method"], summary["step"]) == ("chordal", "GN5")
 
@@ -188,7 +162,7 @@ def test_init_classical_method_with_gauss_newton(tmp_path, graph_file):
     expected = refine(graph, make_initializer("chordal").initialize(graph, values), "gn", 5)
     assert summary["result"] == _g6(expected.chi2)
     out_graph, out_values = read_g2o(output)
-    _assert_same_edges(graph_file, output)
+    assert_same_edges(graph_file, output)
     assert _g6(chi2(out_graph, out_values)) == summary["result"]
     assert chi2(out_graph, out_values) < chi2(graph, values)
 
@@ -280,7 +254,7 @@ def test_compare_rl_methods(tmp_path, graph_file, agent):
         str(graph_file), "--methods", "chordal,rl,rl@lago", "--model", str(agent),
         "--iters", "10", "--json", str(json_path),
     ])
-    _ok(result)
+    cli_ok(result)
     records = json.loads(json_path.read_text())
     assert [r["method"] for r in records] == ["chordal", "rl@odometry", "rl@lago"]
     assert all(r["dataset"] == "in.g2o" and r["poses"] == 40 for r in records)

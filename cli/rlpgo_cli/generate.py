@@ -8,10 +8,9 @@ import numpy as np
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import SEED, FiniteFloat, OutputFile
-from rlpgo_gtsam.files import write_together
-from rlpgo_gtsam.g2o import g2o_text
+from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text, g2o_text, g2o_text_lines
 from rlpgo_gtsam.graph import chi2
-from rlpgo_gtsam.synthetic import generate
+from rlpgo_gtsam.synthetic import OUTLIER_MODES, generate
 
 
 @click.command(cls=RlpgoCommand)
@@ -32,19 +31,41 @@ from rlpgo_gtsam.synthetic import generate
               help="g2o file for the graph and its noisy initial guess.")
 @click.option("--ground-truth", type=OutputFile(),
               help="g2o file for the graph with the ground-truth poses.")
-def main(n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_truth):
+@click.option("--outliers", type=FiniteFloat(0.0, 1.0, max_open=True), default=0.0,
+              show_default=True,
+              help="Wrong loop closures to add, as a fraction of the graph's edges.")
+@click.option("--outlier-mode", type=click.Choice(OUTLIER_MODES), default=OUTLIER_MODES[0],
+              show_default=True,
+              help="random: random pose pairs and relative poses; plausible: far-apart poses "
+                   "measured like a true closure (perceptual aliasing).")
+@click.option("--outliers-out", type=OutputFile(),
+              help=f"Text file listing the wrong loop closures, one a line as "
+                   f"'{EDGE_LIST_LINE}' (L: the edge's line in OUTPUT, from 1), after one '#' "
+                   "line: the format of rlpgo-init --outliers-out.")
+def main(n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_truth, outliers,
+         outlier_mode, outliers_out):
     """Generate a lawn-mower pose graph as in the RL-PGO paper."""
     run = RunFiles()
-    run.check(output, ground_truth)
+    run.check(output, ground_truth, outliers_out)
     sample = generate(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
-                      noisy_measurements=noisy_measurements)
-    files = [(output, g2o_text(sample.graph, sample.initial).encode())]
+                      noisy_measurements=noisy_measurements, outliers=outliers,
+                      outlier_mode=outlier_mode)
+    text, lines = g2o_text_lines(sample.graph, sample.initial)
+    files = [(output, text.encode())]
     if ground_truth is not None:
         files.append((ground_truth, g2o_text(sample.graph, sample.ground_truth).encode()))
-    write_together(files)  # both files or neither
+    if outliers_out is not None:
+        listed = edge_list_text(sample.graph, sample.outlier_edges, lines, g2o_name=output.name,
+                                title="wrong loop closures that rlpgo-generate added")
+        files.append((outliers_out, listed.encode()))
+    run.write_together(files)  # every file or none
     click.echo(f"{output}: {n} poses, {sample.graph.size()} edges, initial chi2 "
                f"{chi2(sample.graph, sample.initial):.6g}, ground-truth chi2 "
                f"{chi2(sample.graph, sample.ground_truth):.6g}")
+    if outliers > 0 or outliers_out is not None:
+        listed = "" if outliers_out is None else f"; listed in {outliers_out}"
+        click.echo(f"added {len(sample.outlier_edges)} wrong loop closures ({outlier_mode})"
+                   f"{listed}")
 
 
 if __name__ == "__main__":

@@ -13,14 +13,17 @@ from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, FiniteFloat, OutputFile
 from rlpgo_gtsam.comparison import MethodResult, best_of, compare_methods
 from rlpgo_gtsam.errors import ModelError, RlpgoError
-from rlpgo_gtsam.g2o import read_g2o
+from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text, g2o_text, read_g2o, read_g2o_lines
 from rlpgo_gtsam.graph import PoseGraph2D, chi2
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
 from rlpgo_gtsam.models import DEFAULT_MODEL, model_path
+from rlpgo_gtsam.robust import robust_initialize
 from rlpgo_gtsam.staged import DEFAULT_BUDGET_S, staged_initialize
 
 # --method all: every initializer, and the agent from each classical start.
 ALL = [*CLASSICAL, "fastsync", "certified", *(f"rl@{s}" for s in (*CLASSICAL, "certified"))]
+# Options of the staged default and the methods, which --robust does not use.
+NOT_ROBUST = ("budget", "model", "cycles", "episodes", "start", "iters", "seed")
 
 
 def _progress_bar():
@@ -65,6 +68,67 @@ def describe(certificate) -> str:
             f"tolerance {certificate.tolerance:.3g}, rank {certificate.rank})")
 
 
+def _check_robust_options(ctx: click.Context, robust: bool, method: str, refine: str,
+                          outliers_out: Path | None) -> None:
+    """Usage errors for options that do not go with --robust, or need it."""
+
+    def given(name: str) -> bool:
+        source = ctx.get_parameter_source(name)
+        return source not in (None, click.core.ParameterSource.DEFAULT,
+                              click.core.ParameterSource.DEFAULT_MAP)
+
+    if not robust:
+        if outliers_out is not None:
+            raise click.UsageError("--outliers-out lists the edges --robust rejects: give "
+                                   "--robust too")
+        if given("trust_odometry"):
+            raise click.UsageError("--trust-odometry/--no-trust-odometry apply only with --robust")
+        return
+    if method != "auto":
+        raise click.UsageError(f"--robust is its own method: it does not combine with --method "
+                               f"{method}")
+    refused = [f"--{name}" for name in NOT_ROBUST if given(name)]
+    if refine != "none" and given("refine"):
+        refused.append(f"--refine {refine}")
+    if refused:
+        raise click.UsageError(f"{', '.join(refused)}: not used with --robust (it writes "
+                               "GNC-LM's guess, already refined on the edges it kept)")
+
+
+def _describe_step(step: dict) -> str:
+    """One line on a step of the robust path (``RobustResult.steps``)."""
+    shown = ("step", "seconds", "judged", "kept", "rejected")
+    text = (f"step {step.get('step')}: kept {step.get('kept')} of {step.get('judged')} edges "
+            f"judged, rejected {step.get('rejected')}; {step.get('seconds', 0.0):.2f} s")
+    return text + "".join(f"; {key.replace('_', ' ')} {value}" for key, value in step.items()
+                          if key not in shown and value is not None)
+
+
+def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
+                trust_odometry: bool) -> None:
+    run = RunFiles([input_path])
+    run.check(output, outliers_out)  # fail before the work, not after
+    graph, values, lines = read_g2o_lines(input_path)
+    began = time.perf_counter()
+    pose_graph = PoseGraph2D.from_gtsam(graph, values)
+    result = robust_initialize(graph, values, trust_odometry=trust_odometry,
+                               pose_graph=pose_graph)
+    for step in result.steps:
+        click.echo(_describe_step(step))
+    files = [(output, g2o_text(graph, result.values).encode())]  # every edge, new vertices
+    if outliers_out is not None:
+        listed = edge_list_text(graph, result.rejected, lines, g2o_name=input_path.name,
+                                title="edges that rlpgo-init --robust judged wrong")
+        files.append((outliers_out, listed.encode()))
+    run.write_together(files)  # the guess and its list, or neither
+    seconds = time.perf_counter() - began
+    judged = pose_graph.num_edges - len(result.trusted)
+    what = "loop closures" if trust_odometry else "edges"
+    also = "" if outliers_out is None else f" and {outliers_out}"
+    click.echo(f"rejected {len(result.rejected)} of {judged} {what} as wrong; chi2 "
+               f"{result.chi2:.6g} on the edges kept; {seconds:.2f} s; wrote {output}{also}")
+
+
 def _print_stage(row: MethodResult, reason: str) -> None:
     guess = "-" if row.init_chi2 is None else f"{row.init_chi2:.6g}"
     result = "-" if row.refined_chi2 is None else f"{row.refined_chi2:.6g}"
@@ -94,21 +158,40 @@ def _print_stage(row: MethodResult, reason: str) -> None:
 @click.option("--start", type=click.Choice(start_names()), default="odometry",
               show_default=True, help="Orientations the agent starts from (with --method rl).")
 @click.option("--refine", type=click.Choice(["none", "gn", "lm"]), default="lm",
-              show_default=True, help="GTSAM refinement of the guess that is written.")
+              show_default=True, help="GTSAM refinement of the guess that is written. "
+              "--robust writes GNC-LM's guess, already refined on the edges it kept: with it "
+              "only none may be given, and changes nothing.")
 @click.option("--iters", type=ITERATIONS, default=30, show_default=True,
               help="Iteration cap of the refinement.")
 @click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the rollouts' initial last actions.")
-def main(input_path, output, method, budget, model, cycles, episodes, start, refine, iters,
-         seed):
+@click.option("--robust", is_flag=True,
+              help="Reject wrong loop closures instead of running --method: a start from the "
+                   "closures that agree with each other, finished by GTSAM's GNC-LM. The "
+                   "graph written keeps every edge of the input.")
+@click.option("--trust-odometry/--no-trust-odometry", default=True, show_default=True,
+              help="With --robust: edges between consecutive ids (k, k+1) are known inliers; "
+                   "--no-trust-odometry judges them like loop closures.")
+@click.option("--outliers-out", type=OutputFile(),
+              help="With --robust: a text file listing the rejected edges, one a line as "
+                   f"'{EDGE_LIST_LINE}' (L: the edge's line in INPUT.g2o, from 1), after one "
+                   "'#' line.")
+@click.pass_context
+def main(ctx, input_path, output, method, budget, model, cycles, episodes, start, refine,
+         iters, seed, robust, trust_odometry, outliers_out):
     """Write an initial guess for INPUT.g2o to OUTPUT.
 
     The default, --method auto, runs the certified SE(2) relaxation and stops if its
     certificate holds; otherwise it escalates (chordal, Shonan and the agent from the best
-    result so far), each refined with --refine, until --budget, and writes the lowest chi2.
-    --method all runs every initializer and prints the ranking. The paper's behaviour is
-    --method rl --start odometry --refine none.
+    result so far), each refined with --refine, until --budget, and writes the lowest chi2
+    (with a hint when wrong loop closures are likely). --method all runs every initializer
+    and prints the ranking. The paper's behaviour is --method rl --start odometry --refine
+    none. --robust rejects wrong loop closures and writes the guess from the edges kept.
     """
+    _check_robust_options(ctx, robust, method, refine, outliers_out)
+    if robust:
+        _run_robust(input_path, output, outliers_out, trust_odometry)
+        return
     methods = _method_list(method, start)
     run = RunFiles([input_path])
     if any(m.partition("@")[0] == "rl" for m in methods):
@@ -134,6 +217,8 @@ def main(input_path, output, method, budget, model, cycles, episodes, start, ref
                                    options=options, dataset=input_path.name,
                                    pose_graph=pose_graph, on_stage=_print_stage)
         click.echo(f"stopped: {staged.stopped}")
+        if staged.hint is not None:
+            click.echo(f"hint: {staged.hint}")
         results, chosen = staged.rows, staged.best
     else:
         results = compare_methods(graph, values, methods, solver, iters,

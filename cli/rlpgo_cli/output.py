@@ -12,7 +12,7 @@ from pathlib import Path
 import gtsam
 
 from rlpgo_gtsam.errors import OutputError
-from rlpgo_gtsam.files import check_output, write_bytes, write_text
+from rlpgo_gtsam.files import check_output, write_bytes, write_text, write_together
 from rlpgo_gtsam.g2o import write_g2o
 
 
@@ -61,3 +61,8 @@ class RunFiles:
     def write_bytes(self, path: Path, data: bytes) -> None:
         self.check(path)
         write_bytes(path, data)
+
+    def write_together(self, items: list[tuple[Path, bytes]]) -> None:
+        """Write several files, every one or none (see :func:`rlpgo_gtsam.files.write_together`)."""
+        self.check(*(path for path, _ in items))
+        write_together(items)

@@ -18,17 +18,22 @@ ROLLOUTS = click.IntRange(1, 100)
 
 
 class FiniteFloat(click.ParamType):
-    """A float within [minimum, maximum] (``minimum`` excluded if ``min_open``), never nan or
-    inf; the range shows in ``--help``."""
+    """A float within [minimum, maximum] (``minimum`` excluded if ``min_open``, ``maximum``
+    if ``max_open``), never nan or inf; the range shows in ``--help``."""
 
     name = "float"
 
-    def __init__(self, minimum: float, maximum: float, min_open: bool = False) -> None:
-        self.minimum, self.maximum, self.min_open = minimum, maximum, min_open
+    def __init__(self, minimum: float, maximum: float, min_open: bool = False,
+                 max_open: bool = False) -> None:
+        self.minimum, self.maximum = minimum, maximum
+        self.min_open, self.max_open = min_open, max_open
+
+    def _range(self) -> str:
+        low, high = "(" if self.min_open else "[", ")" if self.max_open else "]"
+        return f"{low}{self.minimum:g}, {self.maximum:g}{high}"
 
     def get_metavar(self, param: click.Parameter, ctx: click.Context | None = None) -> str:
-        low = "(" if self.min_open else "["
-        return f"FLOAT {low}{self.minimum:g}, {self.maximum:g}]"
+        return f"FLOAT {self._range()}"
 
     def convert(self, value, param, ctx) -> float:
         try:
@@ -38,10 +43,9 @@ class FiniteFloat(click.ParamType):
         if not math.isfinite(number):
             self.fail(f"{value!r} is not a finite number", param, ctx)
         below = number <= self.minimum if self.min_open else number < self.minimum
-        if below or number > self.maximum:
-            low = "(" if self.min_open else "["
-            self.fail(f"{number:g} is not in {low}{self.minimum:g}, {self.maximum:g}]", param,
-                      ctx)
+        above = number >= self.maximum if self.max_open else number > self.maximum
+        if below or above:
+            self.fail(f"{number:g} is not in {self._range()}", param, ctx)
         return number
 
 

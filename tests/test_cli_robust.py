@@ -1,0 +1,246 @@
+"""Wrong loop closures through the commands: rlpgo-generate --outliers lists them, rlpgo-init
+--robust rejects them and lists what it rejected, and the staged default hints at --robust.
+
+Graphs: the generator's 300-pose lawn mower with noisy measurements (sigma_R 0.1, sigma_t
+0.05, d 1, lc 0.5, seed 3), written by rlpgo-generate; 15% wrong loop closures where it has
+any. Edge lists are compared as entries ``(line, id_i, id_j)``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+from click.testing import CliRunner, Result
+from rlpgo_cli.generate import main as generate_main
+from rlpgo_cli.init import main as init_main
+
+from rlpgo_gtsam import read_g2o, read_g2o_lines, refine
+from rlpgo_gtsam.g2o import edge_list_text, g2o_text_lines
+from rlpgo_gtsam.synthetic import OUTLIER_MODES, generate
+from tests.conftest import assert_same_edges, cli_ok
+
+ARGS = (300, 0.1, 0.05, 1.0, 0.5)
+SEED = 3
+GRAPH_OPTIONS = ["--n", "300", "--sigma-r", "0.1", "--sigma-t", "0.05", "--d", "1", "--lc",
+                 "0.5", "--noisy-measurements", "--seed", str(SEED)]
+FRACTION = 0.15
+SUMMARY = re.compile(
+    r"^rejected (?P<rejected>\d+) of (?P<judged>\d+) loop closures as wrong; chi2 (?P<chi2>\S+) "
+    r"on the edges kept; \d+\.\d\d s; wrote (?P<output>\S+)(?: and (?P<listed>\S+))?$"
+)
+
+
+def _run(command, *args: str | float | Path) -> Result:
+    return CliRunner().invoke(command, [str(a) for a in args])
+
+
+def _entries(path: Path) -> list[tuple[int, int, int]]:
+    """An edge list's entries, (line, id_i, id_j); its one '#' line, first, checked."""
+    text = path.read_text().splitlines()
+    assert text[0].startswith("# ") and not any(row.startswith("#") for row in text[1:])
+    entries = []
+    for row in text[1:]:
+        tag, line, edge, i, j = row.split()
+        assert (tag, edge) == ("line", "EDGE_SE2"), row
+        entries.append((int(line), int(i), int(j)))
+    return entries
+
+
+def _usage_error(result: Result, *mentions: str) -> None:
+    assert result.exit_code == 2, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    assert "Traceback" not in result.output
+    for text in mentions:
+        assert text in result.stderr
+
+
+@dataclass
+class Generated:
+    """A graph rlpgo-generate wrote with wrong closures, and its list of them."""
+
+    mode: str
+    graph: Path
+    listed: Path
+    stdout: str
+
+
+@pytest.fixture(scope="module", params=OUTLIER_MODES)
+def with_outliers(request, tmp_path_factory) -> Generated:
+    folder = tmp_path_factory.mktemp(f"outliers-{request.param}")
+    graph, listed = folder / "g.g2o", folder / "wrong.txt"
+    result = _run(generate_main, *GRAPH_OPTIONS, "--outliers", FRACTION, "--outlier-mode",
+                  request.param, "-o", graph, "--outliers-out", listed)
+    cli_ok(result)
+    return Generated(request.param, graph, listed, result.stdout)
+
+
+@dataclass
+class CleanRuns:
+    """A graph without wrong closures, and what the staged default and --robust made of it."""
+
+    graph: Path
+    staged: Path
+    staged_stdout: str
+    robust: Path
+    robust_stdout: str
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory) -> CleanRuns:
+    folder = tmp_path_factory.mktemp("clean")
+    graph, staged, robust = folder / "g.g2o", folder / "staged.g2o", folder / "robust.g2o"
+    cli_ok(_run(generate_main, *GRAPH_OPTIONS, "-o", graph))
+    staged_run = _run(init_main, graph, "-o", staged)
+    cli_ok(staged_run)
+    robust_run = _run(init_main, graph, "-o", robust, "--robust")
+    cli_ok(robust_run)
+    return CleanRuns(graph, staged, staged_run.stdout, robust, robust_run.stdout)
+
+
+# --------------------------------------------------------------------------- line numbers
+
+
+def test_factors_know_their_file_lines(tmp_path):
+    path = tmp_path / "in.g2o"
+    path.write_text("# a comment\n"
+                    "VERTEX_SE2 0 0 0 0\n"
+                    "\n"
+                    "VERTEX_SE2 1 1 0 0\n"
+                    "VERTEX_SE2 2 2 0 0\n"
+                    "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n"
+                    "FIX 0\n"
+                    "# another\n"
+                    "EDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n"
+                    "EDGE_SE2 0 2 2 0 0 1 0 0 1 0 1\n")
+    graph, values, lines = read_g2o_lines(path)
+    assert lines == [6, 9, 10, 7]  # the edges in file order, then the FIX prior
+    assert isinstance(graph.at(3), gtsam.PriorFactorPose2)
+    text, written_lines = g2o_text_lines(graph, values)  # vertices, edges, then FIX
+    assert written_lines == [4, 5, 6, 7]
+    rows = text.splitlines()
+    assert [rows[line - 1].split()[:3] for line in written_lines[:3]] == [
+        ["EDGE_SE2", "0", "1"], ["EDGE_SE2", "1", "2"], ["EDGE_SE2", "0", "2"]]
+    assert rows[written_lines[3] - 1] == "FIX 0"
+    listed = edge_list_text(graph, [2], lines, title="t", g2o_name="in\n.g2o")
+    assert listed.splitlines()[1:] == ["line 10 EDGE_SE2 0 2"]
+    assert listed.count("\n") == 2  # a line break in the name does not break the header
+
+
+# --------------------------------------------------------------------------- rlpgo-generate
+
+
+def test_generate_lists_the_wrong_closures_at_their_lines(with_outliers):
+    sample = generate(*ARGS, np.random.default_rng(SEED), noisy_measurements=True,
+                      outliers=FRACTION, outlier_mode=with_outliers.mode)
+    assert len(sample.outlier_edges) == int(FRACTION * 430) > 0
+    _, _, lines = read_g2o_lines(with_outliers.graph)
+    expected = [(lines[k], *sample.graph.at(k).keys()) for k in sample.outlier_edges]
+    entries = _entries(with_outliers.listed)
+    assert entries == expected
+    rows = with_outliers.graph.read_text().splitlines()
+    for line, i, j in entries:
+        assert rows[line - 1].split()[:3] == ["EDGE_SE2", str(i), str(j)]
+    assert (f"added {len(entries)} wrong loop closures ({with_outliers.mode}); listed in "
+            f"{with_outliers.listed}") in with_outliers.stdout
+
+
+# --------------------------------------------------------------------------- rlpgo-init --robust
+
+
+def test_robust_rejects_exactly_the_wrong_closures(with_outliers, tmp_path):
+    output, rejected = tmp_path / "init.g2o", tmp_path / "rejected.txt"
+    result = _run(init_main, with_outliers.graph, "-o", output, "--robust", "--outliers-out",
+                  rejected)
+    cli_ok(result)
+    printed = result.stdout.rstrip("\n").splitlines()
+    assert len(printed) >= 2 and all(line.startswith("step ") for line in printed[:-1])
+    summary = SUMMARY.match(printed[-1])
+    assert summary, printed[-1]
+    assert (summary["output"], summary["listed"]) == (str(output), str(rejected))
+
+    assert _entries(rejected) == _entries(with_outliers.listed)
+    assert int(summary["rejected"]) == len(_entries(rejected))
+    graph, _ = read_g2o(with_outliers.graph)
+    closures = [k for k in range(graph.size()) if abs(np.diff(graph.at(k).keys())[0]) != 1]
+    assert int(summary["judged"]) == len(closures)
+
+    assert_same_edges(with_outliers.graph, output)  # every edge written, the wrong ones too
+    clean = generate(*ARGS, np.random.default_rng(SEED), noisy_measurements=True)
+    lowest = refine(clean.graph, clean.ground_truth, "lm", 100).chi2
+    _, guess = read_g2o(output)
+    assert 2.0 * clean.graph.error(guess) == pytest.approx(lowest, rel=1e-6)
+    assert float(summary["chi2"]) == pytest.approx(lowest, rel=1e-5)  # printed to 6 digits
+
+
+def test_a_clean_graph_gets_the_same_chi2_with_and_without_robust(clean):
+    graph, _ = read_g2o(clean.graph)
+    _, staged = read_g2o(clean.staged)
+    _, robust = read_g2o(clean.robust)
+    assert 2.0 * graph.error(robust) == pytest.approx(2.0 * graph.error(staged), rel=1e-6)
+    assert clean.robust_stdout.splitlines()[-1].startswith("rejected 0 of ")
+    assert_same_edges(clean.graph, clean.robust)
+
+
+def test_robust_with_refine_none_writes_the_same_guess(clean, tmp_path):
+    output = tmp_path / "none.g2o"
+    cli_ok(_run(init_main, clean.graph, "-o", output, "--robust", "--refine", "none"))
+    assert output.read_bytes() == clean.robust.read_bytes()
+
+
+# --------------------------------------------------------------------------- the staged default
+
+
+def test_the_staged_default_hints_at_robust_when_closures_are_wrong(with_outliers, tmp_path):
+    output = tmp_path / "init.g2o"
+    result = _run(init_main, with_outliers.graph, "-o", output, "--budget", "0")
+    cli_ok(result)
+    assert "NOT certified" in result.stdout
+    hints = [line for line in result.stdout.splitlines() if line.startswith("hint: ")]
+    assert len(hints) == 1 and "--robust" in hints[0]
+
+
+def test_the_staged_default_gives_no_hint_on_a_certified_graph(clean):
+    assert "certificate: certified optimal" in clean.staged_stdout
+    assert "hint" not in clean.staged_stdout
+
+
+# --------------------------------------------------------------------------- errors
+
+
+def test_outliers_out_without_robust_is_a_usage_error(clean, tmp_path):
+    output, listed = tmp_path / "init.g2o", tmp_path / "rejected.txt"
+    result = _run(init_main, clean.graph, "-o", output, "--outliers-out", listed)
+    _usage_error(result, "--outliers-out", "--robust")
+    assert not output.exists() and not listed.exists()
+
+
+def test_outliers_out_may_not_be_the_input(clean, tmp_path):
+    before = clean.graph.read_bytes()
+    output = tmp_path / "init.g2o"
+    result = _run(init_main, clean.graph, "-o", output, "--robust", "--outliers-out",
+                  clean.graph)
+    assert result.exit_code == 1, result.output
+    assert result.stderr == f"Error: {clean.graph}: is an input of this run; refusing to " \
+                            "overwrite it\n"
+    assert clean.graph.read_bytes() == before
+    assert not output.exists()
+
+
+@pytest.mark.parametrize(("command", "args", "mentions"), [
+    (init_main, ["--robust", "--method", "chordal"], ["--robust", "--method chordal"]),
+    (init_main, ["--robust", "--budget", "5", "--refine", "gn"], ["--budget", "--refine gn"]),
+    (init_main, ["--no-trust-odometry"], ["--robust"]),
+    (generate_main, ["--outliers", "1"], ["--outliers", "[0, 1)"]),
+    (generate_main, ["--outlier-mode", "sneaky"], ["--outlier-mode"]),
+], ids=["method", "staged_options", "trust_without_robust", "outliers_one", "mode"])
+def test_options_that_do_not_go_together_are_usage_errors(clean, tmp_path, command, args,
+                                                          mentions):
+    output = tmp_path / "out.g2o"
+    inputs = [clean.graph] if command is init_main else []
+    _usage_error(_run(command, *inputs, "-o", output, *args), *mentions)
+    assert not output.exists()
