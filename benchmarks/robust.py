@@ -1,27 +1,30 @@
 """Wrong loop closures: the robust initializer against the clean default and GTSAM GNC-LM.
 
     python benchmarks/robust.py [--cases gen0.1,gen0.2,Intel,M3500,City10K]
-        [--fractions 0.05,0.1,0.2,0.3] [--anchor-timeout 60] [--anchor-fractions 0.05,0.1]
+        [--fractions 0.05,0.1,0.2,0.3] [--mode random|plausible] [--repeat 3]
+        [--anchor-timeout 60] [--anchor-fractions 0.05,0.1] [--name robust]
 
 Per case (a shared benchmark file, or a 1000-pose graph of the project's generator with
 noisy measurements, sigma_R 0.1 or 0.2, sigma_t 0.05 m, d 1 m, lc 0.5) and per fraction of
-random wrong closures (``int(fraction x edges)`` of them, :func:`add_outliers` /
-``generate(outliers=...)``, seed 1):
+wrong closures (``int(fraction x edges)`` of them, :func:`add_outliers` /
+``generate(outliers=...)``, seed 1; random by default, ``--mode plausible`` for far-apart
+poses measured like a true closure):
 
 - ``robust_initialize`` on the corrupted graph: precision and recall of its rejections,
   the chi2 of its values on the outlier-free graph against that graph's lowest known chi2
   (the shared files' README; for generated graphs LM from the ground truth on the clean
   graph), the RMS position error against the outlier-free solution (LM from chordal on the
   clean graph) and its seconds;
-- the clean default (``staged_initialize`` on the outlier-free graph, timed once per case)
-  as the time reference: "x clean" is robust seconds / clean-default seconds;
+- the clean default (``staged_initialize`` on the outlier-free graph) as the time
+  reference: "x clean" is robust seconds / clean-default seconds, each the median of
+  ``--repeat`` runs in the same process;
 - GTSAM's ``GncLMOptimizer`` (TLS, odometry edges known inliers) from the odometry guess as
   the anchor, in a subprocess with a time limit; where the project's REFERENCE measured it
   not finishing in 10 minutes (M3500 at 20%, Intel at 10%) or a lower fraction already ran
   out of time it is not run again.
 
-Rows are checkpointed to ``benchmarks/results/robust.json`` as they finish; the markdown
-table goes to ``benchmarks/results/robust.md``.
+Rows are checkpointed to ``benchmarks/results/<name>.json`` as they finish; the markdown
+table goes to ``benchmarks/results/<name>.md``.
 """
 
 from __future__ import annotations
@@ -75,13 +78,24 @@ def clean_case(name: str):
     return graph, values, lowest, solution
 
 
-def corrupted(name: str, graph, values, solution, fraction: float):
+def corrupted(name: str, graph, values, solution, fraction: float, mode: str = "random"):
     """(graph with wrong closures, their factor indices)."""
     if name.startswith("gen"):
         sample = generate(1000, float(name[3:]), 0.05, 1.0, 0.5, np.random.default_rng(7),
-                          noisy_measurements=True, outliers=fraction)
+                          noisy_measurements=True, outliers=fraction, outlier_mode=mode)
         return sample.graph, sample.outlier_edges
-    return add_outliers(graph, solution, fraction, np.random.default_rng(SEED))
+    return add_outliers(graph, solution, fraction, np.random.default_rng(SEED), mode)
+
+
+def timed(repeat: int, call, *args, **kwargs):
+    """The last result of ``call(*args, **kwargs)`` run ``repeat`` times, and the median of
+    its seconds."""
+    seconds, result = [], None
+    for _ in range(repeat):
+        began = time.perf_counter()
+        result = call(*args, **kwargs)
+        seconds.append(time.perf_counter() - began)
+    return result, float(np.median(seconds))
 
 
 def rms(g: PoseGraph2D, values, reference) -> float:
@@ -144,6 +158,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--cases", default="gen0.1,gen0.2,Intel,M3500,City10K")
     parser.add_argument("--fractions", default="0.05,0.1,0.2,0.3")
+    parser.add_argument("--mode", default="random", choices=["random", "plausible"])
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--name", default="robust")
     parser.add_argument("--anchor-fractions", default="0.05,0.1")
     parser.add_argument("--anchor-timeout", type=float, default=60.0)
     parser.add_argument("--anchor-child", nargs=2, help=argparse.SUPPRESS)
@@ -152,7 +169,7 @@ def main() -> None:
         anchor_child(*args.anchor_child)
         return
     fractions = [float(f) for f in args.fractions.split(",")]
-    anchor_fractions = {float(f) for f in args.anchor_fractions.split(",")}
+    anchor_fractions = {float(f) for f in args.anchor_fractions.split(",") if f}
     command = "python benchmarks/robust.py " + " ".join(sys.argv[1:])
     rows: list[dict] = []
     # warm-up: first calls pay for imports (scipy.stats, scipy.sparse) that later ones do not
@@ -167,22 +184,24 @@ def main() -> None:
     for name in args.cases.split(","):
         graph, values, lowest, solution = clean_case(name)
         g = PoseGraph2D.from_gtsam(graph, values)
-        default = staged_initialize(graph, values, pose_graph=g)
+        default, default_seconds = timed(args.repeat, staged_initialize, graph, values,
+                                         pose_graph=g)
         anchor_out_of_time = False
         for fraction in fractions:
-            bad, outliers = corrupted(name, graph, values, solution, fraction)
-            result = robust_initialize(bad, values)
+            bad, outliers = corrupted(name, graph, values, solution, fraction, args.mode)
+            result, robust_seconds = timed(args.repeat, robust_initialize, bad, values)
             precision, recall = scores(set(result.rejected), set(outliers))
             clean_chi2 = chi2(graph, result.values)
             row = {
-                "case": name, "poses": g.num_poses, "edges": g.num_edges, "fraction": fraction,
+                "case": name, "mode": args.mode, "poses": g.num_poses, "edges": g.num_edges,
+                "fraction": fraction,
                 "wrong_closures": len(outliers), "rejected": len(result.rejected),
                 "precision": precision, "recall": recall, "chi2_on_clean": clean_chi2,
                 "lowest_known": lowest, "gap": clean_chi2 / lowest - 1.0,
-                "rms_m": rms(g, result.values, solution), "robust_seconds": result.seconds,
-                "clean_default_seconds": default.seconds,
+                "rms_m": rms(g, result.values, solution), "robust_seconds": robust_seconds,
+                "clean_default_seconds": default_seconds,
                 "clean_default_chi2": default.best.refined_chi2,
-                "x_clean": result.seconds / default.seconds, "steps": result.steps,
+                "x_clean": robust_seconds / default_seconds, "steps": result.steps,
             }
             first_dnf = ANCHOR_DID_NOT_FINISH.get(name)
             if first_dnf is not None and fraction >= first_dnf:
@@ -206,12 +225,13 @@ def main() -> None:
                         "recall": a_recall, "chi2_on_clean": chi2(graph, a_values),
                         "rms_m": rms(g, a_values, solution)}
             rows.append(row)
-            write_result("robust", {"command": command, "rows": rows})
+            write_result(args.name, {"command": command, "rows": rows})
             print(markdown_row(row), flush=True)
     table = "\n".join([header, "|" + "---|" * 14] + [markdown_row(r) for r in rows])
-    (RESULTS / "robust.md").write_text(
+    (RESULTS / f"{args.name}.md").write_text(
         f"Made by `{command}`; chi2 = 2 x GTSAM error, scored on the outlier-free graph; "
-        "random wrong closures, seed 1.\n\n" + table + "\n")
+        f"{args.mode} wrong closures, seed 1; seconds are medians of {args.repeat} runs.\n\n"
+        + table + "\n")
 
 
 def markdown_row(row: dict) -> str:

@@ -6,18 +6,25 @@ closures but needs a start near the right map. :func:`robust_initialize` builds 
 and lets GTSAM's GNC-LM (truncated least squares) finish from it:
 
 1. ``consistency``: every pair of loop closures whose ends lie within ``_WINDOW`` steps of
-   each other along the odometry chain closes a short cycle through it; a closure that
-   agrees with at least two neighbours, in tests that a wrong closure would pass by chance
-   less than 1% of the time, joins the seed (see :func:`_consistent_closures`). Wrong
-   closures join random poses and agree with nothing.
-2. ``start``: chordal orientations of the seed (the odometry edges and the seed closures),
-   then GNC-TLS on the translation step at those orientations (odometry at weight 1, seed
-   closures judged, the rest left out): a seed closure that agreed by chance goes here.
-3. ``verify``: GTSAM LM on the edges kept, then every edge is judged by its chi2 (3 dof) at
-   that optimum against a bar that falls from 10x to 1x the inlier threshold (100x to 1x
-   for closures with loose support: agreeing with three neighbours in any test): true
-   closures the seed missed come back, closures that do not fit go. Repeated until the
-   final bar leaves the decision unchanged (see :func:`_verify`).
+   each other along the odometry chain closes a short cycle through it, whose covariance
+   is propagated to first order from its measurements; a closure that agrees with at least
+   two neighbours in tests that a wrong closure would pass by chance less than 1% of the
+   time, or with at least three in any test, joins the seed (see
+   :func:`_consistent_closures`). Wrong closures join random poses and agree with nothing.
+2. ``start``: the certified relaxation (:mod:`rlpgo_gtsam.certified`) of the seed (the
+   odometry edges and the seed closures) gives the orientations; then GNC-TLS on the
+   translation step at those orientations (odometry at weight 1, seed closures judged, the
+   rest left out): a seed closure that agreed by chance goes here, its translation at
+   odds with the seed's map. (Chordal orientations instead fail under heavy rotation
+   noise: imprecise, they put true closures' translations at odds too, and LM from the
+   thinned seed's chordal estimate settled in a wrong basin on the generator's graphs with
+   0.2 rad per measurement.)
+3. ``verify``: Gauss-Newton (LM where GN does not lower the cost) on the edges kept, then
+   every edge is judged by its chi2 (3 dof) at that optimum against a bar that falls from
+   10x to 1x the inlier threshold (100x to 1x for closures with loose support: agreeing
+   with three neighbours in any test): true closures the seed missed come back, closures
+   that do not fit go. Repeated until the final bar leaves the decision unchanged (see
+   :func:`_verify`).
 4. ``gnc``: GTSAM's ``GncLMOptimizer`` (TLS, super-linear schedule, the project's LM
    settings) from the verified optimum on the edges kept, the trusted edges as known
    inliers. Its weights are the last word on those edges: rejected means weight < 0.5.
@@ -48,10 +55,9 @@ import numpy as np
 
 from rlpgo_gtsam.errors import GraphError, SolverError, one_line
 from rlpgo_gtsam.graph import PoseGraph2D, chi2
-from rlpgo_gtsam.initializers import chordal_orientations
+from rlpgo_gtsam.initializers import make_initializer
 from rlpgo_gtsam.rotations import rotation_matrices, wrap
 from rlpgo_gtsam.solvers import refine, solver_params
-from rlpgo_gtsam.translations import poses_with_orientations
 
 __all__ = [
     "RobustResult",
@@ -93,6 +99,7 @@ _LM_ITERS = 100
 _LOOSE_LM_ITERS = 4
 _LOOSE_LM_TOLERANCE = 1e-4
 _ANCHOR_SIGMA = 1e-8
+_TOLERANCE = 1e-10  # the final rounds' relative error tolerance (the project's)
 
 
 @dataclass
@@ -141,7 +148,7 @@ def robust_initialize(
     Args:
         graph: a planar pose graph (what :class:`PoseGraph2D` accepts).
         values: its initial values (they give the anchor's pose; the estimate itself starts
-            from the seed's chordal relaxation, not from them).
+            from the seed's certified relaxation, not from them).
         trust_odometry: edges between consecutive keys (k, k+1) are known inliers.
         inlier_probability: the chi-square quantile that separates inliers, in (0, 1).
         gnc_iterations: cap on the outer iterations of each GNC (the translation step's and
@@ -168,13 +175,13 @@ def robust_initialize(
 
     step_began = time.perf_counter()
     kept, loose, pairs = _consistent_closures(g, chain, thresholds[3])
-    kept |= chain
+    kept |= loose | chain
     steps.append(_step("consistency", step_began, None, kept, known) | {"pairs": pairs})
 
     step_began = time.perf_counter()
     seed = replace(g, edges=g.edges[kept], measured=g.measured[kept],
                    information=g.information[kept])
-    theta = poses_with_orientations(seed, chordal_orientations(seed))[:, 2]
+    theta = make_initializer("certified").run(seed).poses[:, 2]
     positions, weights, iterations = _robust_positions(g, theta, known, ~kept, thresholds[2],
                                                        gnc_iterations)
     kept &= weights >= REJECTED_BELOW
@@ -182,10 +189,10 @@ def robust_initialize(
     steps.append(_step("start", step_began, iterations, kept, known))
 
     step_began = time.perf_counter()
-    poses, kept, rounds, lm_iterations = _verify(graph, g, factor_of_edge, poses, kept, known,
+    poses, kept, rounds, solver_iterations = _verify(graph, g, factor_of_edge, poses, kept, known,
                                                  loose, thresholds[3])
     steps.append(_step("verify", step_began, rounds, kept, known) |
-                 {"lm_iterations": lm_iterations})
+                 {"solver_iterations": solver_iterations})
 
     step_began = time.perf_counter()
     result, gnc_weights = _gnc_lm(graph, g, factor_of_edge, g.to_values(poses), kept, known,
@@ -241,14 +248,15 @@ def outlier_suspicion(pose_graph: PoseGraph2D, values: gtsam.Values) -> str | No
     three edges).
     """
     g = pose_graph
-    high = edge_chi2(g, g.poses_of(values)) > SUSPICION_CHI2
+    residuals = edge_chi2(g, g.poses_of(values))
+    high = residuals > SUSPICION_CHI2
     count, expected = int(high.sum()), _SUSPICION_P * g.num_edges
     if count < 3 or count <= expected + 4.0 * math.sqrt(expected):
         return None
-    worst = np.flatnonzero(high)[:3]
+    worst = np.argsort(-residuals, kind="stable")[:3]
     shown = ", ".join(f"{g.keys[a]}-{g.keys[b]}" for a, b in g.edges[worst].tolist())
     return (f"{count} of {g.num_edges} edges fit with chi2 > {SUSPICION_CHI2:g} (Gaussian noise "
-            f"gives about {expected:.0f}; e.g. edges {shown}): wrong loop closures are likely; "
+            f"gives about {expected:.0f}; worst: edges {shown}): wrong loop closures are likely; "
             "try --robust")
 
 
@@ -265,16 +273,18 @@ def _consistent_closures(g: PoseGraph2D, chain_mask: np.ndarray,
     Two closures ``e = (i, j)`` and ``f = (k, l)`` whose ends are at most ``_WINDOW``
     chain steps apart (``|i - k|``, ``|j - l|``) close a short cycle through the odometry
     chain: ``Z_e^-1 D(i, k) Z_f D(l, j)`` is the identity up to noise (``D(a, b)`` the
-    chained odometry from pose a to pose b). Its error is scored against the two closures'
-    covariances plus the chain's (its largest translational variance per step, with the
-    lever of each step's rotational variance). A score below
-    ``min(threshold, _DATA_SCALE x median score)`` is agreement: the nominal covariances of
-    real data often overstate the noise by an order of magnitude, so the scores' own median
-    sets the scale there (most pairs join two true closures, which come in runs). A test is
-    informative where a wrong closure (translation uniform over the chain's extent, any
-    angle) would pass it with probability below ``_CHANCE``: over long cycles with heavy
-    rotation noise the covariance grows until anything agrees. Pairs across a break in the
-    chain are not tested.
+    chained odometry from pose a to pose b). Its error (the cycle's Logmap) is scored, 3
+    dof, against the cycle's covariance propagated to first order from every measurement in
+    it: each factor's covariance moved into the cycle's end frame by the adjoint of the
+    rest of the cycle; a chain segment's covariance comes from prefix sums of the steps'
+    covariances in the chain's origin frame, so every pair costs the same whatever its
+    length. A score below ``min(threshold, _DATA_SCALE x median score)`` is agreement: the
+    nominal covariances of real data often overstate the noise by an order of magnitude, so
+    the scores' own median sets the scale there (most pairs join two true closures, which
+    come in runs). A test is informative where a wrong closure (translation uniform over a
+    square of the chain's extent, any angle) would land inside the agreement ellipsoid with
+    probability below ``_CHANCE``: over long cycles with heavy rotation noise the ellipsoid
+    grows until anything agrees. Pairs across a break in the chain are not tested.
     """
     n = g.num_poses
     cov = np.linalg.inv(g.information)
@@ -283,28 +293,35 @@ def _consistent_closures(g: PoseGraph2D, chain_mask: np.ndarray,
     consistent = np.zeros(g.num_edges, bool)
     if len(closures) < 2 or len(chain_edges) == 0:
         return consistent, consistent.copy(), 0
-    # one odometry step per consecutive pair (the first edge found), chained from pose 0
+    # one odometry step per consecutive pair (the first edge found), chained from pose 0,
+    # with its covariance in the step's own (right) frame
     steps = np.zeros((n - 1, 3))
+    step_cov = np.zeros((n - 1, 3, 3))
     linked = np.zeros(n - 1, bool)
     for e in chain_edges[::-1].tolist():
         a, b = g.edges[e].tolist()
         lower = min(a, b)
-        steps[lower] = g.measured[e] if b > a else _inverse(g.measured[e:e + 1])[0]
+        steps[lower], step_cov[lower] = _oriented(g.measured[e:e + 1], cov[e:e + 1], b < a)
         linked[lower] = True
     segment = np.concatenate([[0], np.cumsum(~linked)])
     chain = _chain(steps)
-    step_var_t = float(np.mean(np.linalg.eigvalsh(cov[chain_edges, :2, :2])[:, -1]))
-    step_var_r = float(np.mean(cov[chain_edges, 2, 2]))
-    step_length = float(np.mean(np.hypot(steps[linked, 0], steps[linked, 1]))) \
-        if linked.any() else 0.0
+    chain_adjoint = _adjoint(chain)
+    chain_adjoint_inverse = np.linalg.inv(chain_adjoint)
+    # prefix[m]: the covariance of steps 0..m-1 moved into the origin frame, summed
+    prefix = np.zeros((n, 3, 3))
+    prefix[1:] = np.cumsum(_sandwich(chain_adjoint[1:], step_cov), axis=0)
+
+    def between(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """D(a, b) for index arrays, and its covariance in its right frame."""
+        lower, upper = np.minimum(a, b), np.maximum(a, b)
+        forward = _compose(_inverse(chain[lower]), chain[upper])
+        covariance = _sandwich(chain_adjoint_inverse[upper], prefix[upper] - prefix[lower])
+        return _oriented(forward, covariance, a > b)
 
     i, j = g.edges[closures, 0].copy(), g.edges[closures, 1].copy()
-    measured = g.measured[closures].copy()
     flip = i > j
-    measured[flip] = _inverse(measured[flip])
+    measured, closure_cov = _oriented(g.measured[closures], cov[closures], flip)
     i[flip], j[flip] = j[flip], i[flip].copy()
-    var_t = np.linalg.eigvalsh(cov[closures, :2, :2])[:, -1]
-    var_r = cov[closures, 2, 2]
     order = np.argsort(i, kind="stable")
     first = np.searchsorted(i[order], i - _WINDOW)
     last = np.searchsorted(i[order], i + _WINDOW + 1)
@@ -320,21 +337,24 @@ def _consistent_closures(g: PoseGraph2D, chain_mask: np.ndarray,
     if len(a_idx) == 0:
         return consistent, consistent.copy(), 0
 
-    def between(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        return _compose(_inverse(chain[x]), chain[y])
-
-    cycle = _compose(_compose(_compose(_inverse(measured[a_idx]), between(i[a_idx], i[b_idx])),
-                              measured[b_idx]), between(j[b_idx], j[a_idx]))
-    length = np.abs(i[a_idx] - i[b_idx]) + np.abs(j[a_idx] - j[b_idx])
-    lever = np.hypot(measured[a_idx, 0], measured[a_idx, 1]) ** 2 + (length * step_length) ** 2
-    cycle_var_t = var_t[a_idx] + var_t[b_idx] + length * (step_var_t + step_var_r * lever)
-    cycle_var_r = var_r[a_idx] + var_r[b_idx] + length * step_var_r
-    score = (cycle[:, 0] ** 2 + cycle[:, 1] ** 2) / cycle_var_t + cycle[:, 2] ** 2 / cycle_var_r
+    # the cycle A B C D = Z_e^-1 D(i, k) Z_f D(l, j); a factor's error reaches the cycle's
+    # end frame through the adjoint of the inverse of the factors after it
+    factors = [_oriented(measured[a_idx], closure_cov[a_idx], np.ones(len(a_idx), bool)),
+               between(i[a_idx], i[b_idx]), (measured[b_idx], closure_cov[b_idx]),
+               between(j[b_idx], j[a_idx])]
+    after = factors[-1][0]
+    total = factors[-1][1].copy()
+    for pose, covariance in factors[-2::-1]:
+        total += _sandwich(_adjoint(_inverse(after)), covariance)
+        after = _compose(pose, after)
+    error = np.column_stack([_logmap_translation(after[:, :2], after[:, 2]), after[:, 2]])
+    score = np.einsum("ea,ea->e", error, np.linalg.solve(total, error[..., None])[..., 0])
     bar = min(threshold, _DATA_SCALE * float(np.median(score)))
-    # the chance that a wrong closure (uniform over the map, any angle) agrees anyway
+    # the chance that a wrong closure agrees anyway: the agreement ellipsoid's volume over
+    # that of the wrong closures' distribution (a square of the chain's extent, 2 pi)
     side = max(float(np.ptp(chain[:, 0])), float(np.ptp(chain[:, 1])), 1e-9)
-    chance = np.minimum(1.0, np.pi * bar * cycle_var_t / (4.0 * side ** 2)) * \
-        np.minimum(1.0, np.sqrt(bar * cycle_var_r) / np.pi)
+    volume = 4.0 / 3.0 * np.pi * bar ** 1.5 * np.sqrt(np.maximum(np.linalg.det(total), 0.0))
+    chance = volume / (4.0 * side ** 2 * 2.0 * np.pi)
     agree = score < bar
     informative = agree & (chance < _CHANCE)
     loose = consistent.copy()
@@ -342,6 +362,32 @@ def _consistent_closures(g: PoseGraph2D, chain_mask: np.ndarray,
         _MIN_SUPPORT
     loose[closures] = np.bincount(a_idx[agree], minlength=len(closures)) >= _LOOSE_SUPPORT
     return consistent, loose, int(len(a_idx))
+
+
+def _adjoint(poses: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) GTSAM's Pose2 adjoint maps of (k, 3) poses (tangent order x, y, theta)."""
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    adjoint = np.zeros((len(poses), 3, 3))
+    adjoint[:, 0, 0], adjoint[:, 0, 1], adjoint[:, 0, 2] = c, -s, poses[:, 1]
+    adjoint[:, 1, 0], adjoint[:, 1, 1], adjoint[:, 1, 2] = s, c, -poses[:, 0]
+    adjoint[:, 2, 2] = 1.0
+    return adjoint
+
+
+def _sandwich(a: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """Row-wise a C a^T."""
+    return a @ covariance @ np.transpose(a, (0, 2, 1))
+
+
+def _oriented(poses: np.ndarray, covariance: np.ndarray,
+              reverse: np.ndarray | bool) -> tuple[np.ndarray, np.ndarray]:
+    """(k, 3) relative poses and their right-frame covariances, inverted where ``reverse``:
+    ``(T Exp(d))^-1 = T^-1 Exp(-Ad(T) d)``."""
+    reverse = np.broadcast_to(np.asarray(reverse, bool), (len(poses),))
+    poses, covariance = poses.copy(), covariance.copy()
+    covariance[reverse] = _sandwich(_adjoint(poses[reverse]), covariance[reverse])
+    poses[reverse] = _inverse(poses[reverse])
+    return poses, covariance
 
 
 def _chain(steps: np.ndarray) -> np.ndarray:
@@ -368,7 +414,7 @@ def _inverse(a: np.ndarray) -> np.ndarray:
 def _verify(graph, g: PoseGraph2D, factor_of_edge: np.ndarray, poses: np.ndarray,
             kept: np.ndarray, known: np.ndarray, supported: np.ndarray,
             threshold: float) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """LM on the kept edges, then re-judge every edge by its chi2 at that optimum; repeated.
+    """Solve on the kept edges, then re-judge every edge by its chi2 at that optimum; repeated.
 
     The bar falls from ``_ANNEAL[0] x threshold`` to ``threshold``: a true closure left out
     of the start sits in a map bent without it, so its chi2 there is high; let back in under
@@ -378,27 +424,42 @@ def _verify(graph, g: PoseGraph2D, factor_of_edge: np.ndarray, poses: np.ndarray
     translations) the closures the seed missed sat at 15-50x the threshold in the first map,
     while on Intel a few wrong closures sat at 15-80x and, once in, bent the map until they
     fit. Ends once the final bar leaves the decision unchanged. Intermediate rounds run a
-    short, loose LM (they need the map's shape). Returns poses, kept, rounds, LM iterations.
+    short, loose solve (they need the map's shape). Each round's solve is :func:`_settle`.
+    Returns poses, kept, rounds, solver iterations.
     """
-    lm_iterations, rounds = 0, 0
+    solver_iterations, rounds = 0, 0
     for bar in list(_ANNEAL) + [1.0] * _VERIFY_ROUNDS:
         rounds += 1
         # rounds under a looser bar need the map's shape, not its last digits
-        params = solver_params("lm", _LM_ITERS if bar == 1.0 else _LOOSE_LM_ITERS)
-        if bar != 1.0:
-            params.setRelativeErrorTol(_LOOSE_LM_TOLERANCE)
-        refined = refine(_without(graph, factor_of_edge[~kept].tolist()), g.to_values(poses),
-                         params, pose_graph=g)
-        if refined.failure is not None:
-            raise SolverError(f"robust initialization: {refined.failure}")
-        lm_iterations += refined.iterations
+        refined = _settle(_without(graph, factor_of_edge[~kept].tolist()), g.to_values(poses),
+                          g, _LM_ITERS if bar == 1.0 else _LOOSE_LM_ITERS,
+                          _LOOSE_LM_TOLERANCE if bar != 1.0 else _TOLERANCE)
+        solver_iterations += refined.iterations
         poses = g.poses_of(refined.values)
         scale = np.where(supported & (bar > 1.0), bar * _SUPPORTED_BAR, bar)
         decided = known | (edge_chi2(g, poses) < scale * threshold)
         if bar == 1.0 and np.array_equal(decided, kept):
             break
         kept = decided
-    return poses, kept, rounds, lm_iterations
+    return poses, kept, rounds, solver_iterations
+
+
+def _settle(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, g: PoseGraph2D,
+            iterations: int, tolerance: float):
+    """GTSAM Gauss-Newton (g2o's loop: on through an increase) from ``values``, or LM
+    (relative tolerance ``tolerance``) where that does not lower the chi2. From the maps
+    ``_verify`` hands it (a few closures away from their optimum) GN converges in a handful
+    of steps where LM's damping takes 15-20 (Intel: 4 against 20); LM remains the fallback
+    for a start that GN overshoots from."""
+    start = chi2(graph, values)
+    refined = refine(graph, values, "gn", iterations, pose_graph=g)
+    if refined.failure is not None or not refined.chi2 <= start:
+        params = solver_params("lm", iterations)
+        params.setRelativeErrorTol(tolerance)
+        refined = refine(graph, values, params, pose_graph=g)
+    if refined.failure is not None:
+        raise SolverError(f"robust initialization: {refined.failure}")
+    return refined
 
 
 def _gnc_lm(graph, g: PoseGraph2D, factor_of_edge: np.ndarray, start: gtsam.Values,
