@@ -34,8 +34,9 @@ from rlpgo_gtsam.initializers import (
     make_initializer,
     register,
 )
+from rlpgo_gtsam.robust import RobustResult, robust_initialize
 from rlpgo_gtsam.solvers import RefineResult, refine
-from rlpgo_gtsam.synthetic import SyntheticGraph, generate
+from rlpgo_gtsam.synthetic import SyntheticGraph, add_outliers, generate
 from rlpgo_gtsam.translations import poses_with_orientations, solve_translations
 
 __version__ = "0.1.0"
@@ -74,10 +75,12 @@ __all__ = [
     "PoseGraphEnv",
     "RLInitializer",
     "RefineResult",
+    "RobustResult",
     "RlpgoError",
     "ShonanInitializer",
     "SolverError",
     "SyntheticGraph",
+    "add_outliers",
     "chi2",
     "generate",
     "initializer_names",
@@ -87,6 +90,7 @@ __all__ = [
     "read_g2o_lines",
     "refine",
     "register",
+    "robust_initialize",
     "rotation_weights",
     "solve_translations",
     "write_g2o",
