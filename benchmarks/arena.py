@@ -78,8 +78,9 @@ def _best_classical(g: PoseGraph2D) -> tuple[dict, np.ndarray, bool]:
 
 def _agent(g: PoseGraph2D, start: np.ndarray, k: int, model: str) -> float:
     rl = RLInitializer(model=model, episodes=k, seed=1)
-    result = rollout(rl.policy, g, start[:, 2], rl.cycles, rl.model.env_config.action_range_rad,
-                     rl.last_actions())
+    config = rl.model.env_config
+    result = rollout(rl.policy, g, start[:, 2], rl.cycles, config.action_range_rad,
+                     rl.last_actions(), observation=config.observation, keep=config.keep)
     return min(_lm(g, poses_with_orientations(g, theta)) for theta in result.best_theta)
 
 

@@ -36,7 +36,8 @@ def best_oc_ratios(policy, config: EnvConfig, seeds: list[int]) -> tuple[list[fl
     for seed in seeds:
         graph = evaluation_graph(config, seed)
         result = rollout(policy, graph, graph.poses[:, 2], config.cycles,
-                         config.action_range_rad, np.zeros((1, 2)))
+                         config.action_range_rad, np.zeros((1, 2)),
+                         observation=config.observation)
         initial.append(result.initial_oc)
         best.append(float(result.best_oc[0]))
     return initial, best
@@ -47,11 +48,11 @@ def evaluate(model: LoadedModel, preset: int, graphs: int, seed: int,
     """Mean initial OC, and mean best OC of the agent, random actions and the rule.
 
     Graph ``k`` is the preset's generator seeded with ``seed + k``, the same for all three.
-    The environment takes the preset's parameters, with the model's action range (what
-    the agent was trained with) and the given overrides.
+    The environment takes the preset's parameters, with the model's action range and
+    observation kind (what the agent was trained with) and the given overrides.
     """
     config = replace(PRESETS[preset], action_range_rad=model.env_config.action_range_rad,
-                     **(overrides or {}))
+                     observation=model.env_config.observation, **(overrides or {}))
     seeds = [seed + k for k in range(graphs)]
     initial, agent = best_oc_ratios(NumpyPolicy(model.actor), config, seeds)
     _, random = best_oc_ratios(RandomPolicy(np.random.default_rng(seed)), config, seeds)

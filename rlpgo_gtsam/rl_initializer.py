@@ -75,9 +75,10 @@ class RLInitializer(Initializer):
 
     def estimate(self, pose_graph: PoseGraph2D, start_poses: np.ndarray | None) -> Estimate:
         start_theta = pose_graph.poses[:, 2] if start_poses is None else start_poses[:, 2]
+        config = self.model.env_config
         result = rollout(self.policy, pose_graph, start_theta, self.cycles,
-                         self.model.env_config.action_range_rad, self.last_actions(),
-                         self.progress)
+                         config.action_range_rad, self.last_actions(), self.progress,
+                         observation=config.observation, keep=config.keep)
         guesses = [poses_with_orientations(pose_graph, theta) for theta in result.best_theta]
         costs = [chi2(pose_graph.graph, pose_graph.to_values(poses)) for poses in guesses]
         chosen = int(np.argmin(costs))

@@ -50,3 +50,116 @@ def solve_translations(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray
     b = np.einsum("eab,eb->ea", w, target)
     held, held_poses = g.held
     return solve_pairwise(g.num_poses, g.edges, -a_j, a_j, b, held, held_poses[:, :2])
+
+
+class TranslationStep:
+    """The translation step for many orientations of one graph: positions and their chi2.
+
+    :func:`poses_with_orientations` solves through GTSAM, which costs milliseconds a call;
+    a training reward on the real cost calls it at every step. This class keeps what does
+    not depend on the orientations (whitening factors, the sparsity pattern of the normal
+    equations) and solves them with scipy. :meth:`chi2` is the chi2 of the graph's edges at
+    the solved positions, which is GTSAM's chi2 of ``poses_with_orientations(theta)`` on a
+    graph without soft priors (a soft prior on the anchor adds nothing either: the anchor
+    sits at its value). Each edge's chi2 at the positions of least cost splits into the
+    whitened translation residual and the angle error's conditional part:
+    ``e^T Lambda e = ||W (e_t + s)||^2 + e_theta^2 (L_thth - L_tht^T L_tt^-1 L_tht)``.
+    """
+
+    def __init__(self, pose_graph: PoseGraph2D) -> None:
+        from scipy import sparse
+
+        g = self.pose_graph = pose_graph
+        info = g.information
+        info_tt = info[:, :2, :2]
+        self.w = np.transpose(np.linalg.cholesky(info_tt), (0, 2, 1))
+        self.shift_per_rad = np.linalg.solve(info_tt, info[:, :2, 2:3])[..., 0]  # (m, 2)
+        self.angle_weight = info[:, 2, 2] - np.einsum("ea,ea->e", info[:, :2, 2],
+                                                      self.shift_per_rad)
+        self.r_meas_t = np.transpose(rotation_matrices(g.measured[:, 2]), (0, 2, 1))
+        self.t_meas = np.einsum("eab,eb->ea", self.r_meas_t, g.measured[:, :2])
+        held, held_poses = g.held
+        self.held, self.held_xy = held, held_poses[:, :2]
+        free = np.ones(g.num_poses, bool)
+        free[held] = False
+        self.column = np.full(g.num_poses, -1)
+        self.column[free] = np.arange(int(free.sum()))
+        self.unknowns = 2 * int(free.sum())
+        i, j = g.edges[:, 0], g.edges[:, 1]
+        # Normal-equation blocks: (i,i) and (j,j) get +A^T A, (i,j) and (j,i) get -A^T A.
+        rows, cols, self._slots = [], [], []
+        for a, b, sign in ((i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)):
+            keep = (self.column[a] >= 0) & (self.column[b] >= 0)
+            for r in range(2):
+                for c in range(2):
+                    rows.append(2 * self.column[a][keep] + r)
+                    cols.append(2 * self.column[b][keep] + c)
+                    self._slots.append((keep, r, c, sign))
+        self._rows, self._cols = np.concatenate(rows), np.concatenate(cols)
+        self._sparse = sparse
+
+    def _system(self, theta: np.ndarray):
+        g = self.pose_graph
+        i, j = g.edges[:, 0], g.edges[:, 1]
+        theta = np.asarray(theta, dtype=float)
+        theta = theta - theta[self.held[0]] + g.held[1][0, 2]
+        e_theta = wrap(theta[j] - theta[i] - g.measured[:, 2])
+        a = self.w @ self.r_meas_t @ np.transpose(rotation_matrices(theta[i]), (0, 2, 1))
+        b = np.einsum("eab,eb->ea", self.w,
+                      self.t_meas - self.shift_per_rad * e_theta[:, None])
+        return a, b, e_theta
+
+    def positions(self, theta: np.ndarray) -> np.ndarray:
+        """(n, 2) positions of least cost for the orientations ``theta``."""
+        return self._solve(theta)[0]
+
+    def chi2(self, theta: np.ndarray) -> float:
+        """The edges' chi2 at the positions of least cost for ``theta``."""
+        return self._solve(theta)[1]
+
+    def _solve(self, theta: np.ndarray) -> tuple[np.ndarray, float]:
+        from scipy.sparse.linalg import spsolve
+
+        g = self.pose_graph
+        a, b, e_theta = self._system(theta)
+        ata = np.einsum("eka,ekb->eab", a, a)
+        data = np.concatenate([sign * ata[keep, r, c] for keep, r, c, sign in self._slots])
+        normal = self._sparse.csc_matrix((data, (self._rows, self._cols)),
+                                         shape=(self.unknowns, self.unknowns))
+        # Residual A (x_j - x_i) - b with held positions moved to the right-hand side.
+        xy = np.zeros((g.num_poses, 2))
+        xy[self.held] = self.held_xy
+        i, j = g.edges[:, 0], g.edges[:, 1]
+        rhs_edge = b - np.einsum("eab,eb->ea", a, xy[j] - xy[i])  # zero for free poses
+        atb = np.einsum("eka,ek->ea", a, rhs_edge)
+        rhs = np.zeros(self.unknowns)
+        for index, sign in ((j, 1.0), (i, -1.0)):
+            free = self.column[index] >= 0
+            np.add.at(rhs, 2 * self.column[index][free], sign * atb[free, 0])
+            np.add.at(rhs, 2 * self.column[index][free] + 1, sign * atb[free, 1])
+        solution = spsolve(normal, rhs) if self.unknowns else np.zeros(0)
+        free = self.column >= 0
+        xy[free] = solution.reshape(-1, 2)
+        return xy, self._graph_chi2(xy, theta, e_theta)
+
+    def _graph_chi2(self, xy: np.ndarray, theta: np.ndarray, e_theta: np.ndarray) -> float:
+        """GTSAM's chi2 of the between factors at (xy, theta): each error is the Pose2
+        logarithm of measured^-1 (T_i^-1 T_j), weighted by the edge's information."""
+        g = self.pose_graph
+        i, j = g.edges[:, 0], g.edges[:, 1]
+        theta = np.asarray(theta, dtype=float)
+        theta = theta - theta[self.held[0]] + g.held[1][0, 2]
+        r_i_t = np.transpose(rotation_matrices(theta[i]), (0, 2, 1))
+        u = np.einsum("eab,eb->ea", self.r_meas_t,
+                      np.einsum("eab,eb->ea", r_i_t, xy[j] - xy[i]) - g.measured[:, :2])
+        # Pose2::Logmap: v = w / det * R_pi/2 (R^T u - u), det = (cos w - 1)^2 + sin^2 w.
+        w = e_theta
+        c, s = np.cos(w), np.sin(w)
+        small = np.abs(w) < 1e-10
+        unrotated = np.column_stack([c * u[:, 0] + s * u[:, 1], -s * u[:, 0] + c * u[:, 1]])
+        d = unrotated - u
+        turned = np.column_stack([-d[:, 1], d[:, 0]])
+        det = np.where(small, 1.0, (c - 1.0) ** 2 + s**2)
+        v = np.where(small[:, None], u, (w / det)[:, None] * turned)
+        error = np.column_stack([v, w])
+        return float(np.einsum("ea,eab,eb->", error, g.information, error))

@@ -127,3 +127,81 @@ def test_generator_layout_matches_the_paper_graphs():
 def test_noisy_measurements_move_the_optimum_off_the_ground_truth():
     sample = generate(100, 0.1, 0.05, 3.0, 0.5, np.random.default_rng(0), noisy_measurements=True)
     assert chi2(sample.graph, sample.ground_truth) > 10.0
+
+
+def _real_chi2(env: PoseGraphEnv) -> float:
+    """GTSAM's chi2 of the env's orientations with the translation step's positions."""
+    from rlpgo_gtsam import poses_with_orientations
+
+    g = env.pose_graph
+    return chi2(g.graph, g.to_values(poses_with_orientations(g, np.array(env.state.theta))))
+
+
+def test_real_cost_reward_is_the_chi2_decrease_through_gtsam():
+    """reward="chi2": each step's reward is 100 x the decrease of GTSAM's chi2 of the
+    translation step over the starting chi2, so the return is the percentage decrease."""
+    env = PoseGraphEnv(1, n=30, sigma_t=0.05, noisy_measurements=True, cycles=1,
+                       reward="chi2", observation="rich")
+    env.reset(seed=4)
+    start = _real_chi2(env)
+    rng = np.random.default_rng(0)
+    previous, total, done = start, 0.0, False
+    while not done:
+        _, reward, done, _, info = env.step(rng.uniform(-1.0, 1.0, 2))
+        now = _real_chi2(env)
+        assert reward == pytest.approx(100.0 * (previous - now) / start, rel=1e-7, abs=1e-9)
+        assert info["chi2"] == pytest.approx(now, rel=1e-10)
+        previous, total = now, total + reward
+    assert total == pytest.approx(100.0 * (start - previous) / start, rel=1e-6)
+    assert info["best_chi2"] <= min(start, previous) + 1e-9
+
+
+def test_real_cost_reward_with_oc_shaping_adds_the_paper_reward():
+    plain = PoseGraphEnv(1, n=20, cycles=1, reward="chi2")
+    shaped = PoseGraphEnv(1, n=20, cycles=1, reward="chi2", oc_shaping=0.5)
+    paper = PoseGraphEnv(1, n=20, cycles=1)
+    for env in (plain, shaped, paper):
+        env.reset(seed=2)
+    action = np.array([0.3, -0.2])
+    r_plain, r_shaped, r_paper = (env.step(action)[1] for env in (plain, shaped, paper))
+    assert r_shaped == pytest.approx(r_plain + 0.5 * r_paper)
+
+
+def test_rich_observation_env_passes_check_env_and_sees_the_horizon():
+    env = PoseGraphEnv(1, n=20, cycles=2, observation="rich")
+    check_env(env, skip_render_check=True)
+    observation, _ = env.reset(seed=0)
+    assert observation.shape == (12,) and env.observation_space.contains(observation)
+    steps = env.steps_per_episode
+    for _ in range(steps - 1):
+        observation, *_ = env.step(np.zeros(2))
+    assert observation[-1] == pytest.approx((steps - 1) / steps)  # the episode's fraction
+    assert observation[-2] == pytest.approx((steps // 2 - 1) / (steps // 2))  # the cycle's
+
+
+def test_pool_episodes_start_from_the_classical_optimum(tmp_path):
+    """An arena-matched environment: graphs from a cached pool, each episode starting from
+    certified + LM's orientations; the cache is reused."""
+    from rlpgo_gtsam.episode import EnvConfig
+    from rlpgo_gtsam.pool import build_pool
+    from rlpgo_gtsam.translations import TranslationStep
+
+    config = EnvConfig(n=30, sigma_r=0.3, sigma_r_max=0.6, sigma_t=0.05,
+                       noisy_measurements=True)
+    cache = tmp_path / "pool.npz"
+    pool = build_pool(config, [1, 2], cache)
+    assert cache.is_file()
+    assert len({entry.sigma_r for entry in pool}) == 2
+    assert all(0.3 <= entry.sigma_r <= 0.6 for entry in pool)
+    for entry in pool:  # the start is an LM optimum: its translation-step chi2 is its chi2
+        assert TranslationStep(entry.pose_graph).chi2(entry.start_theta) == pytest.approx(
+            entry.start_chi2, rel=1e-3)
+    again = build_pool(config, [1, 2], cache)
+    assert all(np.array_equal(a.start_theta, b.start_theta)
+               for a, b in zip(pool, again, strict=True))
+    env = PoseGraphEnv(1, pool=pool, n=30, cycles=1, reward="chi2")
+    env.reset(seed=0)
+    starts = [entry.start_theta for entry in pool]
+    assert any(np.allclose(env.state.theta, theta) for theta in starts)
+    assert env.initial_chi2 == pytest.approx(min(
+        (e.start_chi2 for e in pool), key=lambda c: abs(c - env.initial_chi2)), rel=1e-3)

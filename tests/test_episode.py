@@ -99,3 +99,89 @@ def test_random_policy_is_seeded(graph_1000):
                     graph_1000.poses[:, 2], 1, 0.25, np.zeros((1, 2))).final_oc[0]
             for seed in (1, 1, 2)]
     assert runs[0] == runs[1] != runs[2]
+
+
+# --- the rich observation and keeping the lowest real cost (issue 11) ---------------------
+
+
+@pytest.fixture(scope="module")
+def graph_60() -> PoseGraph2D:
+    sample = generate(60, 0.4, 0.05, 3.0, 0.5, np.random.default_rng(5),
+                      noisy_measurements=True)
+    return PoseGraph2D.from_gtsam(sample.graph, sample.initial)
+
+
+def _frozen_costs(graph: PoseGraph2D, theta: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """e^T Lambda e per edge with positions ``xy`` held, from nothing."""
+    from rlpgo_gtsam.rotations import rotation_matrices
+
+    i, j = graph.edges[:, 0], graph.edges[:, 1]
+    r_i_t = np.transpose(rotation_matrices(theta[i]), (0, 2, 1))
+    r_m_t = np.transpose(rotation_matrices(graph.measured[:, 2]), (0, 2, 1))
+    local = np.einsum("eab,eb->ea", r_i_t, xy[j] - xy[i]) - graph.measured[:, :2]
+    error = np.column_stack([np.einsum("eab,eb->ea", r_m_t, local),
+                             wrap(theta[j] - theta[i] - graph.measured[:, 2])])
+    return np.einsum("ea,eab,eb->e", error, graph.information, error)
+
+
+def test_rich_state_keeps_the_real_cost_of_each_edge_and_its_slopes(graph_60):
+    from rlpgo_gtsam.episode import make_state
+
+    state = make_state(graph_60, graph_60.poses[:, 2], "rich")
+    xy = np.array(state.xy)
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        state.rotate(int(rng.integers(1, graph_60.num_poses)), float(rng.uniform(-0.3, 0.3)))
+    theta = np.array(state.theta)
+    assert np.allclose(state.edge_cost, _frozen_costs(graph_60, theta, xy), rtol=1e-9)
+    for pose in (3, 17, 42):  # slopes against central differences of the summed costs
+        bumped = [theta.copy(), theta.copy()]
+        bumped[0][pose] += 1e-6
+        bumped[1][pose] -= 1e-6
+        numeric = (_frozen_costs(graph_60, bumped[0], xy).sum()
+                   - _frozen_costs(graph_60, bumped[1], xy).sum()) / 2e-6
+        assert state.real_slope(pose) == pytest.approx(numeric, rel=1e-5, abs=1e-4)
+    state.recompute()  # a cycle's end: positions from the translation step of the new angles
+    from rlpgo_gtsam.translations import TranslationStep
+
+    assert state.chi2 == pytest.approx(TranslationStep(graph_60).chi2(theta), rel=1e-12)
+
+
+def test_rich_observation_extends_the_paper_observation(graph_60):
+    from rlpgo_gtsam.episode import OBSERVATION_SIZES, make_state
+
+    paper_walk, rich_walk = EdgeWalk(graph_60), EdgeWalk(graph_60, "rich", cycles=3)
+    paper = OrientationState(graph_60, graph_60.poses[:, 2])
+    rich = make_state(graph_60, graph_60.poses[:, 2], "rich")
+    for step in range(0, 3 * len(rich_walk), 7):
+        short, full = paper_walk.observe(paper, step), rich_walk.observe(rich, step)
+        assert len(short) == OBSERVATION_SIZES["paper"]
+        assert len(full) == OBSERVATION_SIZES["rich"]
+        assert full[:4] == short
+        assert 0.0 <= full[-2] < 1.0 and full[-1] == pytest.approx(step / (3 * len(rich_walk)))
+
+
+def test_rollout_keeping_chi2_hands_over_the_lowest_real_cost_of_its_cycles(graph_60):
+    from rlpgo_gtsam.translations import TranslationStep
+
+    step = TranslationStep(graph_60)
+    start = graph_60.poses[:, 2]
+    last = np.zeros((2, 2))
+    kept = rollout(BalancingPolicy(0.25), graph_60, start, 3, 0.25, last, keep="chi2",
+                   observation="rich")
+    ends = [step.chi2(_final(graph_60, cycles_run)) for cycles_run in (1, 2, 3)]
+    assert kept.best_chi2[0] == pytest.approx(min(ends), rel=1e-12)  # the lowest cycle end
+    assert kept.best_chi2[0] == pytest.approx(step.chi2(kept.best_theta[0]), rel=1e-12)
+    # The paper's keep is untouched by the new options' existence.
+    default = rollout(BalancingPolicy(0.25), graph_60, start, 3, 0.25, last)
+    assert default.best_chi2 is None
+
+
+def _final(graph: PoseGraph2D, cycles: int) -> np.ndarray:
+    """The orientations after ``cycles`` passes of the balancing rule."""
+    walk, state = EdgeWalk(graph), OrientationState(graph, graph.poses[:, 2])
+    policy = BalancingPolicy(0.25)
+    for step in range(cycles * len(walk)):
+        action, _ = policy.step(np.array([walk.observe(state, step)]), np.zeros((1, 2)), None)
+        walk.act(state, step, action[0], 0.25)
+    return np.array(state.theta)

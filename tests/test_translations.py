@@ -1,5 +1,6 @@
 import gtsam
 import numpy as np
+import pytest
 
 from rlpgo_gtsam import PoseGraph2D, chi2, read_g2o, solve_translations
 from tests.conftest import dataset
@@ -59,3 +60,20 @@ def test_correlated_information_is_used(small_noisy):
         np.column_stack([solve_translations(diagonal_only, theta), theta])
     )
     assert chi2(graph, full) < chi2(graph, dropped)
+
+
+def test_translation_step_chi2_is_gtsams_chi2_of_the_translation_step(small_noisy):
+    """The real-cost reward's chi2 (scipy, cached pattern) is GTSAM's chi2 of
+    poses_with_orientations, to rounding, away from the optimum and near it."""
+    from rlpgo_gtsam import poses_with_orientations
+    from rlpgo_gtsam.translations import TranslationStep
+
+    graph = PoseGraph2D.from_gtsam(small_noisy.graph, small_noisy.initial)
+    step = TranslationStep(graph)
+    rng = np.random.default_rng(0)
+    truth = _poses(small_noisy.ground_truth)[:, 2]
+    for theta in (graph.poses[:, 2], truth + rng.normal(0.0, 0.3, graph.num_poses), truth):
+        poses = poses_with_orientations(graph, theta)
+        expected = chi2(graph.graph, graph.to_values(poses))
+        assert step.chi2(theta) == pytest.approx(expected, rel=1e-10)
+        assert np.abs(step.positions(theta) - poses[:, :2]).max() < 1e-8

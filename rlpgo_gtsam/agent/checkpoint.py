@@ -22,11 +22,12 @@ from pathlib import Path
 import torch
 
 from rlpgo_gtsam.agent.networks import Actor
-from rlpgo_gtsam.episode import EnvConfig
+from rlpgo_gtsam.episode import CHOICES, OBSERVATION_SIZES, EnvConfig
 from rlpgo_gtsam.errors import ModelError
 from rlpgo_gtsam.files import write_bytes
 
-__all__ = ["FORMAT_VERSION", "save_model", "model_bytes", "load_model", "LoadedModel"]
+__all__ = ["FORMAT_VERSION", "save_model", "model_bytes", "load_model", "LoadedModel",
+           "check_env_config"]
 
 FORMAT_VERSION = 1
 _CONFIG, _WEIGHTS = "config.json", "actor.pt"
@@ -97,12 +98,16 @@ _ENV_SCHEMA = {
     "n": (int, 2, 1_000_000), "sigma_r": (float, 0.0, 3.2), "sigma_t": (float, 0.0, 1e6),
     "d": (float, 0.0, 1e6), "lc": (float, 0.0, 1.0), "cycles": (int, 1, _MAX_CYCLES),
     "action_range_rad": (float, 0.0, 3.2), "noisy_measurements": (bool, None, None),
+    # Added for issue 11; absent from older files, whose defaults reproduce them.
+    "observation": (str, 1, 20), "reward": (str, 1, 20), "oc_shaping": (float, 0.0, 1e6),
+    "keep": (str, 1, 20), "sigma_r_max": (float, 0.0, 3.2), "start": (str, 1, 20),
 }
 _TOP_SCHEMA = {
     "format": (int, 0, 1_000_000), "hidden": (int, 1, _MAX_HIDDEN),
     "test_cycles": (int, 1, _MAX_CYCLES), "preset": (int, 1, 5), "seed": (int, 0, 2**64 - 1),
     "episodes": (int, 0, 10**9), "selected_episode": (int, 0, 10**9),
     "train_seconds": (float, 0.0, 1e12), "validation_best_oc_ratio": (float, 0.0, 1e12),
+    "validation_chi2_ratio": (float, 0.0, 1e12),
     "package_version": (str, 0, 200), "torch_version": (str, 0, 200),
     "command": (str, 0, 100_000),
 }
@@ -161,6 +166,9 @@ def _check_config(path: Path, config: dict) -> EnvConfig:
     for name, value in env.items():
         if name in _ENV_SCHEMA:
             _check_field(path, f"env.{name}", value, *_ENV_SCHEMA[name])
+            if name in CHOICES and value not in CHOICES[name]:
+                raise ModelError(f"{path}: config field env.{name} must be one of "
+                                 f"{', '.join(CHOICES[name])}, got {_shown(value)}")
         elif name in _TOP_SCHEMA:
             raise ModelError(f"{path}: env field {name} belongs at the top level of {_CONFIG}, "
                              "not inside \"env\"")
@@ -170,11 +178,17 @@ def _check_config(path: Path, config: dict) -> EnvConfig:
     return EnvConfig(**env)
 
 
-def _weights_limit(hidden: int) -> int:
+def check_env_config(env_config: EnvConfig, path: Path) -> None:
+    """Raise ModelError unless ``env_config`` fits the schema a model file must meet (what a
+    run would write to ``path``), before any work."""
+    _check_config(path, {"format": FORMAT_VERSION, "hidden": 1, "env": asdict(env_config)})
+
+
+def _weights_limit(hidden: int, observation_size: int) -> int:
     """The most bytes a saved actor of width ``hidden`` takes (counted on torch's "meta"
     device, which allocates nothing), capped by :data:`_MAX_WEIGHTS_BYTES`."""
     with torch.device("meta"):
-        actor = Actor(hidden)
+        actor = Actor(hidden, observation_size)
     tensors = sum(t.numel() * t.element_size() for t in actor.state_dict().values())
     return min(tensors + _WEIGHTS_FRAMING, _MAX_WEIGHTS_BYTES)
 
@@ -220,7 +234,9 @@ def load_model(path: str | os.PathLike[str]) -> LoadedModel:
                 raise ModelError(f"{path}: {_CONFIG} is not a JSON object")
             env_config = _check_config(path, config)
             hidden = config["hidden"]
-            weights = _read_bounded(zf, _WEIGHTS, _weights_limit(hidden), path)
+            observation_size = OBSERVATION_SIZES[env_config.observation]
+            weights = _read_bounded(zf, _WEIGHTS, _weights_limit(hidden, observation_size),
+                                    path)
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, zlib.error,
             NotImplementedError, RuntimeError, ValueError, OverflowError) as error:
         # RuntimeError: an encrypted member; NotImplementedError: an unknown compression
@@ -235,7 +251,7 @@ def load_model(path: str | os.PathLike[str]) -> LoadedModel:
     if not isinstance(fc, torch.Tensor) or fc.shape[0] != hidden:
         raise ModelError(f"{path}: weights do not match the config (hidden {hidden})")
     try:
-        actor = Actor(hidden)
+        actor = Actor(hidden, observation_size)
         actor.load_state_dict(state, strict=True)
     except (KeyError, TypeError, ValueError, RuntimeError) as error:
         first = " ".join(str(error).split())[:200] or type(error).__name__

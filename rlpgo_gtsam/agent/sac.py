@@ -27,7 +27,7 @@ from rlpgo_gtsam.agent.buffer import EpisodeBatch, EpisodeReplay
 from rlpgo_gtsam.agent.config import SacConfig
 from rlpgo_gtsam.agent.networks import Actor, QNetwork
 from rlpgo_gtsam.env import PoseGraphEnv
-from rlpgo_gtsam.episode import ACTION_SIZE
+from rlpgo_gtsam.episode import ACTION_SIZE, OBSERVATION_SIZE
 
 __all__ = ["SacAgent", "Episode", "run_episode"]
 
@@ -43,6 +43,9 @@ class Episode:
     initial_oc: float
     best_oc: float
     final_oc: float
+    initial_chi2: float = float("nan")
+    best_chi2: float = float("nan")
+    final_chi2: float = float("nan")
 
 
 @torch.no_grad()
@@ -85,18 +88,22 @@ def run_episode(
         rewards.append(reward)
         last_action = action
         last_actions.append(action)
+    chi2 = [info.get(key, float("nan")) for key in ("initial_chi2", "best_chi2", "chi2")]
     return Episode(np.array(observations), np.array(last_actions), np.array(actions),
-                   np.array(rewards, np.float32), info["initial_oc"], info["best_oc"], info["oc"])
+                   np.array(rewards, np.float32), info["initial_oc"], info["best_oc"], info["oc"],
+                   *chi2)
 
 
 class SacAgent:
     """Actor, twin critics with target copies, the temperature, and their optimizers."""
 
-    def __init__(self, config: SacConfig, seed: int) -> None:
+    def __init__(self, config: SacConfig, seed: int,
+                 observation_size: int = OBSERVATION_SIZE) -> None:
         torch.manual_seed(seed)
         self.config = config
-        self.actor = Actor(config.hidden)
-        self.q1, self.q2 = QNetwork(config.hidden), QNetwork(config.hidden)
+        self.actor = Actor(config.hidden, observation_size)
+        self.q1 = QNetwork(config.hidden, observation_size)
+        self.q2 = QNetwork(config.hidden, observation_size)
         self.q1_target, self.q2_target = copy.deepcopy(self.q1), copy.deepcopy(self.q2)
         self.q_optimizer = torch.optim.Adam(
             list(self.q1.parameters()) + list(self.q2.parameters()), lr=config.learning_rate
@@ -115,7 +122,8 @@ class SacAgent:
         losses: dict[str, float] = {}
         for _ in range(self.config.gradient_steps):
             batch, mask = self.replay.sample(
-                self.config.batch_size, self.config.window, self.config.burn_in
+                self.config.batch_size, self.config.window, self.config.burn_in,
+                prefix=self.config.burn_in_prefix,
             )
             losses = self._gradient_step(batch, mask)
         return losses
@@ -124,14 +132,29 @@ class SacAgent:
         c = self.config
         alpha = self.log_alpha.exp().detach()
         count = mask.sum()
+        p = batch.prefix
+        observations, last_actions = batch.observations[:, p:], batch.last_actions[:, p:]
+        networks = {"actor": self.actor, "q1": self.q1, "q2": self.q2,
+                    "q1_target": self.q1_target, "q2_target": self.q2_target}
+
+        def warm(name: str):
+            """The LSTM state after the burn-in prefix (None: start from zero)."""
+            if not p:
+                return None
+            return networks[name].trunk.warm(batch.observations[:, :p],
+                                             batch.last_actions[:, :p], batch.prefix_valid)
+
+        start = {name: warm(name) for name in networks}
 
         # Critic targets: next actions from the current policy, values from the targets.
         with torch.no_grad():
             next_actions, next_log_prob, _ = self.actor.sample(
-                batch.observations, batch.last_actions
+                observations, last_actions, start["actor"]
             )
-            state_1, memory_1 = self.q1_target.memory(batch.observations, batch.last_actions)
-            state_2, memory_2 = self.q2_target.memory(batch.observations, batch.last_actions)
+            state_1, memory_1 = self.q1_target.memory(observations, last_actions,
+                                                      start["q1_target"])
+            state_2, memory_2 = self.q2_target.memory(observations, last_actions,
+                                                      start["q2_target"])
             next_q = torch.min(
                 self.q1_target.value(state_1, memory_1, next_actions),
                 self.q2_target.value(state_2, memory_2, next_actions),
@@ -139,18 +162,22 @@ class SacAgent:
             target = batch.rewards * c.reward_scale + c.gamma * (1.0 - batch.dones) * next_q
 
         # Critic loss on the actions taken.
-        state_1, memory_1 = self.q1.memory(batch.observations, batch.last_actions)
-        state_2, memory_2 = self.q2.memory(batch.observations, batch.last_actions)
+        state_1, memory_1 = self.q1.memory(observations, last_actions, start["q1"])
+        state_2, memory_2 = self.q2.memory(observations, last_actions, start["q2"])
         q1 = self.q1.value(state_1[:, :-1], memory_1[:, :-1], batch.actions)
         q2 = self.q2.value(state_2[:, :-1], memory_2[:, :-1], batch.actions)
         q_loss = (((q1 - target) ** 2 + (q2 - target) ** 2) * mask).sum() / count
         self.q_optimizer.zero_grad()
         q_loss.backward()
         self.q_optimizer.step()
+        if c.fresh_critic_features:  # the critics the actor is judged by are the updated ones
+            with torch.no_grad():
+                state_1, memory_1 = self.q1.memory(observations, last_actions, warm("q1"))
+                state_2, memory_2 = self.q2.memory(observations, last_actions, warm("q2"))
 
         # Policy loss through the (fixed) critics.
-        actions, log_prob, _ = self.actor.sample(batch.observations[:, :-1],
-                                                 batch.last_actions[:, :-1])
+        actions, log_prob, _ = self.actor.sample(observations[:, :-1], last_actions[:, :-1],
+                                                 start["actor"])
         q_pi = torch.min(
             self.q1.value(state_1[:, :-1].detach(), memory_1[:, :-1].detach(), actions),
             self.q2.value(state_2[:, :-1].detach(), memory_2[:, :-1].detach(), actions),
