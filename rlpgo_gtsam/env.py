@@ -8,6 +8,7 @@ never calls GTSAM. Importing this module registers ``rlpgo/PoseGraph-v0``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -68,10 +69,11 @@ class PoseGraphEnv(gym.Env):
     ``100 / (OC + 1)`` after the step, with OC = sqrt(sum_e ||R~_ij - R_i^T R_j||_F^2)
     (unweighted), plus 25 each time OC first falls below a tenth of the previous bonus
     level (the episode's initial OC, then a tenth of it, ...).
-    With ``reward="chi2"``: ``100 (chi2_before - chi2_after) / chi2_start``, chi2 being
-    GTSAM's chi2 of the orientations with the translation step's positions (the real cost
-    of the orientations; the episode's return is its percentage decrease), plus
-    ``oc_shaping`` times the paper's reward.
+    With ``reward="chi2"``: ``100 log(chi2_before / chi2_after)``, chi2 being GTSAM's chi2
+    of the orientations with the translation step's positions (the real cost of the
+    orientations): near the start, the percentage decrease of the step; the episode's
+    return is ``100 log(chi2_start / chi2_end)``, which a walk far off the optimum (chi2
+    up a hundredfold) cannot swamp. Plus ``oc_shaping`` times the paper's reward.
 
     ## Starting state
     Generated graphs (``preset`` / parameters): a new lawn-mower graph at every reset, the
@@ -193,7 +195,7 @@ class PoseGraphEnv(gym.Env):
         if self.config.reward == "chi2":
             before, self.chi2 = self.chi2, self._chi2_now()
             self.best_chi2 = min(self.best_chi2, self.chi2)
-            reward = (100.0 * (before - self.chi2) / max(self.initial_chi2, 1e-12)
+            reward = (100.0 * math.log(max(before, 1e-300) / max(self.chi2, 1e-300))
                       + self.config.oc_shaping * reward)
         self._step += 1
         terminated = self._step >= self.steps_per_episode

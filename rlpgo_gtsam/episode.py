@@ -71,8 +71,8 @@ class EnvConfig:
             (those, the real cost's view of the current edge and its poses' other edges with
             positions from the last translation step, and the horizon; 12 numbers).
         reward: "oc" (the paper's 100 / (OC + 1) + bonus, default) or "chi2": 100 x the
-            step's decrease of the real cost (GTSAM's chi2 of the orientations with the
-            translation step's positions) over the episode's starting chi2.
+            step's decrease of the log of the real cost (GTSAM's chi2 of the orientations
+            with the translation step's positions).
         oc_shaping: with ``reward="chi2"``, this weight times the paper's reward is added
             (0: the real cost alone).
         keep: what a rollout hands over: "oc" (the lowest-OC orientations seen at any step,

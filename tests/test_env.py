@@ -138,8 +138,8 @@ def _real_chi2(env: PoseGraphEnv) -> float:
 
 
 def test_real_cost_reward_is_the_chi2_decrease_through_gtsam():
-    """reward="chi2": each step's reward is 100 x the decrease of GTSAM's chi2 of the
-    translation step over the starting chi2, so the return is the percentage decrease."""
+    """reward="chi2": each step's reward is 100 x the decrease of the log of GTSAM's chi2
+    of the translation step, so the return is 100 log(chi2_start / chi2_end)."""
     env = PoseGraphEnv(1, n=30, sigma_t=0.05, noisy_measurements=True, cycles=1,
                        reward="chi2", observation="rich")
     env.reset(seed=4)
@@ -149,10 +149,10 @@ def test_real_cost_reward_is_the_chi2_decrease_through_gtsam():
     while not done:
         _, reward, done, _, info = env.step(rng.uniform(-1.0, 1.0, 2))
         now = _real_chi2(env)
-        assert reward == pytest.approx(100.0 * (previous - now) / start, rel=1e-7, abs=1e-9)
+        assert reward == pytest.approx(100.0 * math.log(previous / now), rel=1e-7, abs=1e-9)
         assert info["chi2"] == pytest.approx(now, rel=1e-10)
         previous, total = now, total + reward
-    assert total == pytest.approx(100.0 * (start - previous) / start, rel=1e-6)
+    assert total == pytest.approx(100.0 * math.log(start / previous), rel=1e-6)
     assert info["best_chi2"] <= min(start, previous) + 1e-9
 
 
