@@ -62,7 +62,10 @@ JSON_VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10**12, 10**12),
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(env=st.dictionaries(st.sampled_from(["n", "sigma_r", "sigma_t", "d", "lc", "cycles",
                                             "action_range_rad", "noisy_measurements",
-                                            "other"]), JSON_VALUES, max_size=3),
+                                            "observation", "reward", "oc_shaping", "keep",
+                                            "sigma_r_max", "start", "other"]),
+                           JSON_VALUES | st.sampled_from(["rich", "chi2", "paper", "oc"]),
+                           max_size=3),
        extra=st.dictionaries(st.sampled_from(["test_cycles", "hidden", "format"]), JSON_VALUES,
                              max_size=2))
 def test_model_configs(tmp_path_factory, env, extra):

@@ -60,7 +60,12 @@ def test_rlpgo_eval_options(tmp_path_factory, option, value):
 
 @SETTINGS
 @given(option=st.sampled_from(["--preset", "--episodes", "--seed", "--hidden", "--batch-size",
-                               "--gradient-steps", "--validation-graphs"]), value=VALUES)
+                               "--gradient-steps", "--validation-graphs", "--env",
+                               "--pool-graphs", "--reward-scale", "--validation",
+                               "--initial-last-action"]),
+       value=VALUES | st.sampled_from(["n=nan", "n=0", "sigma_r=1e308", "sigma_r=9",
+                                       "observation=rich", "reward=x", "keep=", "=1",
+                                       "noisy_measurements=2", "cycles=99999999999"]))
 def test_rlpgo_train_options(tmp_path_factory, option, value):
     folder = tmp_path_factory.mktemp("train")
     stem = folder / "absent" / ("m" * 250)  # every output name is too long: refused before work

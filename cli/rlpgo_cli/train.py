@@ -123,6 +123,9 @@ def main(preset, episodes, seed, out, resume, hidden, batch_size, gradient_steps
     )
     if validation_metric == "chi2" and not validation_graphs:
         raise click.UsageError("--validation chi2 needs --validation-graphs > 0")
+    from rlpgo_gtsam.agent.checkpoint import check_env_config
+
+    check_env_config(config.env_config, outputs[0])  # before the progress bar shows
     with click.progressbar(length=episodes, label=f"preset {preset}", show_pos=True,
                            item_show_func=lambda text: text) as bar:
         def progress(episode_number, episode, seconds):
