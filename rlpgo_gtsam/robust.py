@@ -298,11 +298,11 @@ def _consistent_closures(g: PoseGraph2D, chain_mask: np.ndarray,
     steps = np.zeros((n - 1, 3))
     step_cov = np.zeros((n - 1, 3, 3))
     linked = np.zeros(n - 1, bool)
-    for e in chain_edges[::-1].tolist():
-        a, b = g.edges[e].tolist()
-        lower = min(a, b)
-        steps[lower], step_cov[lower] = _oriented(g.measured[e:e + 1], cov[e:e + 1], b < a)
-        linked[lower] = True
+    lower, first_edge = np.unique(g.edges[chain_edges].min(axis=1), return_index=True)
+    used = chain_edges[first_edge]
+    steps[lower], step_cov[lower] = _oriented(g.measured[used], cov[used],
+                                              g.edges[used, 1] < g.edges[used, 0])
+    linked[lower] = True
     segment = np.concatenate([[0], np.cumsum(~linked)])
     chain = _chain(steps)
     chain_adjoint = _adjoint(chain)
