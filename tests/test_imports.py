@@ -16,7 +16,7 @@ PACKAGE = Path(rlpgo_gtsam.__file__).parent
 # function, or under TYPE_CHECKING alike). The package root (__init__) is the facade above all.
 LAYERS = [
     "errors", "rotations", "graph", "linear", "files", "g2o", "synthetic", "translations",
-    "certified", "solvers", "initializers", "robust", "episode", "agent", "agent.config",
+    "certified", "solvers", "initializers", "robust", "episode", "pool", "agent", "agent.config",
     "agent.networks", "agent.buffer", "agent.inference", "agent.checkpoint", "models", "env",
     "agent.sac", "rl_initializer", "comparison", "staged", "evaluation", "plotting", "train",
 ]
