@@ -5,7 +5,8 @@
 
 The agent walks the graph deterministically (tanh of the policy mean), ``cycles`` passes
 over its edges, through :func:`~rlpgo_gtsam.episode.rollout` and the numpy policy; the
-lowest-OC orientations of each rollout get positions from the linear translation step.
+orientations each rollout keeps (the lowest-OC ones, or for a model with ``keep="chi2"`` the
+lowest-chi2 cycle end) get positions from the linear translation step.
 ``episodes=k`` runs k rollouts that differ only in their initial "last action", batched,
 and keeps the guess with the lowest chi2. What the call learned (every rollout's chi2, the
 chosen one) comes back in :meth:`run`'s :class:`~rlpgo_gtsam.initializers.InitResult`.
