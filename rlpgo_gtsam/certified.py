@@ -465,11 +465,8 @@ def _nearest_above(problem, lam, sigma, start) -> tuple[float, np.ndarray]:
 
 def _below(problem, lam, sigma, count) -> tuple[np.ndarray, np.ndarray]:
     """The ``count`` eigenvalues of S below sigma: the most negative of (S - sigma)^-1."""
-    # a fixed start: ARPACK's own random start changes from call to call in a process, and
-    # with it the escape direction and, on an uncertified graph, the optimum reached
-    start = np.random.default_rng(0).standard_normal((2, problem.n)) @ np.array([1.0, 1.0j])
     values, vectors = _eigsh(_shifted_inverse(problem, lam, sigma), k=count, which="SA",
-                             v0=start, tol=1e-8)
+                             tol=1e-8)
     return sigma + 1.0 / np.real(values), vectors
 
 
