@@ -233,7 +233,7 @@ class RichOrientationState(OrientationState):
     def recompute(self) -> None:
         """Every residual and sum from scratch, and positions from the translation step."""
         super().recompute()
-        xy, self.chi2 = self.translation._solve(np.array(self.theta))
+        xy, self.chi2 = self.translation.solve(np.array(self.theta))
         self.xy = xy.tolist()
         count = len(self.source)
         self.edge_cost, self.slope_i, self.slope_j = [0.0] * count, [0.0] * count, [0.0] * count

@@ -54,15 +54,15 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError, SolverError, one_line
-from rlpgo_gtsam.graph import PoseGraph2D, chi2
+from rlpgo_gtsam.graph import PoseGraph2D, chi2, edge_chi2, logmap_translation
 from rlpgo_gtsam.initializers import make_initializer
-from rlpgo_gtsam.rotations import rotation_matrices, wrap
+from rlpgo_gtsam.rotations import wrap
 from rlpgo_gtsam.solvers import refine, solver_params
+from rlpgo_gtsam.translations import whitened_system
 
 __all__ = [
     "RobustResult",
     "robust_initialize",
-    "edge_chi2",
     "outlier_suspicion",
     "odometry_edges",
     "DEFAULT_INLIER_PROBABILITY",
@@ -224,20 +224,6 @@ def odometry_edges(pose_graph: PoseGraph2D) -> np.ndarray:
     return np.abs(keys[:, 1] - keys[:, 0]) == 1
 
 
-def edge_chi2(pose_graph: PoseGraph2D, poses: np.ndarray) -> np.ndarray:
-    """(m,) each edge's chi2 at ``poses`` (n, 3), as GTSAM's BetweenFactorPose2 charges it:
-    ``e^T Lambda e`` with ``e = Logmap(measured^-1 (X_i^-1 X_j))``."""
-    g = pose_graph
-    i, j = g.edges[:, 0], g.edges[:, 1]
-    # the relative pose X_i^-1 X_j, then measured^-1 times it
-    rel_t = np.einsum("eba,eb->ea", rotation_matrices(poses[i, 2]), poses[j, :2] - poses[i, :2])
-    err_t = np.einsum("eba,eb->ea", rotation_matrices(g.measured[:, 2]),
-                      rel_t - g.measured[:, :2])
-    err_theta = wrap(poses[j, 2] - poses[i, 2] - g.measured[:, 2])
-    error = np.column_stack([_logmap_translation(err_t, err_theta), err_theta])
-    return np.einsum("ea,eab,eb->e", error, g.information, error)
-
-
 def outlier_suspicion(pose_graph: PoseGraph2D, values: gtsam.Values) -> str | None:
     """A one-line hint when ``values`` (a refined result) fits the edges with a heavier tail
     than Gaussian noise allows; None when the residuals look Gaussian.
@@ -347,7 +333,7 @@ def _consistent_closures(g: PoseGraph2D, chain_mask: np.ndarray,
     for pose, covariance in factors[-2::-1]:
         total += _sandwich(_adjoint(_inverse(after)), covariance)
         after = _compose(pose, after)
-    error = np.column_stack([_logmap_translation(after[:, :2], after[:, 2]), after[:, 2]])
+    error = np.column_stack([logmap_translation(after[:, :2], after[:, 2]), after[:, 2]])
     score = np.einsum("ea,ea->e", error, np.linalg.solve(total, error[..., None])[..., 0])
     bar = min(threshold, _DATA_SCALE * float(np.median(score)))
     # the chance that a wrong closure agrees anyway: the agreement ellipsoid's volume over
@@ -451,9 +437,8 @@ def _settle(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, g: PoseGrap
     ``_verify`` hands it (a few closures away from their optimum) GN converges in a handful
     of steps where LM's damping takes 15-20 (Intel: 4 against 20); LM remains the fallback
     for a start that GN overshoots from."""
-    start = chi2(graph, values)
     refined = refine(graph, values, "gn", iterations, pose_graph=g)
-    if refined.failure is not None or not refined.chi2 <= start:
+    if refined.failure is not None or not refined.chi2 <= refined.chi2_trace[0]:
         params = solver_params("lm", iterations)
         params.setRelativeErrorTol(tolerance)
         refined = refine(graph, values, params, pose_graph=g)
@@ -497,19 +482,11 @@ def _robust_positions(g: PoseGraph2D, theta: np.ndarray, known: np.ndarray,
                       iterations: int) -> tuple[np.ndarray, np.ndarray, int]:
     """GNC-TLS on the translation step with ``theta`` fixed: positions, weights, solves.
 
-    The residuals are those of :func:`~rlpgo_gtsam.translations.solve_translations`
+    The residuals are those of :func:`~rlpgo_gtsam.translations.whitened_system`
     (whitened, 2 dof); known edges keep weight 1, excluded edges 0.
     """
     i, j = g.edges[:, 0], g.edges[:, 1]
-    info = g.information
-    info_tt = info[:, :2, :2]
-    w_root = np.transpose(np.linalg.cholesky(info_tt), (0, 2, 1))
-    e_theta = wrap(theta[j] - theta[i] - g.measured[:, 2])
-    shift = np.linalg.solve(info_tt, (info[:, :2, 2] * e_theta[:, None])[..., None])[..., 0]
-    r_meas_t = np.transpose(rotation_matrices(g.measured[:, 2]), (0, 2, 1))
-    a_j = w_root @ r_meas_t @ np.transpose(rotation_matrices(theta[i]), (0, 2, 1))
-    target = np.einsum("eab,eb->ea", r_meas_t, g.measured[:, :2]) - shift
-    b = np.einsum("eab,eb->ea", w_root, target)
+    a_j, b, _ = whitened_system(g, theta)
     held, held_poses = g.held
 
     def solve(w: np.ndarray) -> np.ndarray:
@@ -612,22 +589,6 @@ def _solve_weighted(num_poses: int, edges: np.ndarray, a_i: np.ndarray, a_j: np.
 
 # ---------------------------------------------------------------------------------------------
 # helpers
-
-
-def _logmap_translation(t: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """The translation part of Pose2's Logmap (GTSAM's formula), vectorized."""
-    result = t.copy()
-    big = np.abs(theta) >= 1e-10
-    c_1, s = np.cos(theta[big]) - 1.0, np.sin(theta[big])
-    det = c_1 * c_1 + s * s
-    tx, ty = t[big, 0], t[big, 1]
-    # R^T t - t, then rotated by +90 degrees, times theta / det
-    ux = c_1 * tx + s * ty
-    uy = -s * tx + c_1 * ty
-    scale = theta[big] / det
-    result[big, 0] = -uy * scale
-    result[big, 1] = ux * scale
-    return result
 
 
 def _edge_factor_indices(graph: gtsam.NonlinearFactorGraph, num_edges: int) -> np.ndarray:

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.graph import PoseGraph2D, edge_chi2
 from rlpgo_gtsam.linear import solve_pairwise
 from rlpgo_gtsam.rotations import rotation_matrices, wrap
 
-__all__ = ["solve_translations", "poses_with_orientations"]
+__all__ = ["solve_translations", "poses_with_orientations", "whitened_system", "SystemParts",
+           "TranslationStep"]
 
 
 def poses_with_orientations(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray:
@@ -36,20 +39,54 @@ def solve_translations(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray
     so xy and x/y-theta correlations are both kept. Held poses (the anchor, FIXed poses)
     keep their positions; soft priors are not used (refinement honours them).
     """
+    a_j, b, _ = whitened_system(pose_graph, theta)
+    held, held_poses = pose_graph.held
+    return solve_pairwise(pose_graph.num_poses, pose_graph.edges, -a_j, a_j, b, held,
+                          held_poses[:, :2])
+
+
+@dataclass(frozen=True)
+class SystemParts:
+    """What the translation step's whitened system takes from the edges alone, not from the
+    orientations (see :func:`whitened_system`).
+
+    Attributes:
+        w: (m, 2, 2) upper factors, ``W^T W = Lambda_tt``.
+        shift_per_rad: (m, 2) ``Lambda_tt^-1 Lambda_t,theta``, the translation shift per
+            radian of angle error.
+        r_meas_t: (m, 2, 2) the measured rotations, transposed.
+        t_meas: (m, 2) ``R~^T t~``.
+    """
+
+    w: np.ndarray
+    shift_per_rad: np.ndarray
+    r_meas_t: np.ndarray
+    t_meas: np.ndarray
+
+    @classmethod
+    def of(cls, pose_graph: PoseGraph2D) -> SystemParts:
+        info = pose_graph.information
+        info_tt = info[:, :2, :2]
+        r_meas_t = np.transpose(rotation_matrices(pose_graph.measured[:, 2]), (0, 2, 1))
+        return cls(w=np.transpose(np.linalg.cholesky(info_tt), (0, 2, 1)),
+                   shift_per_rad=np.linalg.solve(info_tt, info[:, :2, 2:3])[..., 0],
+                   r_meas_t=r_meas_t,
+                   t_meas=np.einsum("eab,eb->ea", r_meas_t, pose_graph.measured[:, :2]))
+
+
+def whitened_system(pose_graph: PoseGraph2D, theta: np.ndarray,
+                    parts: SystemParts | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The translation step's residuals ``A_e (t_j - t_i) - b_e`` at the orientations
+    ``theta`` (see :func:`solve_translations`): (m, 2, 2) blocks ``A_e``, (m, 2) ``b_e`` and
+    (m,) the angle errors. ``parts`` (:meth:`SystemParts.of`) saves recomputing what does
+    not depend on ``theta``."""
     g = pose_graph
+    parts = parts if parts is not None else SystemParts.of(g)
     i, j = g.edges[:, 0], g.edges[:, 1]
-    info = g.information
-    info_tt = info[:, :2, :2]
-    w = np.transpose(np.linalg.cholesky(info_tt), (0, 2, 1))  # upper factor: W^T W = info_tt
     e_theta = wrap(theta[j] - theta[i] - g.measured[:, 2])
-    shift = np.linalg.solve(info_tt, (info[:, :2, 2] * e_theta[:, None])[..., None])[..., 0]
-    r_meas_t = np.transpose(rotation_matrices(g.measured[:, 2]), (0, 2, 1))
-    m = r_meas_t @ np.transpose(rotation_matrices(theta[i]), (0, 2, 1))
-    a_j = w @ m
-    target = np.einsum("eab,eb->ea", r_meas_t, g.measured[:, :2]) - shift
-    b = np.einsum("eab,eb->ea", w, target)
-    held, held_poses = g.held
-    return solve_pairwise(g.num_poses, g.edges, -a_j, a_j, b, held, held_poses[:, :2])
+    a_j = parts.w @ (parts.r_meas_t @ np.transpose(rotation_matrices(theta[i]), (0, 2, 1)))
+    b = np.einsum("eab,eb->ea", parts.w, parts.t_meas - parts.shift_per_rad * e_theta[:, None])
+    return a_j, b, e_theta
 
 
 class TranslationStep:
@@ -61,23 +98,14 @@ class TranslationStep:
     equations) and solves them with scipy. :meth:`chi2` is the chi2 of the graph's edges at
     the solved positions, which is GTSAM's chi2 of ``poses_with_orientations(theta)`` on a
     graph without soft priors (a soft prior on the anchor adds nothing either: the anchor
-    sits at its value). Each edge's chi2 at the positions of least cost splits into the
-    whitened translation residual and the angle error's conditional part:
-    ``e^T Lambda e = ||W (e_t + s)||^2 + e_theta^2 (L_thth - L_tht^T L_tt^-1 L_tht)``.
+    sits at its value), summed by :func:`~rlpgo_gtsam.graph.edge_chi2`.
     """
 
     def __init__(self, pose_graph: PoseGraph2D) -> None:
         from scipy import sparse
 
         g = self.pose_graph = pose_graph
-        info = g.information
-        info_tt = info[:, :2, :2]
-        self.w = np.transpose(np.linalg.cholesky(info_tt), (0, 2, 1))
-        self.shift_per_rad = np.linalg.solve(info_tt, info[:, :2, 2:3])[..., 0]  # (m, 2)
-        self.angle_weight = info[:, 2, 2] - np.einsum("ea,ea->e", info[:, :2, 2],
-                                                      self.shift_per_rad)
-        self.r_meas_t = np.transpose(rotation_matrices(g.measured[:, 2]), (0, 2, 1))
-        self.t_meas = np.einsum("eab,eb->ea", self.r_meas_t, g.measured[:, :2])
+        self.parts = SystemParts.of(g)
         held, held_poses = g.held
         self.held, self.held_xy = held, held_poses[:, :2]
         free = np.ones(g.num_poses, bool)
@@ -98,30 +126,22 @@ class TranslationStep:
         self._rows, self._cols = np.concatenate(rows), np.concatenate(cols)
         self._sparse = sparse
 
-    def _system(self, theta: np.ndarray):
-        g = self.pose_graph
-        i, j = g.edges[:, 0], g.edges[:, 1]
-        theta = np.asarray(theta, dtype=float)
-        theta = theta - theta[self.held[0]] + g.held[1][0, 2]
-        e_theta = wrap(theta[j] - theta[i] - g.measured[:, 2])
-        a = self.w @ self.r_meas_t @ np.transpose(rotation_matrices(theta[i]), (0, 2, 1))
-        b = np.einsum("eab,eb->ea", self.w,
-                      self.t_meas - self.shift_per_rad * e_theta[:, None])
-        return a, b, e_theta
-
     def positions(self, theta: np.ndarray) -> np.ndarray:
         """(n, 2) positions of least cost for the orientations ``theta``."""
-        return self._solve(theta)[0]
+        return self.solve(theta)[0]
 
     def chi2(self, theta: np.ndarray) -> float:
         """The edges' chi2 at the positions of least cost for ``theta``."""
-        return self._solve(theta)[1]
+        return self.solve(theta)[1]
 
-    def _solve(self, theta: np.ndarray) -> tuple[np.ndarray, float]:
+    def solve(self, theta: np.ndarray) -> tuple[np.ndarray, float]:
+        """Both at once: (n, 2) positions of least cost and the edges' chi2 there."""
         from scipy.sparse.linalg import spsolve
 
         g = self.pose_graph
-        a, b, e_theta = self._system(theta)
+        theta = np.asarray(theta, dtype=float)
+        theta = theta - theta[self.held[0]] + g.held[1][0, 2]  # the anchor's angle
+        a, b, _ = whitened_system(g, theta, self.parts)
         ata = np.einsum("eka,ekb->eab", a, a)
         data = np.concatenate([sign * ata[keep, r, c] for keep, r, c, sign in self._slots])
         normal = self._sparse.csc_matrix((data, (self._rows, self._cols)),
@@ -140,26 +160,4 @@ class TranslationStep:
         solution = spsolve(normal, rhs) if self.unknowns else np.zeros(0)
         free = self.column >= 0
         xy[free] = solution.reshape(-1, 2)
-        return xy, self._graph_chi2(xy, theta, e_theta)
-
-    def _graph_chi2(self, xy: np.ndarray, theta: np.ndarray, e_theta: np.ndarray) -> float:
-        """GTSAM's chi2 of the between factors at (xy, theta): each error is the Pose2
-        logarithm of measured^-1 (T_i^-1 T_j), weighted by the edge's information."""
-        g = self.pose_graph
-        i, j = g.edges[:, 0], g.edges[:, 1]
-        theta = np.asarray(theta, dtype=float)
-        theta = theta - theta[self.held[0]] + g.held[1][0, 2]
-        r_i_t = np.transpose(rotation_matrices(theta[i]), (0, 2, 1))
-        u = np.einsum("eab,eb->ea", self.r_meas_t,
-                      np.einsum("eab,eb->ea", r_i_t, xy[j] - xy[i]) - g.measured[:, :2])
-        # Pose2::Logmap: v = w / det * R_pi/2 (R^T u - u), det = (cos w - 1)^2 + sin^2 w.
-        w = e_theta
-        c, s = np.cos(w), np.sin(w)
-        small = np.abs(w) < 1e-10
-        unrotated = np.column_stack([c * u[:, 0] + s * u[:, 1], -s * u[:, 0] + c * u[:, 1]])
-        d = unrotated - u
-        turned = np.column_stack([-d[:, 1], d[:, 0]])
-        det = np.where(small, 1.0, (c - 1.0) ** 2 + s**2)
-        v = np.where(small[:, None], u, (w / det)[:, None] * turned)
-        error = np.column_stack([v, w])
-        return float(np.einsum("ea,eab,eb->", error, g.information, error))
+        return xy, float(edge_chi2(g, np.column_stack([xy, theta])).sum())
