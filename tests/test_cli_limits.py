@@ -6,6 +6,7 @@ import subprocess
 import sys
 import time
 
+import click
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -226,3 +227,19 @@ def test_ctrl_c_while_a_command_is_still_importing_is_one_line():
     # 0: --help answered first; -2: the signal came before Python's own handler was set up.
     if process.returncode not in (0, -signal.SIGINT):
         assert (process.returncode, stderr) == (130, "Error: interrupted\n")
+
+
+def test_ctrl_c_while_the_options_are_parsed_is_one_line():
+    # --help prints inside click's parsing, before the command runs: click alone answers a
+    # Ctrl-C there with "Aborted!" and exit code 1 (seen as a flaky failure of the test above)
+    from rlpgo_cli.errors import RlpgoCommand
+
+    def interrupt(ctx, param, value):
+        if value:
+            raise KeyboardInterrupt
+
+    command = RlpgoCommand("demo", callback=lambda: None, params=[
+        click.Option(["--slow-help"], is_flag=True, is_eager=True, expose_value=False,
+                     callback=interrupt)])
+    result = CliRunner().invoke(command, ["--slow-help"])
+    assert (result.exit_code, result.stderr) == (130, "Error: interrupted\n")

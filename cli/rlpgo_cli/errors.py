@@ -32,6 +32,15 @@ class RlpgoCommand(click.Command):
     """A click command that reports package errors and OS errors on one line, no traceback;
     Ctrl-C and SIGTERM end it with one line and exit code 130, temporary files removed."""
 
+    def make_context(self, info_name, args, parent=None, **extra) -> click.Context:
+        # parsing (and printing --help) runs before invoke: click would answer a Ctrl-C here
+        # with "Aborted!" and exit code 1
+        try:
+            return super().make_context(info_name, args, parent, **extra)
+        except KeyboardInterrupt:
+            click.echo("Error: interrupted", err=True)
+            raise click.exceptions.Exit(INTERRUPTED_EXIT) from None
+
     def invoke(self, ctx: click.Context):
         previous = signal.signal(signal.SIGTERM, _on_sigterm)
         try:
