@@ -42,8 +42,8 @@ from rlpgo_gtsam import (  # noqa: E402
     read_g2o,
     refine,
 )
-from rlpgo_gtsam.episode import BalancingPolicy, rollout  # noqa: E402
 from rlpgo_gtsam.errors import RlpgoError  # noqa: E402
+from rlpgo_gtsam.rl.episode import BalancingPolicy, rollout  # noqa: E402
 from rlpgo_gtsam.rotations import wrap  # noqa: E402
 
 # (poses, sigma_R, seed): noisy measurements, sigma_t 0.05, d 3, lc 0.5.

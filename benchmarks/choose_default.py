@@ -18,7 +18,7 @@ import numpy as np
 
 from benchmarks.common import DATASETS, write_result
 from rlpgo_gtsam import RLInitializer, read_g2o, refine
-from rlpgo_gtsam.models import shipped_models
+from rlpgo_gtsam.rl.models import shipped_models
 
 FILES = ["M3500", "M3500A", "M3500B", "M3500C", "City10K", "Intel", "MIT", "FR079"]
 

@@ -18,8 +18,8 @@ import torch
 
 from benchmarks.common import DATASETS, write_result
 from rlpgo_gtsam import PoseGraphEnv, RLInitializer, read_g2o, refine
-from rlpgo_gtsam.agent.inference import NumpyPolicy
-from rlpgo_gtsam.models import resolve_model
+from rlpgo_gtsam.rl.agent.inference import NumpyPolicy
+from rlpgo_gtsam.rl.models import resolve_model
 
 
 def _per_call(function, steps: int) -> float:

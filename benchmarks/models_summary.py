@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 
-from rlpgo_gtsam.models import models_dir, resolve_model, shipped_models
+from rlpgo_gtsam.rl.models import models_dir, resolve_model, shipped_models
 
 
 def main() -> None:

@@ -51,7 +51,8 @@ from rlpgo_gtsam import (  # noqa: E402
     refine,
     write_g2o,
 )
-from rlpgo_gtsam.robust import odometry_edges, robust_initialize  # noqa: E402
+from rlpgo_gtsam.graph import odometry_edges  # noqa: E402
+from rlpgo_gtsam.robust import robust_initialize  # noqa: E402
 from rlpgo_gtsam.staged import staged_initialize  # noqa: E402
 from rlpgo_gtsam.synthetic import add_outliers  # noqa: E402
 

@@ -33,8 +33,8 @@ def _peak_mb() -> float:
 def _stage(stage: str, path: str, model: str) -> dict:
     """Run one stage in this process; returns seconds and peak memory growth."""
     from rlpgo_gtsam import RLInitializer, make_initializer, read_g2o, refine, write_g2o
-    from rlpgo_gtsam.episode import rollout
     from rlpgo_gtsam.graph import PoseGraph2D
+    from rlpgo_gtsam.rl.episode import rollout
 
     before = _peak_mb()
     start = time.perf_counter()

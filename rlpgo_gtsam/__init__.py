@@ -1,9 +1,12 @@
 """rlpgo_gtsam: better initial guesses for planar pose-graph optimization in GTSAM.
 
-Reading graphs and the classical initializers load GTSAM and numpy only; the agent's names
-(``RLInitializer``, ``PoseGraphEnv``, ...) load torch or gymnasium on first use. The
-environment id ``rlpgo/PoseGraph-v0`` registers when :mod:`rlpgo_gtsam.env` is imported
-(``gymnasium.make("rlpgo_gtsam.env:rlpgo/PoseGraph-v0")`` does that itself).
+The default is :func:`staged_initialize`: certify with the SE(2) synchronization relaxation,
+else search. Reading graphs, the classical initializers, the default and the robust path load
+GTSAM, numpy and scipy only; the agent's names (``RLInitializer``, ``PoseGraphEnv``,
+``EnvConfig``, ``PRESETS``) load on first use from :mod:`rlpgo_gtsam.rl` (torch or gymnasium
+where they need them). The environment id ``rlpgo/PoseGraph-v0`` registers when
+:mod:`rlpgo_gtsam.rl.env` is imported (``gymnasium.make("rlpgo_gtsam.rl.env:rlpgo/PoseGraph-v0")``
+does that itself).
 """
 
 from __future__ import annotations
@@ -11,7 +14,6 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from rlpgo_gtsam.episode import PRESETS, EnvConfig
 from rlpgo_gtsam.errors import (
     G2oFormatError,
     GraphError,
@@ -23,7 +25,9 @@ from rlpgo_gtsam.errors import (
 from rlpgo_gtsam.g2o import read_g2o, read_g2o_lines, write_g2o
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, rotation_weights
 from rlpgo_gtsam.initializers import (
+    CertifiedInitializer,
     ChordalInitializer,
+    FastSyncInitializer,
     Initializer,
     InitResult,
     LagoInitializer,
@@ -34,8 +38,10 @@ from rlpgo_gtsam.initializers import (
     make_initializer,
     register,
 )
+from rlpgo_gtsam.ranking import MethodResult, best_of, compare_methods
 from rlpgo_gtsam.robust import RobustResult, robust_initialize
 from rlpgo_gtsam.solvers import RefineResult, refine
+from rlpgo_gtsam.staged import StagedResult, staged_initialize
 from rlpgo_gtsam.synthetic import SyntheticGraph, add_outliers, generate
 from rlpgo_gtsam.translations import poses_with_orientations, solve_translations
 
@@ -43,9 +49,11 @@ __version__ = "0.1.0"
 
 # Names whose modules import torch or gymnasium: loaded when first used.
 _LAZY = {
-    "RLInitializer": "rlpgo_gtsam.rl_initializer",
-    "PoseGraphEnv": "rlpgo_gtsam.env",
-    "ENV_ID": "rlpgo_gtsam.env",
+    "RLInitializer": "rlpgo_gtsam.rl.initializer",
+    "PoseGraphEnv": "rlpgo_gtsam.rl.env",
+    "ENV_ID": "rlpgo_gtsam.rl.env",
+    "EnvConfig": "rlpgo_gtsam.rl.episode",
+    "PRESETS": "rlpgo_gtsam.rl.episode",
 }
 
 
@@ -58,15 +66,22 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
+    "staged_initialize",
+    "StagedResult",
+    "robust_initialize",
+    "RobustResult",
     "ENV_ID",
     "PRESETS",
+    "CertifiedInitializer",
     "ChordalInitializer",
     "EnvConfig",
+    "FastSyncInitializer",
     "G2oFormatError",
     "GraphError",
     "InitResult",
     "Initializer",
     "LagoInitializer",
+    "MethodResult",
     "ModelError",
     "OdometryInitializer",
     "OrientationInitializer",
@@ -75,13 +90,14 @@ __all__ = [
     "PoseGraphEnv",
     "RLInitializer",
     "RefineResult",
-    "RobustResult",
     "RlpgoError",
     "ShonanInitializer",
     "SolverError",
     "SyntheticGraph",
     "add_outliers",
+    "best_of",
     "chi2",
+    "compare_methods",
     "generate",
     "initializer_names",
     "make_initializer",
@@ -90,7 +106,6 @@ __all__ = [
     "read_g2o_lines",
     "refine",
     "register",
-    "robust_initialize",
     "rotation_weights",
     "solve_translations",
     "write_g2o",

@@ -34,6 +34,7 @@ __all__ = [
     "edge_chi2",
     "logmap_translation",
     "rotation_weights",
+    "odometry_edges",
     "disconnection",
     "format_ranges",
 ]
@@ -172,6 +173,12 @@ def rotation_weights(pose_graph: PoseGraph2D) -> np.ndarray:
     an angle error alone). SE-Sync's kappa is the same entry.
     """
     return pose_graph.information[:, 2, 2]
+
+
+def odometry_edges(pose_graph: PoseGraph2D) -> np.ndarray:
+    """(m,) bool: the edges that join consecutive keys (k, k+1), in either direction."""
+    keys = pose_graph.keys.astype(np.int64)[pose_graph.edges]
+    return np.abs(keys[:, 1] - keys[:, 0]) == 1
 
 
 def _information(factor, name: str) -> np.ndarray:

@@ -343,7 +343,7 @@ _REGISTRY: dict[str, Callable[..., Initializer] | str] = {
     "shonan": ShonanInitializer,
     "fastsync": FastSyncInitializer,
     "certified": CertifiedInitializer,
-    "rl": "rlpgo_gtsam.rl_initializer:RLInitializer",
+    "rl": "rlpgo_gtsam.rl.initializer:RLInitializer",
 }
 # Methods that start from another method's guess (``name@start``); the others can be starts.
 _TAKES_START = {"rl"}

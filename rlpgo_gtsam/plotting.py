@@ -13,7 +13,7 @@ import gtsam
 import numpy as np
 from matplotlib.figure import Figure
 
-from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.graph import PoseGraph2D, odometry_edges
 
 __all__ = ["plot_trajectories", "plot_training_curve"]
 
@@ -37,9 +37,9 @@ def plot_trajectories(
     """A PNG with a panel per (label, values): loop closures in grey, the trajectory on top."""
     figure = Figure(figsize=(4 * len(panels), 4))
     axes = figure.subplots(1, len(panels), squeeze=False)
+    closures = pose_graph.edges[~odometry_edges(pose_graph)]
     for axis, (label, values) in zip(axes[0], panels, strict=True):
         xy = _xy(values)
-        closures = pose_graph.edges[np.abs(pose_graph.edges[:, 1] - pose_graph.edges[:, 0]) != 1]
         for i, j in closures:
             axis.plot(xy[[i, j], 0], xy[[i, j], 1], color="0.8", linewidth=0.3)
         axis.plot(xy[:, 0], xy[:, 1], linewidth=0.7)

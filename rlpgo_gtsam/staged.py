@@ -9,7 +9,7 @@
 3. The lowest refined chi2 wins; ties go to the earlier, cheaper stage. No stage starts once
    the time budget is spent.
 4. Without a certificate, the winner's per-edge residuals are tested for a heavier tail than
-   Gaussian noise gives (:func:`~rlpgo_gtsam.robust.outlier_suspicion`): wrong loop closures
+   Gaussian noise gives (:func:`~rlpgo_gtsam.residuals.outlier_suspicion`): wrong loop closures
    are then likely, and the result carries a one-line hint to try the robust path. A
    certified run skips the test.
 """
@@ -23,11 +23,11 @@ from typing import Any
 
 import gtsam
 
-from rlpgo_gtsam.comparison import MethodResult, best_of, run_method
 from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import PoseGraph2D
 from rlpgo_gtsam.initializers import InitResult
-from rlpgo_gtsam.robust import outlier_suspicion
+from rlpgo_gtsam.ranking import MethodResult, best_of, run_method
+from rlpgo_gtsam.residuals import outlier_suspicion
 
 __all__ = ["StagedResult", "staged_initialize", "DEFAULT_BUDGET_S", "SEARCHES"]
 

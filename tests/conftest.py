@@ -45,9 +45,9 @@ def model_with_config(folder: Path, edit, metadata: dict | None = None) -> Path:
     import json
     import zipfile
 
-    from rlpgo_gtsam.agent.checkpoint import save_model
-    from rlpgo_gtsam.agent.networks import Actor
-    from rlpgo_gtsam.episode import PRESETS
+    from rlpgo_gtsam.rl.agent.checkpoint import save_model
+    from rlpgo_gtsam.rl.agent.networks import Actor
+    from rlpgo_gtsam.rl.episode import PRESETS
 
     path = folder / "m.zip"
     save_model(path, Actor(8), PRESETS[1], metadata or {})

@@ -8,16 +8,16 @@ import numpy as np
 import pytest
 import torch
 
-from rlpgo_gtsam.agent.buffer import EpisodeBatch, EpisodeReplay
-from rlpgo_gtsam.agent.checkpoint import load_model
-from rlpgo_gtsam.agent.config import SacConfig
-from rlpgo_gtsam.agent.inference import NumpyPolicy
-from rlpgo_gtsam.agent.networks import Actor, GraphEncoder, QNetwork
-from rlpgo_gtsam.agent.sac import SacAgent, run_episode
-from rlpgo_gtsam.env import PoseGraphEnv
-from rlpgo_gtsam.episode import PRESETS
 from rlpgo_gtsam.errors import ModelError
-from rlpgo_gtsam.train import CSV_FIELDS, TrainConfig, train
+from rlpgo_gtsam.rl.agent.buffer import EpisodeBatch, EpisodeReplay
+from rlpgo_gtsam.rl.agent.checkpoint import load_model
+from rlpgo_gtsam.rl.agent.config import SacConfig
+from rlpgo_gtsam.rl.agent.inference import NumpyPolicy
+from rlpgo_gtsam.rl.agent.networks import Actor, GraphEncoder, QNetwork
+from rlpgo_gtsam.rl.agent.sac import SacAgent, run_episode
+from rlpgo_gtsam.rl.env import PoseGraphEnv
+from rlpgo_gtsam.rl.episode import PRESETS
+from rlpgo_gtsam.rl.train import CSV_FIELDS, TrainConfig, train
 
 
 @pytest.fixture(autouse=True)
@@ -461,7 +461,7 @@ def test_default_training_is_unchanged_by_the_new_options(tmp_path):
 def test_train_with_every_issue_11_lever(tmp_path):
     """Arena-matched pool, real-cost reward, rich observation, keep chi2, the SAC options
     and chi2 validation, end to end; the model loads and rolls out through the user path."""
-    from rlpgo_gtsam.episode import rollout
+    from rlpgo_gtsam.rl.episode import rollout
 
     sac = SacConfig(hidden=8, batch_size=4, gradient_steps=1, warmup_episodes=1, window=8,
                     burn_in=3, burn_in_prefix=True, fresh_critic_features=True)
@@ -479,7 +479,7 @@ def test_train_with_every_issue_11_lever(tmp_path):
     assert model.env_config.observation == "rich" and model.env_config.keep == "chi2"
     assert model.metadata["validation_chi2_ratio"] > 0.5
     assert (tmp_path / "a.pool.npz").is_file() and (tmp_path / "a.validation.npz").is_file()
-    from rlpgo_gtsam.pool import build_pool
+    from rlpgo_gtsam.rl.pool import build_pool
 
     entry = build_pool(model.env_config, [30_000], None)[0]
     result = rollout(NumpyPolicy(model.actor), entry.pose_graph, entry.start_theta, 2, 0.25,

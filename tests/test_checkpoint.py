@@ -15,10 +15,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from rlpgo_gtsam.agent.checkpoint import FORMAT_VERSION, load_model, save_model
-from rlpgo_gtsam.agent.networks import Actor
-from rlpgo_gtsam.env import PRESETS
 from rlpgo_gtsam.errors import ModelError, OutputError
+from rlpgo_gtsam.rl.agent.checkpoint import FORMAT_VERSION, load_model, save_model
+from rlpgo_gtsam.rl.agent.networks import Actor
+from rlpgo_gtsam.rl.env import PRESETS
 
 HIDDEN = 16
 
@@ -381,8 +381,8 @@ def test_metadata_cannot_break_reserved_keys(tmp_path, metadata):
 
 
 def test_the_width_limit_is_the_one_the_commands_show():
-    from rlpgo_gtsam.agent import checkpoint
-    from rlpgo_gtsam.models import MAX_HIDDEN
+    from rlpgo_gtsam.rl.agent import checkpoint
+    from rlpgo_gtsam.rl.models import MAX_HIDDEN
 
     assert checkpoint._MAX_HIDDEN == MAX_HIDDEN
 

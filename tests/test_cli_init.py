@@ -31,8 +31,8 @@ from rlpgo_gtsam import (
     refine,
     write_g2o,
 )
-from rlpgo_gtsam.agent.checkpoint import save_model
-from rlpgo_gtsam.agent.networks import Actor
+from rlpgo_gtsam.rl.agent.checkpoint import save_model
+from rlpgo_gtsam.rl.agent.networks import Actor
 from rlpgo_gtsam.synthetic import generate
 from tests.conftest import assert_same_edges, cli_ok
 

@@ -104,9 +104,9 @@ def test_sigterm_ends_a_run_with_one_line_and_no_temporary_file(tmp_path):
 
 def test_model_members_are_capped_before_they_are_read(tmp_path, monkeypatch):
     from rlpgo_gtsam import ModelError
-    from rlpgo_gtsam.agent import checkpoint
-    from rlpgo_gtsam.agent.networks import Actor
-    from rlpgo_gtsam.episode import PRESETS
+    from rlpgo_gtsam.rl.agent import checkpoint
+    from rlpgo_gtsam.rl.agent.networks import Actor
+    from rlpgo_gtsam.rl.episode import PRESETS
 
     path = tmp_path / "m.zip"
     checkpoint.save_model(path, Actor(16), PRESETS[1], {})
@@ -186,8 +186,8 @@ def test_resume_from_a_corrupt_training_state_is_one_line(tmp_path, content):
 def test_an_interrupted_training_leaves_the_earlier_run_consistent(tmp_path):
     """Outputs are written together at checkpoints only: a run stopped before its first
     checkpoint leaves the earlier run's log, model and state as they were."""
-    from rlpgo_gtsam.agent.config import SacConfig
-    from rlpgo_gtsam.train import TrainConfig, train
+    from rlpgo_gtsam.rl.agent.config import SacConfig
+    from rlpgo_gtsam.rl.train import TrainConfig, train
 
     sac = SacConfig(hidden=8, batch_size=2, gradient_steps=1, warmup_episodes=1, window=8,
                     burn_in=2)

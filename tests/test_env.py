@@ -25,7 +25,7 @@ def test_check_env_passes_for_a_wrapped_g2o_file(tmp_path, small_noisy):
 
 
 def test_make_registers_the_id_on_first_use():
-    env = gym.make("rlpgo_gtsam.env:rlpgo/PoseGraph-v0", preset=2)
+    env = gym.make("rlpgo_gtsam.rl.env:rlpgo/PoseGraph-v0", preset=2)
     assert env.unwrapped.config == PRESETS[2]
 
 
@@ -182,8 +182,8 @@ def test_rich_observation_env_passes_check_env_and_sees_the_horizon():
 def test_pool_episodes_start_from_the_classical_optimum(tmp_path):
     """An arena-matched environment: graphs from a cached pool, each episode starting from
     certified + LM's orientations; the cache is reused."""
-    from rlpgo_gtsam.episode import EnvConfig
-    from rlpgo_gtsam.pool import build_pool
+    from rlpgo_gtsam.rl.episode import EnvConfig
+    from rlpgo_gtsam.rl.pool import build_pool
     from rlpgo_gtsam.translations import TranslationStep
 
     config = EnvConfig(n=30, sigma_r=0.3, sigma_r_max=0.6, sigma_t=0.05,

@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 
-from rlpgo_gtsam.episode import (
+from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.rl.episode import (
     BalancingPolicy,
     EdgeWalk,
     OrientationState,
     RandomPolicy,
     rollout,
 )
-from rlpgo_gtsam.graph import PoseGraph2D
 from rlpgo_gtsam.rotations import orientation_cost, wrap
 from rlpgo_gtsam.synthetic import generate
 
@@ -125,7 +125,7 @@ def _frozen_costs(graph: PoseGraph2D, theta: np.ndarray, xy: np.ndarray) -> np.n
 
 
 def test_rich_state_keeps_the_real_cost_of_each_edge_and_its_slopes(graph_60):
-    from rlpgo_gtsam.episode import make_state
+    from rlpgo_gtsam.rl.episode import make_state
 
     state = make_state(graph_60, graph_60.poses[:, 2], "rich")
     xy = np.array(state.xy)
@@ -148,7 +148,7 @@ def test_rich_state_keeps_the_real_cost_of_each_edge_and_its_slopes(graph_60):
 
 
 def test_rich_observation_extends_the_paper_observation(graph_60):
-    from rlpgo_gtsam.episode import OBSERVATION_SIZES, make_state
+    from rlpgo_gtsam.rl.episode import OBSERVATION_SIZES, make_state
 
     paper_walk, rich_walk = EdgeWalk(graph_60), EdgeWalk(graph_60, "rich", cycles=3)
     paper = OrientationState(graph_60, graph_60.poses[:, 2])

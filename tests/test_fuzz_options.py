@@ -9,7 +9,7 @@ from rlpgo_cli.generate import main as generate_main
 from rlpgo_cli.init import main as init_main
 
 from rlpgo_gtsam import ModelError, generate, read_g2o, write_g2o
-from rlpgo_gtsam.agent.checkpoint import load_model
+from rlpgo_gtsam.rl.agent.checkpoint import load_model
 from tests.conftest import model_with_config
 
 NUMBERS = st.one_of(

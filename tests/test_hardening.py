@@ -21,9 +21,9 @@ from rlpgo_cli.init import main as init_main
 from rlpgo_cli.train import main as train_main
 
 from rlpgo_gtsam import generate, read_g2o, write_g2o
-from rlpgo_gtsam.agent.checkpoint import load_model, save_model
-from rlpgo_gtsam.agent.networks import Actor
-from rlpgo_gtsam.episode import PRESETS
+from rlpgo_gtsam.rl.agent.checkpoint import load_model, save_model
+from rlpgo_gtsam.rl.agent.networks import Actor
+from rlpgo_gtsam.rl.episode import PRESETS
 
 REFUSED = "is an input of this run; refusing to overwrite it"
 
@@ -290,8 +290,8 @@ def test_train_refuses_an_output_that_is_a_folder(tmp_path):
 
 
 def test_a_new_training_run_replaces_all_earlier_outputs_together(tmp_path):
-    from rlpgo_gtsam.agent.config import SacConfig
-    from rlpgo_gtsam.train import TrainConfig, train
+    from rlpgo_gtsam.rl.agent.config import SacConfig
+    from rlpgo_gtsam.rl.train import TrainConfig, train
 
     sac = SacConfig(hidden=8, batch_size=2, gradient_steps=1, warmup_episodes=1, window=8,
                     burn_in=2)

@@ -16,7 +16,7 @@ from rlpgo_cli.evaluate import main as eval_main
 from rlpgo_cli.train import main as train_main
 
 from rlpgo_gtsam import ModelError
-from rlpgo_gtsam.agent.checkpoint import load_model
+from rlpgo_gtsam.rl.agent.checkpoint import load_model
 from tests.conftest import model_with_config
 
 VALUES = st.one_of(

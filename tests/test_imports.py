@@ -16,9 +16,11 @@ PACKAGE = Path(rlpgo_gtsam.__file__).parent
 # function, or under TYPE_CHECKING alike). The package root (__init__) is the facade above all.
 LAYERS = [
     "errors", "rotations", "graph", "linear", "files", "g2o", "synthetic", "translations",
-    "certified", "solvers", "initializers", "robust", "episode", "pool", "agent", "agent.config",
-    "agent.networks", "agent.buffer", "agent.inference", "agent.checkpoint", "models", "env",
-    "agent.sac", "rl_initializer", "comparison", "staged", "evaluation", "plotting", "train",
+    "certified", "solvers", "initializers", "ranking", "residuals", "staged",
+    "robust.consistency", "robust.gnc", "robust.pipeline", "robust", "rl.episode", "rl.pool",
+    "rl.agent", "rl.agent.config", "rl.agent.networks", "rl.agent.buffer", "rl.agent.inference",
+    "rl.agent.checkpoint", "rl.models", "rl.env", "rl.agent.sac", "rl.initializer",
+    "rl.evaluation", "plotting", "rl.train", "rl",
 ]
 
 

@@ -12,7 +12,8 @@ from rlpgo_gtsam.errors import RlpgoError, SolverError
 from rlpgo_gtsam.g2o import g2o_text
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, edge_chi2
 from rlpgo_gtsam.initializers import make_initializer
-from rlpgo_gtsam.robust import outlier_suspicion, robust_initialize
+from rlpgo_gtsam.residuals import outlier_suspicion
+from rlpgo_gtsam.robust import robust_initialize
 from rlpgo_gtsam.solvers import refine
 from rlpgo_gtsam.staged import staged_initialize
 from rlpgo_gtsam.synthetic import add_outliers, generate

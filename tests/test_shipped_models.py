@@ -4,10 +4,10 @@ the rollout and numpy policy that users run."""
 import numpy as np
 import pytest
 
-from rlpgo_gtsam.agent.inference import NumpyPolicy
-from rlpgo_gtsam.episode import BalancingPolicy
-from rlpgo_gtsam.evaluation import best_oc_ratios
-from rlpgo_gtsam.models import models_dir, resolve_model, shipped_models
+from rlpgo_gtsam.rl.agent.inference import NumpyPolicy
+from rlpgo_gtsam.rl.episode import BalancingPolicy
+from rlpgo_gtsam.rl.evaluation import best_oc_ratios
+from rlpgo_gtsam.rl.models import models_dir, resolve_model, shipped_models
 
 SHIPPED = shipped_models()
 
@@ -55,8 +55,8 @@ _ROLLOUT_DIGESTS = {
 def test_shipped_model_rollouts_are_bit_identical_to_before_the_new_options(name):
     import hashlib
 
-    from rlpgo_gtsam.episode import rollout
-    from rlpgo_gtsam.evaluation import evaluation_graph
+    from rlpgo_gtsam.rl.episode import rollout
+    from rlpgo_gtsam.rl.evaluation import evaluation_graph
 
     model = resolve_model(name)
     config = model.env_config

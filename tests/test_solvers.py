@@ -68,7 +68,7 @@ def test_indeterminate_system_is_a_reported_failure():
 
 
 def test_compare_reports_failing_methods_and_keeps_the_others():
-    from rlpgo_gtsam.comparison import compare_methods
+    from rlpgo_gtsam.ranking import compare_methods
 
     graph, values = _degenerate_graph()
     results = compare_methods(graph, values, ["odometry", "chordal"], "gn", 10)

@@ -92,7 +92,7 @@ def test_compare_marks_the_best_row_and_shows_certificates(tmp_path, small_exact
 
 
 def test_ties_go_to_the_earlier_cheaper_row():
-    from rlpgo_gtsam.comparison import MethodResult, best_of
+    from rlpgo_gtsam.ranking import MethodResult, best_of
 
     def row(method, value):
         return MethodResult("g", 2, 1, method, None, "lm", refined_chi2=value)

@@ -10,13 +10,13 @@ import numpy as np
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, OutputFile
-from rlpgo_gtsam.comparison import MethodResult, best_of, compare_methods
 from rlpgo_gtsam.errors import OutputError, RlpgoError
 from rlpgo_gtsam.files import check_name
 from rlpgo_gtsam.g2o import read_g2o
 from rlpgo_gtsam.graph import PoseGraph2D
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
-from rlpgo_gtsam.models import DEFAULT_MODEL, model_path
+from rlpgo_gtsam.ranking import MethodResult, best_of, compare_methods
+from rlpgo_gtsam.rl.models import DEFAULT_MODEL, model_path
 from rlpgo_gtsam.solvers import SOLVERS
 from rlpgo_gtsam.synthetic import generate
 

@@ -7,8 +7,8 @@ import click
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import COUNT, SEED, OutputFile
-from rlpgo_gtsam.episode import PRESETS
-from rlpgo_gtsam.models import DEFAULT_PRESET_MODEL, model_path, resolve_model
+from rlpgo_gtsam.rl.episode import PRESETS
+from rlpgo_gtsam.rl.models import DEFAULT_PRESET_MODEL, model_path, resolve_model
 
 
 @click.command(cls=RlpgoCommand)
@@ -21,7 +21,7 @@ from rlpgo_gtsam.models import DEFAULT_PRESET_MODEL, model_path, resolve_model
 @click.option("--json", "json_path", type=OutputFile())
 def main(model, preset, graphs, seed, noisy_measurements, json_path):
     """Deterministic rollouts on fresh graphs of a preset; mean initial and best OC."""
-    from rlpgo_gtsam.evaluation import evaluate
+    from rlpgo_gtsam.rl.evaluation import evaluate
 
     name = model or DEFAULT_PRESET_MODEL.format(preset=preset)
     run = RunFiles([model_path(name)])

@@ -11,12 +11,12 @@ import click
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, FiniteFloat, OutputFile
-from rlpgo_gtsam.comparison import MethodResult, best_of, compare_methods
 from rlpgo_gtsam.errors import ModelError, RlpgoError
 from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text, g2o_text, read_g2o, read_g2o_lines
 from rlpgo_gtsam.graph import PoseGraph2D, chi2
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
-from rlpgo_gtsam.models import DEFAULT_MODEL, model_path
+from rlpgo_gtsam.ranking import MethodResult, best_of, compare_methods
+from rlpgo_gtsam.rl.models import DEFAULT_MODEL, model_path
 from rlpgo_gtsam.robust import robust_initialize
 from rlpgo_gtsam.staged import DEFAULT_BUDGET_S, staged_initialize
 
@@ -208,7 +208,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
         if not path.is_file():
             raise ModelError(f"{path}: no such model file")
     elif any(m.startswith("rl") for m in methods):
-        from rlpgo_gtsam.models import resolve_model
+        from rlpgo_gtsam.rl.models import resolve_model
 
         resolve_model(model)  # a bad --model is an error, not a row of failed methods
     if method == "auto":

@@ -11,10 +11,10 @@ import click
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import COUNT, SEED, FiniteFloat, OutputFile
-from rlpgo_gtsam.agent.config import SacConfig
-from rlpgo_gtsam.episode import CHOICES, PRESETS, EnvConfig
 from rlpgo_gtsam.files import check_name
-from rlpgo_gtsam.models import MAX_HIDDEN
+from rlpgo_gtsam.rl.agent.config import SacConfig
+from rlpgo_gtsam.rl.episode import CHOICES, PRESETS, EnvConfig
+from rlpgo_gtsam.rl.models import MAX_HIDDEN
 
 _ENV_FIELDS = {name: type(value) for name, value in
                ((f, getattr(EnvConfig(), f)) for f in EnvConfig.__dataclass_fields__)}
@@ -98,7 +98,7 @@ def main(preset, episodes, seed, out, resume, hidden, batch_size, gradient_steps
          noisy_measurements, validation_graphs, env_settings, pool_graphs, validation_metric,
          initial_last_action, reward_scale, fresh_critic_features, burn_in_prefix):
     """Train an agent; writes <out>.zip (the model), <out>.csv and <out>.png (the log)."""
-    from rlpgo_gtsam.train import TrainConfig, train
+    from rlpgo_gtsam.rl.train import TrainConfig, train
 
     out = str(out or f"models/preset{preset}")
     stem = Path(out)
@@ -123,7 +123,7 @@ def main(preset, episodes, seed, out, resume, hidden, batch_size, gradient_steps
     )
     if validation_metric == "chi2" and not validation_graphs:
         raise click.UsageError("--validation chi2 needs --validation-graphs > 0")
-    from rlpgo_gtsam.agent.checkpoint import check_env_config
+    from rlpgo_gtsam.rl.agent.checkpoint import check_env_config
 
     check_env_config(config.env_config, outputs[0])  # before the progress bar shows
     with click.progressbar(length=episodes, label=f"preset {preset}", show_pos=True,

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 from rlpgo_gtsam.errors import ModelError
 
 if TYPE_CHECKING:  # loading a model needs torch; naming one does not
-    from rlpgo_gtsam.agent.checkpoint import LoadedModel
+    from rlpgo_gtsam.rl.agent.checkpoint import LoadedModel
 
 __all__ = ["models_dir", "resolve_model", "shipped_models", "DEFAULT_MODEL",
            "DEFAULT_PRESET_MODEL", "MAX_HIDDEN"]
@@ -23,9 +23,9 @@ MAX_HIDDEN = 1024
 
 def models_dir() -> Path:
     """``rlpgo_gtsam/_models`` in a wheel, else the checkout's top-level ``models/``."""
-    here = Path(__file__).resolve().parent
-    packaged = here / "_models"
-    return packaged if packaged.is_dir() else here.parent / "models"
+    package = Path(__file__).resolve().parents[1]
+    packaged = package / "_models"
+    return packaged if packaged.is_dir() else package.parent / "models"
 
 
 def shipped_models() -> list[str]:
@@ -37,7 +37,10 @@ def shipped_models() -> list[str]:
 def model_path(name_or_path: str | os.PathLike[str]) -> Path:
     """The file a model name or path refers to (a shipped name must exist)."""
     candidate = Path(name_or_path)
-    if candidate.suffix == ".zip" or candidate.exists() or os.sep in str(name_or_path):
+    # A bare name is always a shipped model: a same-named file or folder in the working
+    # directory is never taken for it.
+    if candidate.suffix == ".zip" or os.sep in str(name_or_path) or (
+            os.altsep is not None and os.altsep in str(name_or_path)):
         return candidate
     path = models_dir() / f"{name_or_path}.zip"
     if not path.exists():
@@ -48,6 +51,6 @@ def model_path(name_or_path: str | os.PathLike[str]) -> Path:
 
 def resolve_model(name_or_path: str | os.PathLike[str]) -> LoadedModel:
     """Load a shipped model by name (``preset1``) or any model file by path."""
-    from rlpgo_gtsam.agent.checkpoint import load_model
+    from rlpgo_gtsam.rl.agent.checkpoint import load_model
 
     return load_model(model_path(name_or_path))

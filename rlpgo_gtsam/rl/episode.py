@@ -2,9 +2,9 @@
 
 This module is the one implementation of an RL-PGO episode's mechanics. :func:`rollout`
 runs a batch of deterministic episodes with any policy that has the numpy step interface
-(the shipped agent's :class:`~rlpgo_gtsam.agent.inference.NumpyPolicy`, the edge-balancing
+(the shipped agent's :class:`~rlpgo_gtsam.rl.agent.inference.NumpyPolicy`, the edge-balancing
 rule, random actions); :class:`RLInitializer`, evaluation, training validation and the tests
-all call it. The gymnasium environment (:mod:`rlpgo_gtsam.env`) wraps the same state for
+all call it. The gymnasium environment (:mod:`rlpgo_gtsam.rl.env`) wraps the same state for
 training. Nothing here imports torch, gymnasium or GTSAM.
 """
 

@@ -1,6 +1,6 @@
 """Deterministic evaluation of an agent on fresh generated graphs, with two controls.
 
-Every policy runs through :func:`~rlpgo_gtsam.episode.rollout`, the code path users run:
+Every policy runs through :func:`~rlpgo_gtsam.rl.episode.rollout`, the code path users run:
 the agent as the numpy policy (episode 0's initial last action, zeros), uniformly random
 actions of the same range, and the edge-balancing rule (on edge (i, j) with residual r,
 rotate i by +r/2 and j by -r/2, clipped to the range), which zeroes each residual it
@@ -13,10 +13,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from rlpgo_gtsam.agent.checkpoint import LoadedModel
-from rlpgo_gtsam.agent.inference import NumpyPolicy
-from rlpgo_gtsam.episode import PRESETS, BalancingPolicy, EnvConfig, RandomPolicy, rollout
 from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.rl.agent.checkpoint import LoadedModel
+from rlpgo_gtsam.rl.agent.inference import NumpyPolicy
+from rlpgo_gtsam.rl.episode import PRESETS, BalancingPolicy, EnvConfig, RandomPolicy, rollout
 from rlpgo_gtsam.synthetic import generate
 
 __all__ = ["evaluate", "evaluation_graph", "best_oc_ratios"]

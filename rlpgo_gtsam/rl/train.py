@@ -26,15 +26,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rlpgo_gtsam.agent.checkpoint import check_env_config, model_bytes
-from rlpgo_gtsam.agent.config import SacConfig
-from rlpgo_gtsam.agent.inference import NumpyPolicy
-from rlpgo_gtsam.agent.sac import Episode, SacAgent, run_episode
-from rlpgo_gtsam.env import PoseGraphEnv
-from rlpgo_gtsam.episode import OBSERVATION_SIZES, PRESETS, EnvConfig
 from rlpgo_gtsam.errors import ModelError, RlpgoError
-from rlpgo_gtsam.evaluation import best_oc_ratios
 from rlpgo_gtsam.files import write_together
+from rlpgo_gtsam.rl.agent.checkpoint import check_env_config, model_bytes
+from rlpgo_gtsam.rl.agent.config import SacConfig
+from rlpgo_gtsam.rl.agent.inference import NumpyPolicy
+from rlpgo_gtsam.rl.agent.sac import Episode, SacAgent, run_episode
+from rlpgo_gtsam.rl.env import PoseGraphEnv
+from rlpgo_gtsam.rl.episode import OBSERVATION_SIZES, PRESETS, EnvConfig
+from rlpgo_gtsam.rl.evaluation import best_oc_ratios
 
 __all__ = ["TrainConfig", "train", "CSV_FIELDS", "CHI2_FIELDS", "VALIDATION_METRICS",
            "INITIAL_LAST_ACTIONS", "POOL_SEED", "VALIDATION_POOL_SEED"]
@@ -125,7 +125,7 @@ def train(
     paths = {s: out.with_name(out.name + s) for s in (".zip", ".csv", ".png", ".train.pt")}
     pool = None
     if config.pool_graphs:
-        from rlpgo_gtsam.pool import build_pool
+        from rlpgo_gtsam.rl.pool import build_pool
 
         pool = build_pool(config.env_config,
                           [POOL_SEED + k for k in range(config.pool_graphs)],
@@ -252,10 +252,10 @@ _VALIDATION_POOLS: dict[str, list] = {}
 def _validate_chi2(agent: SacAgent, config: TrainConfig) -> float:
     """Mean (chi2 after LM from the agent's guess) / (the classical optimum's chi2) on the
     validation pool: one deterministic rollout from the classical optimum, through the
-    numpy policy, :func:`~rlpgo_gtsam.episode.rollout` and the translation step, as
-    :class:`~rlpgo_gtsam.rl_initializer.RLInitializer` runs them."""
-    from rlpgo_gtsam.episode import rollout
-    from rlpgo_gtsam.pool import build_pool
+    numpy policy, :func:`~rlpgo_gtsam.rl.episode.rollout` and the translation step, as
+    :class:`~rlpgo_gtsam.rl.initializer.RLInitializer` runs them."""
+    from rlpgo_gtsam.rl.episode import rollout
+    from rlpgo_gtsam.rl.pool import build_pool
     from rlpgo_gtsam.solvers import refine
     from rlpgo_gtsam.translations import poses_with_orientations
 

@@ -15,7 +15,7 @@ import numpy as np
 if TYPE_CHECKING:  # the policy reads an actor's weights but never needs torch itself
     import torch
 
-    from rlpgo_gtsam.agent.networks import Actor
+    from rlpgo_gtsam.rl.agent.networks import Actor
 
 __all__ = ["NumpyPolicy"]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from rlpgo_gtsam.episode import ACTION_SIZE
+from rlpgo_gtsam.rl.episode import ACTION_SIZE
 
 __all__ = ["SacConfig"]
 

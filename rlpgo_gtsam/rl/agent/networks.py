@@ -5,7 +5,7 @@ Every network sees the environment's observation through its own :class:`GraphEn
 passed in and returned, never kept inside the module.
 
 Shapes: ``B`` sequences (episodes) of ``T`` steps; observations ``(B, T, K)`` (``K`` = 4
-for the paper's observation, :data:`~rlpgo_gtsam.episode.OBSERVATION_SIZES` for others),
+for the paper's observation, :data:`~rlpgo_gtsam.rl.episode.OBSERVATION_SIZES` for others),
 actions ``(B, T, 2)``; LSTM state a pair of ``(1, B, hidden)`` tensors.
 """
 
@@ -14,7 +14,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from rlpgo_gtsam.episode import ACTION_SIZE, OBSERVATION_SIZE
+from rlpgo_gtsam.rl.episode import ACTION_SIZE, OBSERVATION_SIZE
 
 ENCODING_SIZE = 20
 LOG_STD_MIN, LOG_STD_MAX = -20.0, 2.0

@@ -4,7 +4,7 @@
     initial = RLInitializer(start="chordal").initialize(graph, values)
 
 The agent walks the graph deterministically (tanh of the policy mean), ``cycles`` passes
-over its edges, through :func:`~rlpgo_gtsam.episode.rollout` and the numpy policy; the
+over its edges, through :func:`~rlpgo_gtsam.rl.episode.rollout` and the numpy policy; the
 orientations each rollout keeps (the lowest-OC ones, or for a model with ``keep="chi2"`` the
 lowest-chi2 cycle end) get positions from the linear translation step.
 ``episodes=k`` runs k rollouts that differ only in their initial "last action", batched,
@@ -19,12 +19,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from rlpgo_gtsam.agent.inference import NumpyPolicy
-from rlpgo_gtsam.episode import rollout
 from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import PoseGraph2D, chi2
 from rlpgo_gtsam.initializers import Estimate, Initializer, start_names
-from rlpgo_gtsam.models import DEFAULT_MODEL, resolve_model
+from rlpgo_gtsam.rl.agent.inference import NumpyPolicy
+from rlpgo_gtsam.rl.episode import rollout
+from rlpgo_gtsam.rl.models import DEFAULT_MODEL, resolve_model
 from rlpgo_gtsam.translations import poses_with_orientations
 
 __all__ = ["RLInitializer"]

@@ -1,7 +1,7 @@
-"""The RL-PGO training environment: a thin gymnasium wrapper over :mod:`rlpgo_gtsam.episode`.
+"""The RL-PGO training environment: a thin gymnasium wrapper over :mod:`rlpgo_gtsam.rl.episode`.
 
 The orientation state, the edge order and the observation are the episode module's, the
-same that :func:`~rlpgo_gtsam.episode.rollout` uses at inference; this module adds the
+same that :func:`~rlpgo_gtsam.rl.episode.rollout` uses at inference; this module adds the
 reward, the generated training graphs and gymnasium's interface. A step costs O(degree) and
 never calls GTSAM. Importing this module registers ``rlpgo/PoseGraph-v0``.
 """
@@ -17,14 +17,14 @@ import gtsam
 import gymnasium as gym
 import numpy as np
 
-from rlpgo_gtsam.episode import OBSERVATION_SIZES, PRESETS, EdgeWalk, EnvConfig, make_state
 from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import PoseGraph2D
-from rlpgo_gtsam.pool import classical_start, training_graph
+from rlpgo_gtsam.rl.episode import OBSERVATION_SIZES, PRESETS, EdgeWalk, EnvConfig, make_state
+from rlpgo_gtsam.rl.pool import classical_start, training_graph
 from rlpgo_gtsam.translations import TranslationStep, poses_with_orientations
 
 if TYPE_CHECKING:
-    from rlpgo_gtsam.pool import PoolEntry
+    from rlpgo_gtsam.rl.pool import PoolEntry
 
 __all__ = ["ENV_ID", "PoseGraphEnv"]
 
@@ -58,7 +58,7 @@ class PoseGraphEnv(gym.Env):
     node and averaged; beta and the linear layer belong to the agent); index 1 is the
     paper's residual; 2 and 3 are local slopes the paper's state does not have.
     With ``observation="rich"``: ``Box((12,), float32)``, these four and eight more
-    (:meth:`~rlpgo_gtsam.episode.EdgeWalk.observe`): the real cost's view of the edge and of
+    (:meth:`~rlpgo_gtsam.rl.episode.EdgeWalk.observe`): the real cost's view of the edge and of
     its poses' other edges (positions from the last translation step), and the horizon.
 
     ## Action
@@ -93,9 +93,9 @@ class PoseGraphEnv(gym.Env):
     - ``preset``: 1..5, the paper's Table I training environments (default 1).
     - ``n, sigma_r, sigma_t, d, lc, cycles, action_range_rad, noisy_measurements``,
       ``observation, reward, oc_shaping, keep, sigma_r_max, start``: override any preset
-      value (:class:`~rlpgo_gtsam.episode.EnvConfig`).
-    - ``pool``: :class:`~rlpgo_gtsam.pool.PoolEntry` graphs to draw from instead of
-      generating (:func:`~rlpgo_gtsam.pool.build_pool`).
+      value (:class:`~rlpgo_gtsam.rl.episode.EnvConfig`).
+    - ``pool``: :class:`~rlpgo_gtsam.rl.pool.PoolEntry` graphs to draw from instead of
+      generating (:func:`~rlpgo_gtsam.rl.pool.build_pool`).
     - ``graph``, ``values``: a GTSAM graph and values to wrap instead.
     - ``pose_graph``: the same, already extracted as a :class:`PoseGraph2D`.
     """
@@ -235,4 +235,4 @@ class PoseGraphEnv(gym.Env):
 
 
 if ENV_ID not in gym.registry:
-    gym.register(id=ENV_ID, entry_point="rlpgo_gtsam.env:PoseGraphEnv")
+    gym.register(id=ENV_ID, entry_point="rlpgo_gtsam.rl.env:PoseGraphEnv")

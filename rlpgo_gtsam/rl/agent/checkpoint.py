@@ -21,10 +21,10 @@ from pathlib import Path
 
 import torch
 
-from rlpgo_gtsam.agent.networks import Actor
-from rlpgo_gtsam.episode import CHOICES, OBSERVATION_SIZES, EnvConfig
 from rlpgo_gtsam.errors import ModelError
 from rlpgo_gtsam.files import write_bytes
+from rlpgo_gtsam.rl.agent.networks import Actor
+from rlpgo_gtsam.rl.episode import CHOICES, OBSERVATION_SIZES, EnvConfig
 
 __all__ = ["FORMAT_VERSION", "save_model", "model_bytes", "load_model", "LoadedModel",
            "check_env_config"]
@@ -32,7 +32,7 @@ __all__ = ["FORMAT_VERSION", "save_model", "model_bytes", "load_model", "LoadedM
 FORMAT_VERSION = 1
 _CONFIG, _WEIGHTS = "config.json", "actor.pt"
 _RESERVED = ("format", "package_version", "torch_version", "hidden", "env")
-# The widest actor a model may hold (rlpgo_gtsam.models.MAX_HIDDEN, which the commands
+# The widest actor a model may hold (rlpgo_gtsam.rl.models.MAX_HIDDEN, which the commands
 # import without torch; models sits above this module, and a test checks they agree).
 _MAX_HIDDEN = 1024
 # Caps on the uncompressed members, checked against the zip header before reading and

@@ -23,11 +23,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from rlpgo_gtsam.agent.buffer import EpisodeBatch, EpisodeReplay
-from rlpgo_gtsam.agent.config import SacConfig
-from rlpgo_gtsam.agent.networks import Actor, QNetwork
-from rlpgo_gtsam.env import PoseGraphEnv
-from rlpgo_gtsam.episode import ACTION_SIZE, OBSERVATION_SIZE
+from rlpgo_gtsam.rl.agent.buffer import EpisodeBatch, EpisodeReplay
+from rlpgo_gtsam.rl.agent.config import SacConfig
+from rlpgo_gtsam.rl.agent.networks import Actor, QNetwork
+from rlpgo_gtsam.rl.env import PoseGraphEnv
+from rlpgo_gtsam.rl.episode import ACTION_SIZE, OBSERVATION_SIZE
 
 __all__ = ["SacAgent", "Episode", "run_episode"]
 

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from rlpgo_gtsam.episode import EnvConfig
 from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.rl.episode import EnvConfig
 
 __all__ = ["PoolEntry", "training_graph", "classical_start", "build_pool", "POOL_LM_ITERS"]
 

@@ -1,0 +1,44 @@
+"""The default's test for wrong loop closures: are a refined result's residuals Gaussian?
+
+After a failed certificate, :func:`outlier_suspicion` compares each edge's chi2 with what
+Gaussian noise gives; a heavier tail points to wrong loop closures, and the staged default
+then hints at the robust path (:mod:`rlpgo_gtsam.robust`). It costs one pass over the edges
+and imports nothing of the robust pipeline.
+"""
+
+from __future__ import annotations
+
+import math
+
+import gtsam
+import numpy as np
+
+from rlpgo_gtsam.graph import PoseGraph2D, edge_chi2
+
+__all__ = ["outlier_suspicion", "SUSPICION_CHI2"]
+
+# Per-edge chi2 (3 dof) above this has probability 0.001 under Gaussian noise.
+SUSPICION_CHI2 = 16.266
+_SUSPICION_P = 0.001
+
+
+def outlier_suspicion(pose_graph: PoseGraph2D, values: gtsam.Values) -> str | None:
+    """A one-line hint when ``values`` (a refined result) fits the edges with a heavier tail
+    than Gaussian noise allows; None when the residuals look Gaussian.
+
+    Each edge's chi2 (3 dof) is compared with :data:`SUSPICION_CHI2`, which Gaussian noise
+    exceeds with probability 0.001. The hint fires when more edges exceed it than a Gaussian
+    model makes plausible (its expected count plus four standard deviations, and at least
+    three edges).
+    """
+    g = pose_graph
+    residuals = edge_chi2(g, g.poses_of(values))
+    high = residuals > SUSPICION_CHI2
+    count, expected = int(high.sum()), _SUSPICION_P * g.num_edges
+    if count < 3 or count <= expected + 4.0 * math.sqrt(expected):
+        return None
+    worst = np.argsort(-residuals, kind="stable")[:3]
+    shown = ", ".join(f"{g.keys[a]}-{g.keys[b]}" for a, b in g.edges[worst].tolist())
+    return (f"{count} of {g.num_edges} edges fit with chi2 > {SUSPICION_CHI2:g} (Gaussian noise "
+            f"gives about {expected:.0f}; worst: edges {shown}): wrong loop closures are likely; "
+            "try --robust")
