@@ -24,6 +24,18 @@ class G2oFormatError(RlpgoError):
         super().__init__(f"{where}: {reason}")
 
 
+class InputNotFoundError(G2oFormatError, FileNotFoundError):
+    """An input file that does not exist: both the package's error (one line, the file named)
+    and :class:`FileNotFoundError`, so ``except FileNotFoundError`` catches it."""
+
+    def __init__(self, path: str | os.PathLike[str], reason: str = "no such file") -> None:
+        G2oFormatError.__init__(self, path, None, reason)
+        self.filename = self.path
+
+    def __str__(self) -> str:
+        return f"{self.path}: {self.reason}"
+
+
 class GraphError(RlpgoError):
     """A graph that an algorithm cannot work on (disconnected, unsupported factor types, ...)."""
 

@@ -38,6 +38,20 @@ def check_output(path: str | os.PathLike[str]) -> None:
         raise OutputError(f"{path}: folder {folder} does not exist")
     if not folder.is_dir():
         raise OutputError(f"{path}: {folder} is not a folder")
+    if not _is_stream(path):
+        _probe(folder, path)
+
+
+def _probe(folder: Path, path: Path) -> None:
+    """Create and remove a temporary file in ``folder``: the one test of writability that
+    holds for every user (root included) and file system (read-only mounts included)."""
+    try:
+        descriptor, temp_name = tempfile.mkstemp(prefix=".rlpgo-", suffix=".tmp", dir=folder)
+    except OSError as error:
+        raise OutputError(f"{path}: cannot write in {folder}: "
+                          f"{error.strerror or error}") from None
+    os.close(descriptor)
+    Path(temp_name).unlink(missing_ok=True)
 
 
 def write_text(path: str | os.PathLike[str], text: str) -> None:
@@ -123,6 +137,9 @@ def _stage(path: Path, data: bytes) -> str:
     except OSError as error:
         Path(temp_name).unlink(missing_ok=True)
         raise OutputError(f"{path}: cannot write: {error.strerror or error}") from None
+    except BaseException:  # Ctrl-C or a signal raised as an exception: leave nothing behind
+        Path(temp_name).unlink(missing_ok=True)
+        raise
     return temp_name
 
 
@@ -141,6 +158,9 @@ def _write_atomic(path: Path, data: bytes) -> None:
     except OSError as error:
         Path(temp_name).unlink(missing_ok=True)
         raise OutputError(f"{path}: cannot write: {error.strerror or error}") from None
+    except BaseException:
+        Path(temp_name).unlink(missing_ok=True)
+        raise
 
 
 def _mode_for(path: Path) -> int:

@@ -30,9 +30,9 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from rlpgo_gtsam.errors import G2oFormatError, OutputError
+from rlpgo_gtsam.errors import G2oFormatError, InputNotFoundError, OutputError
 from rlpgo_gtsam.files import write_text
-from rlpgo_gtsam.graph import disconnection
+from rlpgo_gtsam.graph import disconnection, information_problem
 
 __all__ = ["read_g2o", "read_g2o_lines", "write_g2o", "g2o_text", "g2o_text_lines",
            "edge_list_text", "EDGE_LIST_LINE"]
@@ -44,6 +44,7 @@ _EDGE_NUMBERS = 11
 _VERTEX_NUMBERS = 4
 # A line of an edge list (:func:`edge_list_text`): L is the edge's line in its g2o file.
 EDGE_LIST_LINE = "line <L> EDGE_SE2 <id_i> <id_j>"
+_FIX_PER_LINE = 1000  # 21-byte ids: at most 22 KB a line, well inside MAX_LINE_BYTES
 _3D_TAGS = ("VERTEX_SE3", "EDGE_SE3", "VERTEX3", "EDGE3", "VERTEX_TRACKXYZ", "EDGE_SE3_")
 
 
@@ -87,6 +88,8 @@ def read_g2o_lines(
 
     Factor ``k`` is the ``k``-th ``EDGE_SE2`` line for the edges, in file order; then one
     :class:`gtsam.PriorFactorPose2` per id of the ``FIX`` lines, each with its ``FIX`` line.
+    A missing file raises :class:`~rlpgo_gtsam.errors.InputNotFoundError`, which is both a
+    :class:`G2oFormatError` and a :class:`FileNotFoundError`.
     ``lines[k]`` is the line of ``graph.at(k)``: what a message about a factor should name.
 
     Raises:
@@ -125,7 +128,7 @@ def _lines(path: Path) -> Iterator[tuple[int, str]]:
     try:
         handle = path.open("rb")
     except FileNotFoundError:
-        raise G2oFormatError(path, None, "no such file") from None
+        raise InputNotFoundError(path) from None
     except IsADirectoryError:
         raise G2oFormatError(path, None, "is a directory, not a g2o file") from None
     except PermissionError:
@@ -142,8 +145,14 @@ def _lines(path: Path) -> Iterator[tuple[int, str]]:
                 return
             number += 1
             if len(raw) > MAX_LINE_BYTES:
+                if b"\r" in raw and b"\n" not in raw:
+                    raise G2oFormatError(path, number, "lines end in CR alone (classic Mac "
+                                         "line endings); convert them to LF or CR LF")
                 raise G2oFormatError(path, number,
                                      f"line longer than {MAX_LINE_BYTES} bytes (not a g2o file?)")
+            if b"\r" in raw.rstrip(b"\r\n"):
+                raise G2oFormatError(path, number, "a CR inside a line (classic Mac line "
+                                     "endings?); convert them to LF or CR LF")
             if number == 1 and raw.startswith(b"\xef\xbb\xbf"):  # a UTF-8 byte-order mark
                 raw = raw[3:]
             if b"\x00" in raw:
@@ -247,25 +256,10 @@ def _parse_edge(path: Path, line: int, fields: list[str], parsed: _Parsed) -> No
     numbers = _numbers(path, line, "EDGE_SE2", fields[2:], first=3)
     xx, xy, xt, yy, yt, tt = numbers[3:]
     information = np.array([[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]])
-    if not _positive_definite(information):
-        raise G2oFormatError(path, line, "EDGE_SE2 information matrix is not positive definite")
+    problem = information_problem(information)
+    if problem is not None:
+        raise G2oFormatError(path, line, f"EDGE_SE2 {problem}")
     parsed.edges.append(_Edge(line, i, j, (numbers[0], numbers[1], numbers[2]), information))
-
-
-def _positive_definite(matrix: np.ndarray) -> bool:
-    """Positive definite, judged on the matrix scaled to a unit diagonal: an information
-    like diag(1e-6, 1e6, 1) is well conditioned for what it measures and accepted; a matrix
-    whose scaled form is singular to rounding is not."""
-    diagonal = np.diag(matrix)
-    if not np.all(diagonal > 0):
-        return False
-    scale = 1.0 / np.sqrt(diagonal)
-    scaled = matrix * scale[:, None] * scale[None, :]
-    try:
-        np.linalg.cholesky(scaled)
-    except np.linalg.LinAlgError:
-        return False
-    return bool(np.linalg.eigvalsh(scaled)[0] > 1e-12)
 
 
 def _check_edges(path: Path, parsed: _Parsed) -> None:
@@ -348,7 +342,15 @@ def g2o_text_lines(
     factor_lines: list[int | None] = []
     priors = []
     for key in sorted(values.keys()):
-        pose = values.atPose2(key)
+        try:
+            pose = values.atPose2(key)
+        except RuntimeError:
+            raise OutputError(f"value of key {key} is not a Pose2: a planar g2o file holds "
+                              "Pose2 vertices only") from None
+        numbers = (pose.x(), pose.y(), pose.theta())
+        if not all(math.isfinite(v) for v in numbers):
+            raise OutputError(f"vertex {key} is not finite ({numbers[0]!r}, {numbers[1]!r}, "
+                              f"{numbers[2]!r}): the file would not read back")
         lines.append(f"VERTEX_SE2 {key} {pose.x()!r} {pose.y()!r} {_format_15(pose.theta())}")
     fixed = []
     for index in range(graph.size()):
@@ -360,10 +362,20 @@ def g2o_text_lines(
         if isinstance(factor, gtsam.BetweenFactorPose2):
             i, j = factor.keys()
             z = factor.measured()
-            info = factor.noiseModel().information()
-            if not _positive_definite(info):
-                raise OutputError(f"edge {i}-{j}: information is too ill-conditioned for g2o "
-                                  "(the reader would refuse it)")
+            if i == j:
+                raise OutputError(f"edge {i}-{j} joins a vertex to itself: the file would not "
+                                  "read back")
+            model = factor.noiseModel()
+            if not isinstance(model, gtsam.noiseModel.Gaussian) or isinstance(
+                    model, gtsam.noiseModel.Constrained):
+                raise OutputError(f"edge {i}-{j} has a {type(model).__name__} noise model: a g2o "
+                                  "edge holds a Gaussian information matrix only")
+            if not all(math.isfinite(v) for v in (z.x(), z.y(), z.theta())):
+                raise OutputError(f"edge {i}-{j}: the measurement is not finite")
+            info = model.information()
+            problem = information_problem(info)
+            if problem is not None:
+                raise OutputError(f"edge {i}-{j}: {problem} (the reader would refuse it)")
             upper = (info[0, 0], info[0, 1], info[0, 2], info[1, 1], info[1, 2], info[2, 2])
             lines.append(
                 f"EDGE_SE2 {i} {j} {z.x()!r} {z.y()!r} {_format_15(z.theta())} "
@@ -381,9 +393,11 @@ def g2o_text_lines(
             raise OutputError(f"cannot write a {type(factor).__name__} as a planar g2o line")
         else:
             factor_lines.append(None)
-    if fixed:
-        lines.append("FIX " + " ".join(str(key) for key in fixed))
-        for index in priors:
+    # FIX lines of at most _FIX_PER_LINE ids: one line for every FIXed id would outgrow the
+    # reader's line limit (15 001 ids made 78 899 bytes)
+    for start in range(0, len(fixed), _FIX_PER_LINE):
+        lines.append("FIX " + " ".join(str(key) for key in fixed[start:start + _FIX_PER_LINE]))
+        for index in priors[start:start + _FIX_PER_LINE]:
             factor_lines[index] = len(lines)
     return "\n".join(lines) + "\n", factor_lines
 

@@ -35,6 +35,7 @@ import numpy as np
 from rlpgo_gtsam.errors import RlpgoError, SolverError, one_line
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, rotation_weights
 from rlpgo_gtsam.linear import solve_pairwise
+from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.rotations import angle_residuals, chordal_edge_costs, rotation_matrices
 from rlpgo_gtsam.translations import poses_with_orientations
 
@@ -112,6 +113,7 @@ class Initializer:
         """The guess for ``graph`` (``values`` gives the anchor pose and any start)."""
         return self.run(PoseGraph2D.from_gtsam(graph, values)).values
 
+    @numeric_call
     def run(self, pose_graph: PoseGraph2D, start: InitResult | None = None) -> InitResult:
         """The guess with its chi2 and seconds; ``start``: the start method's result, if any.
 
@@ -235,6 +237,10 @@ class ShonanInitializer(OrientationInitializer):
     name = "shonan"
 
     def __init__(self, starts: int = 2, seed: int = 0, max_p: int = 10) -> None:
+        if not 1 <= starts <= 1000:
+            raise SolverError(f"shonan: starts must lie in 1 .. 1000, got {starts}")
+        if not 2 <= max_p <= 100:
+            raise SolverError(f"shonan: max_p must lie in 2 .. 100, got {max_p}")
         self.starts = starts
         self.seed = seed
         self.max_p = max_p

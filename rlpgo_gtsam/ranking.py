@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from typing import Any
 
 import gtsam
+import numpy as np
 
-from rlpgo_gtsam.errors import RlpgoError
+from rlpgo_gtsam.errors import RlpgoError, one_line
 from rlpgo_gtsam.graph import PoseGraph2D
 from rlpgo_gtsam.initializers import InitResult, make_initializer
 from rlpgo_gtsam.solvers import refine
 
-__all__ = ["MethodResult", "compare_methods", "best_of"]
+__all__ = ["MethodResult", "compare_methods", "best_of", "tied_best", "run_method", "TIE_RELATIVE"]
 
 
 @dataclass
@@ -90,6 +92,11 @@ def run_method(
     except RlpgoError as error:
         row.failure = str(error)
         return row
+    except (RuntimeError, ArithmeticError, ValueError, np.linalg.LinAlgError) as error:
+        # a numerical failure inside GTSAM, scipy or numpy on extreme (finite) input: this
+        # method failed, the others may not
+        row.failure = f"{type(error).__name__}: {one_line(error)}"
+        return row
     if solver is None:
         row.iters, row.refined_chi2, row.refine_seconds = 0, row.init.chi2, 0.0
         row.refined = row.init.values
@@ -145,9 +152,20 @@ TIE_RELATIVE = 1e-6
 def best_of(results: list[MethodResult]) -> MethodResult:
     """The row with the lowest refined chi2 among those that did not fail; rows within a
     relative 1e-6 of the lowest are a tie, won by the earliest (the cheaper method)."""
-    usable = [r for r in results if r.failure is None and r.refined_chi2 is not None]
+    usable = [r for r in results if r.failure is None and r.refined_chi2 is not None
+              and math.isfinite(r.refined_chi2)]
     if not usable:
         raise RlpgoError("every method failed: " + "; ".join(
-            f"{r.method}: {r.failure}" for r in results))
-    lowest = min(r.refined_chi2 for r in usable)
-    return next(r for r in usable if r.refined_chi2 <= lowest + TIE_RELATIVE * abs(lowest))
+            f"{r.method}: {r.failure or f'chi2 {r.refined_chi2}'}" for r in results))
+    return tied_best(usable)[0]
+
+
+def tied_best(results: list[MethodResult]) -> list[MethodResult]:
+    """The rows tied for the lowest finite refined chi2 (within a relative
+    :data:`TIE_RELATIVE`), in their order; empty if no row has one."""
+    finite = [r for r in results if r.failure is None and r.refined_chi2 is not None
+              and math.isfinite(r.refined_chi2)]
+    if not finite:
+        return []
+    lowest = min(r.refined_chi2 for r in finite)
+    return [r for r in finite if r.refined_chi2 <= lowest + TIE_RELATIVE * abs(lowest)]

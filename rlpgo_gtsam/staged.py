@@ -26,6 +26,7 @@ import gtsam
 from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import PoseGraph2D
 from rlpgo_gtsam.initializers import InitResult
+from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.ranking import MethodResult, best_of, run_method
 from rlpgo_gtsam.residuals import outlier_suspicion
 
@@ -69,6 +70,7 @@ class StagedResult:
         return self.best.refined
 
 
+@numeric_call
 def staged_initialize(
     graph: gtsam.NonlinearFactorGraph,
     values: gtsam.Values,

@@ -40,7 +40,7 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import RlpgoError
-from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.graph import MAX_CONDITION, PoseGraph2D
 
 __all__ = ["SyntheticGraph", "generate", "add_outliers", "OUTLIER_MODES", "ROW_LENGTH"]
 
@@ -124,6 +124,10 @@ def generate(
         raise RlpgoError(f"a graph needs at least 2 poses, got n={n}")
     if sigma_r <= 0 or sigma_t <= 0 or d <= 0:
         raise RlpgoError("sigma_r, sigma_t and d must be positive")
+    if max(sigma_r, sigma_t) ** 2 > MAX_CONDITION * min(sigma_r, sigma_t) ** 2:
+        raise RlpgoError(f"sigma_t = {sigma_t:g} m and sigma_r = {sigma_r:g} rad give an "
+                         f"information matrix with a condition number above {MAX_CONDITION:g}, "
+                         "which no method can use; bring them closer")
     if not 0.0 <= lc <= 1.0:
         raise RlpgoError(f"lc must lie in [0, 1], got {lc}")
     _check_outliers(outliers, outlier_mode)

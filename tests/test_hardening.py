@@ -311,7 +311,14 @@ def test_a_new_training_run_replaces_all_earlier_outputs_together(tmp_path):
 def test_generate_within_its_bounds_writes_a_file_its_reader_takes(tmp_path):
     output = tmp_path / "out.g2o"
     result = CliRunner().invoke(generate_main, ["--n", "12", "--d", "1000000", "--sigma-t",
-                                                "1000000", "--sigma-r", "3.2", "-o",
+                                                "10000", "--sigma-r", "3.2", "-o",
                                                 str(output)])
     assert result.exit_code == 0, result.output
     assert read_g2o(output)[1].size() == 12
+    # noise so unbalanced that no method could use the information: refused, nothing written
+    refused = tmp_path / "refused.g2o"
+    result = CliRunner().invoke(generate_main, ["--n", "12", "--sigma-t", "1000000",
+                                                "--sigma-r", "3.2", "-o", str(refused)])
+    assert result.exit_code == 1
+    assert "condition number above 1e+09" in result.stderr
+    assert not refused.exists()

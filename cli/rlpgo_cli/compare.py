@@ -8,14 +8,14 @@ import click
 import numpy as np
 
 from rlpgo_cli.errors import RlpgoCommand
-from rlpgo_cli.output import RunFiles
+from rlpgo_cli.output import RunFiles, json_text
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, OutputFile
 from rlpgo_gtsam.errors import OutputError, RlpgoError
 from rlpgo_gtsam.files import check_name
 from rlpgo_gtsam.g2o import read_g2o
-from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.graph import PoseGraph2D, chi2
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
-from rlpgo_gtsam.ranking import MethodResult, best_of, compare_methods
+from rlpgo_gtsam.ranking import TIE_RELATIVE, MethodResult, compare_methods, tied_best
 from rlpgo_gtsam.rl.models import DEFAULT_MODEL, model_path
 from rlpgo_gtsam.solvers import SOLVERS
 from rlpgo_gtsam.synthetic import generate
@@ -39,20 +39,24 @@ def _certificate(row: MethodResult) -> str:
 
 
 def _table(results: list[MethodResult]) -> str:
-    """One row per method; ``*`` marks the lowest refined chi2 (ties: the earlier row)."""
-    usable = [r for r in results if r.failure is None and r.refined_chi2 is not None]
-    best = best_of(usable) if usable else None
+    """One row per method; ``*`` marks the lowest refined chi2, ``=`` each row of a tie for
+    it (within a relative :data:`~rlpgo_gtsam.ranking.TIE_RELATIVE`)."""
+    best = tied_best(results)
+    marker = "=" if len(best) > 1 else "*"
     header = (f"  {'method':<14}{'init chi2':>14}{'init s':>9}{'refined chi2':>15}"
               f"{'refine s':>10}{'iters':>7}  certified (bound)")
     lines = [header, "-" * len(header)]
     for r in results:
-        mark = "*" if r is best else " "
+        mark = marker if any(r is b for b in best) else " "
         lines.append(
             f"{mark} {r.method:<14}{_format(r.init_chi2, '.6g'):>14}"
             f"{_format(r.init_seconds, '.3f'):>9}{_format(r.refined_chi2, '.6g'):>15}"
             f"{_format(r.refine_seconds, '.3f'):>10}{_format(r.iters, 'd'):>7}  "
             f"{_certificate(r)}" + (f"  FAILED: {r.failure}" if r.failure else "")
         )
+    if len(best) > 1:
+        lines.append(f"= {len(best)} methods tie for the lowest refined chi2 (within a relative "
+                     f"{TIE_RELATIVE:g})")
     return "\n".join(lines)
 
 
@@ -119,11 +123,14 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episod
     inputs = [(path.name, *read_g2o(path)) for path in files]  # all validated before any run
     if not inputs:
         demo = generate(rng=np.random.default_rng(seed), **DEMO)
-        inputs = [(f"generated n={DEMO['n']} seed={seed}", demo.graph, demo.initial)]
+        settings = " ".join(f"{key}={value}" for key, value in DEMO.items())
+        inputs = [(f"generated lawn mower ({settings} seed={seed}; rlpgo-generate's model)",
+                   demo.graph, demo.initial)]
     if plot_dir is not None:
         plot_dir.mkdir(parents=True, exist_ok=True)
     options = {"rl": {"model": model, "episodes": episodes, "cycles": cycles}}
     records, failed = [], False
+    pngs: list[tuple[Path, bytes]] = []
     for index, (name, graph, values) in enumerate(inputs):
         pose_graph = PoseGraph2D.from_gtsam(graph, values)
         results = compare_methods(graph, values, method_list, solver, iters, dataset=name,
@@ -134,15 +141,23 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episod
         records.extend(r.record() for r in results)
         failed = failed or any(r.failure for r in results)
         if plots:
-            from rlpgo_gtsam.plotting import plot_trajectories
+            from rlpgo_gtsam.plotting import Panel, plot_trajectories
 
-            panels = [("initial guess", values)] + [
-                (f"{r.method}+{solver.upper()}{iters}: {r.refined_chi2:.4g}", r.refined)
+            best = tied_best(results)
+            panels = [Panel("initial guess", values, chi2(graph, values))] + [
+                Panel(f"{r.method} + {solver.upper()}{iters}", r.refined, r.refined_chi2,
+                      r in best)
                 for r in results if r.refined is not None
             ]
-            run.write_bytes(plots[index], plot_trajectories(pose_graph, panels, title=name))
+            pngs.append((plots[index], plot_trajectories(
+                pose_graph, panels, title=f"{name}: each method's guess refined by "
+                f"{solver.upper()}{iters}")))
+    # the records and the plots together: every file or none
+    outputs = [(path, data) for path, data in pngs]
     if json_path is not None:
-        run.write_json(json_path, records)
+        outputs.append((json_path, json_text(records).encode()))
+    if outputs:
+        run.write_together(outputs)
     if failed:
         raise RlpgoError("at least one method failed (see FAILED above)")
 

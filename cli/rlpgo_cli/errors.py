@@ -42,9 +42,14 @@ class RlpgoCommand(click.Command):
             raise click.exceptions.Exit(INTERRUPTED_EXIT) from None
 
     def invoke(self, ctx: click.Context):
+        import numpy as np  # not at import: --help stays fast
+
         previous = signal.signal(signal.SIGTERM, _on_sigterm)
         try:
-            return super().invoke(ctx)
+            # overflow on extreme input is checked where it matters; numpy's warnings would
+            # print source lines (tracebacks under -W error)
+            with np.errstate(all="ignore"):
+                return super().invoke(ctx)
         except RlpgoError as error:
             raise click.ClickException(one_line(str(error))) from None
         except OSError as error:

@@ -57,7 +57,7 @@ def main(n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_tr
     if outliers_out is not None:
         listed = edge_list_text(sample.graph, sample.outlier_edges, lines, g2o_name=output.name,
                                 title="wrong loop closures that rlpgo-generate added")
-        files.append((outliers_out, listed.encode()))
+        files.append((outliers_out, listed.encode("utf-8", "surrogateescape")))
     run.write_together(files)  # every file or none
     click.echo(f"{output}: {n} poses, {sample.graph.size()} edges, initial chi2 "
                f"{chi2(sample.graph, sample.initial):.6g}, ground-truth chi2 "

@@ -119,7 +119,8 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
     if outliers_out is not None:
         listed = edge_list_text(graph, result.rejected, lines, g2o_name=input_path.name,
                                 title="edges that rlpgo-init --robust judged wrong")
-        files.append((outliers_out, listed.encode()))
+        # a file name that is not UTF-8 comes back as the bytes it was
+        files.append((outliers_out, listed.encode("utf-8", "surrogateescape")))
     run.write_together(files)  # the guess and its list, or neither
     seconds = time.perf_counter() - began
     judged = pose_graph.num_edges - len(result.trusted)

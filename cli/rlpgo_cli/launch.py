@@ -4,6 +4,8 @@ importing (GTSAM, numpy and torch take a while): one line and exit code 130."""
 from __future__ import annotations
 
 import importlib
+import os
+import signal
 import sys
 
 INTERRUPTED_EXIT = 130  # here, not in rlpgo_cli.errors: this module must import nothing heavy
@@ -19,9 +21,27 @@ def _interrupted(error: BaseException) -> bool:
     return False
 
 
+def _exit_during_start_up(_signum, _frame) -> None:
+    """Ctrl-C or SIGTERM while the command still imports: nothing to clean up yet."""
+    os.write(2, b"Error: interrupted\n")
+    os._exit(INTERRUPTED_EXIT)
+
+
 def _run(module: str) -> None:
+    # Until the command's module is imported, a signal ends the process with one line (an
+    # exception raised inside an extension module's import can surface as a traceback).
+    previous = {number: signal.signal(number, _exit_during_start_up)
+                for number in (signal.SIGINT, signal.SIGTERM)}
+    # A terminal whose encoding cannot show a file name (latin-1, or bytes that are not
+    # UTF-8) gets escapes, not a crash after the work is done.
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
     try:
-        importlib.import_module(f"rlpgo_cli.{module}").main()
+        command = importlib.import_module(f"rlpgo_cli.{module}")
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        command.main()
     except (KeyboardInterrupt, ImportError) as error:
         if not _interrupted(error):
             raise

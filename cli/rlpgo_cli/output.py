@@ -5,6 +5,7 @@ atomically by the library."""
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections.abc import Iterable
 from pathlib import Path
@@ -14,6 +15,34 @@ import gtsam
 from rlpgo_gtsam.errors import OutputError
 from rlpgo_gtsam.files import check_output, write_bytes, write_text, write_together
 from rlpgo_gtsam.g2o import write_g2o
+
+
+def _same_place(a: Path, b: Path) -> bool:
+    """True if two output paths name one file: the same file where both exist, else the
+    same path once symbolic links (``d/up/out.g2o`` through a linked folder) are resolved."""
+    try:
+        if os.path.samefile(a, b):
+            return True
+    except OSError:
+        pass
+    return os.path.realpath(a) == os.path.realpath(b)
+
+
+def json_ready(data: object) -> object:
+    """``data`` with every non-finite float (NaN, +-inf) replaced by None: strict JSON has
+    no such numbers, and parsers other than Python's refuse ``NaN`` and ``Infinity``."""
+    if isinstance(data, float):
+        return data if math.isfinite(data) else None
+    if isinstance(data, dict):
+        return {key: json_ready(value) for key, value in data.items()}
+    if isinstance(data, list | tuple):
+        return [json_ready(value) for value in data]
+    return data
+
+
+def json_text(data: object) -> str:
+    """Strict JSON text of ``data`` (see :func:`json_ready`), indented, ending in a newline."""
+    return json.dumps(json_ready(data), indent=2, allow_nan=False) + "\n"
 
 
 class RunFiles:
@@ -45,7 +74,7 @@ class RunFiles:
             check_output(path)  # first: a name the system cannot hold fails here, clearly
             if self.is_input(path):
                 raise OutputError(f"{path}: is an input of this run; refusing to overwrite it")
-            if any(os.path.abspath(path) == os.path.abspath(other) for other in seen):
+            if any(_same_place(path, other) for other in seen):
                 raise OutputError(f"{path}: given as two different outputs")
             seen.append(path)
 
@@ -56,7 +85,7 @@ class RunFiles:
 
     def write_json(self, path: Path, data: object) -> None:
         self.check(path)
-        write_text(path, json.dumps(data, indent=2) + "\n")
+        write_text(path, json_text(data))
 
     def write_bytes(self, path: Path, data: bytes) -> None:
         self.check(path)

@@ -56,6 +56,7 @@ import numpy as np
 from rlpgo_gtsam.errors import GraphError, SolverError, one_line
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, edge_chi2, odometry_edges
 from rlpgo_gtsam.initializers import make_initializer
+from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.robust.consistency import consistent_closures
 from rlpgo_gtsam.robust.gnc import robust_positions
 from rlpgo_gtsam.solvers import refine, solver_params
@@ -111,6 +112,7 @@ class RobustResult:
         return {"rejected": self.rejected, "chi2": self.chi2, "seconds": self.seconds,
                 "steps": self.steps, "trusted": len(self.trusted)}
 
+@numeric_call
 def robust_initialize(
     graph: gtsam.NonlinearFactorGraph,
     values: gtsam.Values,
