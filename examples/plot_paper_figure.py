@@ -3,10 +3,13 @@
     python examples/plot_paper_figure.py [OUT.png]
 
 A 300-pose graph of the paper's sigma_t sweep (sigma_R 0.3, sigma_t 0.05, d 3, exact
-measurements), the shipped preset-2 agent from odometry, then GTSAM Gauss-Newton.
+measurements), the shipped preset-2 agent from odometry, then GTSAM Gauss-Newton. The PNG
+goes to OUT.png, by default to a new temporary folder.
 """
 
 import sys
+import tempfile
+from pathlib import Path
 
 import matplotlib
 
@@ -16,7 +19,10 @@ import numpy as np  # noqa: E402
 
 from rlpgo_gtsam import RLInitializer, chi2, generate, refine  # noqa: E402
 
-out = sys.argv[1] if len(sys.argv) > 1 else "paper_figure.png"
+if len(sys.argv) > 1:
+    out = sys.argv[1]
+else:
+    out = str(Path(tempfile.mkdtemp(prefix="rlpgo_")) / "paper_figure.png")
 sample = generate(300, 0.3, 0.05, 3.0, 0.5, np.random.default_rng(3))
 graph = sample.graph
 rl = RLInitializer(model="preset2", episodes=4).initialize(graph, sample.initial)
