@@ -49,52 +49,118 @@ weight; the relative 1e-7 sits well above the eigen-solver's round-off at that s
 ``n eta`` below ``1e-7 tr(Q)``). ``certified`` means ``lambda_min >= -eta`` and the rounded
 estimate attains the bound: ``suboptimality_bound <= n eta + 1e-6 |f(rounded)|``.
 
+How it ended. Like SE-Sync's ``status``, every certificate says why the staircase stopped
+(:class:`Status`): certified; the relaxation solved but not exact (``not_tight``); an
+eigenvalue computation that did not converge; a saddle the staircase could not descend from;
+the rank, iteration or time limit; or, for :func:`certify`, an estimate that is not the
+relaxation's optimum. :meth:`Certificate.describe` says it in one line.
+
 Poses other than the anchor that a hard prior holds are not held by the relaxation; the
 translation step that follows it holds them.
 """
 
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
+from enum import Enum
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator, eigsh, splu
+from scipy.sparse.linalg import (
+    ArpackError,
+    ArpackNoConvergence,
+    LinearOperator,
+    SuperLU,
+    eigsh,
+    splu,
+)
 
 from rlpgo_gtsam.errors import GraphError, SolverError
 from rlpgo_gtsam.graph import PoseGraph2D, rotation_weights
 from rlpgo_gtsam.rotations import wrap
 
-__all__ = ["Certificate", "synchronize", "certify", "relaxation_cost"]
+__all__ = ["Certificate", "Status", "synchronize", "certify", "relaxation_cost"]
 
 _RELATIVE_TOLERANCE = 1e-7  # eta / mean(diag Q)
 _GAP_TOLERANCE = 1e-6  # relative gap between f(rounded) and tr(Lambda) still called exact
 _DENSE_BELOW = 300  # graphs with fewer poses get dense eigenvalue computations
+_ARPACK_OPTIONS = {"maxiter": 2000}  # ARPACK's settings besides k, which, v0 and tol
+_ESCAPE_HALVINGS = 30  # step halvings an escape from a saddle tries before it gives up
+
+
+class Status(str, Enum):
+    """Why the staircase stopped (SE-Sync's GLOBAL_OPT, EIG_IMPRECISION, SADDLE_POINT,
+    RS_ITER_LIMIT, ELAPSED_TIME), as the string it compares equal to and is recorded as."""
+
+    CERTIFIED = "certified"
+    """``lambda_min(S) >= -eta`` and the rounded estimate attains the lower bound."""
+    NOT_TIGHT = "not_tight"
+    """The relaxation is solved at its rank (``lambda_min(S) >= -eta``) but the rounded
+    estimate does not attain its bound: the relaxation is not exact on this graph."""
+    EIGENVALUE_IMPRECISE = "eigenvalue_imprecise"
+    """ARPACK did not converge on the final rank's ``lambda_min(S)`` and ``S`` is not known
+    to be positive semidefinite: ``min_eigenvalue`` is the proven floor ``-max(Lambda)`` (as
+    ``Q >= 0``), not the eigenvalue, so ``lower_bound`` stays a bound."""
+    SADDLE_ESCAPE_FAILED = "saddle_escape_failed"
+    """The escape into the final rank found no descent along the eigenvector in
+    ``_ESCAPE_HALVINGS`` halvings, and the final rank is not certified either."""
+    RANK_LIMIT = "rank_limit"
+    """``max_rank`` was reached with ``S`` not positive semidefinite."""
+    ITERATION_LIMIT = "iteration_limit"
+    """The trust region at the final rank used ``max_iterations`` without meeting its
+    gradient tolerance, and ``S`` is not positive semidefinite there."""
+    TIME_LIMIT = "time_limit"
+    """``time_limit_s`` passed: the best ``Y`` so far was rounded. Stopped inside a trust
+    region, nothing was verified: ``min_eigenvalue``, ``lower_bound`` and
+    ``suboptimality_bound`` are NaN."""
+    NOT_OPTIMAL = "not_optimal"
+    """:func:`certify` only: ``S`` has an eigenvalue below ``-eta`` at the estimate given,
+    which is not the relaxation's optimum (no optimization was run)."""
+
+    def __str__(self) -> str:
+        return self.value
+
+
+# The human reason per status, after "NOT certified: " (certified has its own words).
+_REASONS = {
+    Status.NOT_TIGHT: "the relaxation is solved but not exact (the rounded estimate misses "
+                      "the lower bound)",
+    Status.EIGENVALUE_IMPRECISE: "the minimum-eigenvalue computation did not converge",
+    Status.SADDLE_ESCAPE_FAILED: "saddle escape failed",
+    Status.RANK_LIMIT: "rank limit reached with a negative eigenvalue",
+    Status.ITERATION_LIMIT: "trust-region iteration limit reached",
+    Status.TIME_LIMIT: "time limit reached",
+    Status.NOT_OPTIMAL: "the estimate is not the relaxation's optimum (negative eigenvalue)",
+}
 
 
 @dataclass(frozen=True)
 class Certificate:
     """What the relaxation proves about an orientation estimate (costs in the relaxation's
     own units, see the module docstring: about chi2 plus its rotational part near a good
-    estimate).
+    estimate), and how the computation ended.
 
     Attributes:
-        certified: the relaxation is exact and the rounded estimate is its global optimum
-            (``min_eigenvalue >= -tolerance`` and the estimate attains the lower bound).
+        status: why the staircase stopped (:class:`Status`); ``certified`` is
+            ``status == "certified"``.
         lower_bound: dual lower bound on the relaxation's optimum,
             ``tr(Lambda) + n min(min_eigenvalue, 0)``.
         estimate_cost: relaxation cost ``f(z)`` of the (rounded) estimate, translations
             eliminated.
         suboptimality_bound: ``estimate_cost - lower_bound`` (>= 0): how far, at most, the
             estimate is from the rotation problem's global optimum in this cost.
-        min_eigenvalue: ``lambda_min(S)``, ``S = Q - Lambda``, at the final rank.
+        min_eigenvalue: ``lambda_min(S)``, ``S = Q - Lambda``, at the final rank; where
+            ARPACK did not converge, a proven floor under it (``-tolerance`` when the LU's
+            pivots proved ``S + eta I > 0``, else ``-max(Lambda)``); NaN when ``time_limit``
+            stopped a trust region before any verification.
         tolerance: eta: the relaxation counts as solved iff ``min_eigenvalue >= -tolerance``.
         rank: the staircase's final (complex) rank; 1 for :func:`certify`.
         seconds: wall time of the call.
     """
 
-    certified: bool
+    status: Status
     lower_bound: float
     estimate_cost: float
     suboptimality_bound: float
@@ -103,10 +169,36 @@ class Certificate:
     rank: int
     seconds: float
 
+    @property
+    def certified(self) -> bool:
+        """The relaxation is exact and the rounded estimate is its global optimum
+        (``min_eigenvalue >= -tolerance`` and the estimate attains the lower bound)."""
+        return self.status == Status.CERTIFIED
+
     def record(self) -> dict:
-        """The fields as a JSON-ready dict (plain bools, floats and ints)."""
-        return {key: (value if isinstance(value, bool | int) else float(value))
-                for key, value in asdict(self).items()}
+        """The fields as a JSON-ready dict: ``status`` (a plain string), ``certified`` and
+        the numbers (NaN, where nothing was verified, as None)."""
+        record: dict = {"status": Status(self.status).value, "certified": self.certified}
+        for item in fields(self)[1:]:
+            value = getattr(self, item.name)
+            record[item.name] = value if isinstance(value, int) else \
+                (float(value) if math.isfinite(value) else None)
+        return record
+
+    def describe(self) -> str:
+        """One line: the verdict (the reason when not certified), the numbers, the time."""
+        if self.certified:
+            verdict, rank = "certified optimal", f"rank {self.rank}, "
+        else:
+            reason = _REASONS[Status(self.status)]
+            verdict, rank = f"NOT certified: {reason} at rank {self.rank}", ""
+        if math.isnan(self.min_eigenvalue):
+            bounds = "not verified"
+        else:
+            bounds = (f"lower bound {self.lower_bound:.6g}, suboptimality bound "
+                      f"{self.suboptimality_bound:.3g}; lambda_min {self.min_eigenvalue:.3g}")
+        return (f"{verdict} (relaxation cost {self.estimate_cost:.6g}, {bounds}, tolerance "
+                f"{self.tolerance:.3g}, {rank}{self.seconds:.2f} s)")
 
 
 def synchronize(
@@ -118,6 +210,7 @@ def synchronize(
     initial_rank: int = 1,
     max_iterations: int = 300,
     gradient_tolerance: float = 1e-9,
+    time_limit_s: float | None = None,
 ) -> tuple[np.ndarray, Certificate]:
     """Orientations (n,) of the rounded estimate (anchor keeps its angle), and its certificate.
 
@@ -131,6 +224,14 @@ def synchronize(
         max_iterations: trust-region iterations per rank.
         gradient_tolerance: stop a rank when the Riemannian gradient norm falls below this
             times ``sqrt(n) x mean(diag Q)``.
+        time_limit_s: checked between trust-region iterations and between ranks: once the
+            call has run this long it rounds the current ``Y`` and returns it with status
+            ``time_limit``. None: no limit.
+
+    The certificate's ``status`` says how the staircase ended (:class:`Status`). Where the
+    final rank is not certified, more than one reason may hold; the first of these is told:
+    ``eigenvalue_imprecise``, ``saddle_escape_failed`` (the escape into the final rank),
+    ``iteration_limit`` (at the final rank), ``rank_limit``.
 
     Raises:
         SolverError: bad ranks or tolerance, a ``start_theta`` of the wrong shape, or a
@@ -141,6 +242,9 @@ def synchronize(
     if not 1 <= initial_rank <= max_rank:
         raise SolverError(f"ranks must satisfy 1 <= initial_rank <= max_rank, got "
                           f"initial_rank={initial_rank}, max_rank={max_rank}")
+    if time_limit_s is not None and not time_limit_s >= 0:
+        raise SolverError(f"time_limit_s must be a number >= 0 or None, got {time_limit_s}")
+    deadline = None if time_limit_s is None else started + time_limit_s
     problem = _Problem(pose_graph)
     eta = problem.tolerance(tolerance)
     if start_theta is None:
@@ -150,17 +254,29 @@ def synchronize(
     y = np.zeros((problem.n, initial_rank), complex)
     y[:, 0] = z
     grad_tol = gradient_tolerance * np.sqrt(problem.n) * problem.scale
+    escaped = True  # whether the escape into the current rank descended
     while True:
-        y = _trust_region(problem, y, max_iterations, grad_tol)
-        check = _verify(problem, y, eta)
-        if check.certified or y.shape[1] >= max_rank:
+        y, ended = _trust_region(problem, y, max_iterations, grad_tol, deadline)
+        if ended is Status.TIME_LIMIT:
+            check, stop = _unverified(problem, y), Status.TIME_LIMIT
             break
-        y = _escape(problem, y, check.vector, grad_tol)
+        check = _verify(problem, y, eta)
+        if check.imprecise and check.vector is None and not check.certified:
+            stop = Status.EIGENVALUE_IMPRECISE  # no direction to escape along
+            break
+        if check.certified or y.shape[1] >= max_rank:
+            stop = (Status.EIGENVALUE_IMPRECISE if check.imprecise else
+                    Status.SADDLE_ESCAPE_FAILED if not escaped else ended or Status.RANK_LIMIT)
+            break
+        if deadline is not None and time.perf_counter() > deadline:
+            stop = Status.TIME_LIMIT
+            break
+        y, escaped = _escape(problem, y, check.vector)
     z = _round(y)
     z *= np.exp(1j * pose_graph.poses[pose_graph.anchor, 2]) / z[pose_graph.anchor]
     theta = wrap(np.angle(z))
     estimate = problem.cost(z[:, None])
-    certificate = _certificate(problem, check, estimate, eta, y.shape[1], started)
+    certificate = _certificate(problem, check, estimate, eta, y.shape[1], started, stop)
     return theta, certificate
 
 
@@ -177,7 +293,8 @@ def certify(pose_graph: PoseGraph2D, theta: np.ndarray, *,
     eta = problem.tolerance(tolerance)
     y = np.exp(1j * _angles(theta, problem.n))[:, None]
     check = _verify(problem, y, eta)
-    return _certificate(problem, check, problem.cost(y), eta, 1, started)
+    stop = Status.EIGENVALUE_IMPRECISE if check.imprecise else Status.NOT_OPTIMAL
+    return _certificate(problem, check, problem.cost(y), eta, 1, started, stop)
 
 
 def relaxation_cost(pose_graph: PoseGraph2D, theta: np.ndarray) -> float:
@@ -283,9 +400,10 @@ class _Problem:
         size = np.abs(z)
         return np.where(size > 1e-12, z / np.maximum(size, 1e-300), 1.0)
 
-    def factor(self, shift: np.ndarray) -> splu:
+    def factor(self, shift: np.ndarray) -> tuple[SuperLU, int]:
         """Pivot-free sparse LU of [[L, -B], [-B^H, D + diag(shift)]]: its Schur complement
-        is Q + diag(shift), solved by :meth:`solve_shifted`."""
+        is Q + diag(shift), solved by :meth:`solve_shifted`; returns (the LU, n - 1: the
+        rows of the translation block before the rotation block)."""
         m = self.n - 1
         block = sp.bmat([[self.lap, -self.b], [-self.bh, self.d + sp.diags(shift)]],
                         format="csc")
@@ -293,7 +411,7 @@ class _Problem:
                     options={"SymmetricMode": True}), m
 
     @staticmethod
-    def solve_shifted(factor: tuple, v: np.ndarray) -> np.ndarray:
+    def solve_shifted(factor: tuple[SuperLU, int], v: np.ndarray) -> np.ndarray:
         lu, m = factor
         rhs = np.vstack([np.zeros((m, v.shape[1]), complex), v])
         return lu.solve(rhs)[m:]
@@ -326,10 +444,14 @@ def _inner(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.real(np.vdot(a, b)))
 
 
-def _trust_region(problem: _Problem, y: np.ndarray, max_iterations: int,
-                  grad_tol: float) -> np.ndarray:
+def _trust_region(problem: _Problem, y: np.ndarray, max_iterations: int, grad_tol: float,
+                  deadline: float | None = None) -> tuple[np.ndarray, Status | None]:
     """A local minimum of f(Y) = tr(Y^H Q Y) over unit-row Y: Riemannian trust region with
-    truncated CG (Steihaug-Toint), preconditioned by (Q + delta I)^-1."""
+    truncated CG (Steihaug-Toint), preconditioned by (Q + delta I)^-1.
+
+    Returns Y and how it ended: None (gradient tolerance met, or no progress left above
+    round-off), ``ITERATION_LIMIT`` (``max_iterations`` used) or ``TIME_LIMIT``
+    (``time.perf_counter()`` passed ``deadline`` before an iteration)."""
     precon = None
     qy = problem.apply(y)
     f = _inner(y, qy)
@@ -338,7 +460,9 @@ def _trust_region(problem: _Problem, y: np.ndarray, max_iterations: int,
         lam = np.real(np.sum(np.conj(y) * qy, axis=1))
         grad = 2.0 * (qy - lam[:, None] * y)
         if np.linalg.norm(grad) <= grad_tol:
-            break
+            return y, None
+        if deadline is not None and time.perf_counter() > deadline:
+            return y, Status.TIME_LIMIT
         if precon is None:
             precon = problem.factor(np.full(problem.n, _PRECONDITIONER_SHIFT * problem.scale))
 
@@ -358,14 +482,14 @@ def _trust_region(problem: _Problem, y: np.ndarray, max_iterations: int,
         actual = f - f_new
         rho = actual / model_decrease if model_decrease > 0 else -1.0
         if model_decrease <= 1e-15 * abs(f) and actual <= 1e-15 * abs(f):
-            break  # no progress left above round-off
+            return y, None  # no progress left above round-off
         if rho < 0.25:
             radius *= 0.25
         elif rho > 0.75 and on_boundary:
             radius *= 2.0
         if rho > 0.1 or (actual > 0 and model_decrease <= 1e-12 * abs(f)):
             y, qy, f = y_new, qy_new, f_new
-    return y
+    return y, Status.ITERATION_LIMIT
 
 
 def _truncated_cg(grad, hess, pre, radius, theta=1.0, kappa=0.1, max_inner=200):
@@ -407,9 +531,15 @@ def _truncated_cg(grad, hess, pre, radius, theta=1.0, kappa=0.1, max_inner=200):
 @dataclass(frozen=True)
 class _Check:
     certified: bool  # lambda_min(S) >= -eta
-    min_eigenvalue: float
+    min_eigenvalue: float  # a proven floor under it where imprecise, NaN where not verified
     trace: float  # tr(Lambda) = f(Y)
     vector: np.ndarray | None  # eigenvector of lambda_min(S) where known
+    imprecise: bool = False  # ARPACK did not converge on the eigenvalue(s) asked for
+
+
+def _unverified(problem: _Problem, y: np.ndarray) -> _Check:
+    """No verification (the time limit passed): lambda_min unknown, so no lower bound."""
+    return _Check(False, math.nan, problem.cost(y), None)
 
 
 def _verify(problem: _Problem, y: np.ndarray, eta: float) -> _Check:
@@ -421,18 +551,25 @@ def _verify(problem: _Problem, y: np.ndarray, eta: float) -> _Check:
         s = problem.apply(np.eye(n, dtype=complex)) - np.diag(lam)
         values, vectors = np.linalg.eigh(0.5 * (s + s.conj().T))
         return _Check(bool(values[0] >= -eta), float(values[0]), trace, vectors[:, 0])
+    floor = -max(float(lam.max()), 0.0)  # lambda_min(S) >= -max Lambda as Q >= 0
     # S + eta I > 0  iff  the sparse matrix with Schur complement S + eta I has positive pivots
     negatives = _negative_pivots(problem, -lam + eta)
     if negatives == 0:
         value, vector = _nearest_above(problem, lam, -eta, y[:, 0])
+        if vector is None:  # the pivots proved lambda_min > -eta: that is the floor kept
+            return _Check(True, -eta, trace, None, imprecise=True)
         return _Check(True, value, trace, vector)
     if negatives is not None and negatives <= 6:
-        values, vectors = _below(problem, lam, -eta, negatives)
+        values, vectors, converged = _below(problem, lam, -eta, negatives)
+        if len(values) == 0:
+            return _Check(False, floor, trace, None, imprecise=True)
         k = int(np.argmin(values))
-        return _Check(False, float(values[k]), trace, vectors[:, k])
-    # many negative eigenvalues: shift below them all (lambda_min(S) >= -max Lambda as Q >= 0)
-    floor = -(max(float(lam.max()), 0.0) + eta + 1e-3 * problem.scale)
-    value, vector = _nearest_above(problem, lam, floor, None)
+        return _Check(False, float(values[k]) if converged else floor, trace, vectors[:, k],
+                      imprecise=not converged)
+    # many negative eigenvalues: shift below them all
+    value, vector = _nearest_above(problem, lam, floor - eta - 1e-3 * problem.scale, None)
+    if vector is None:
+        return _Check(False, floor, trace, None, imprecise=True)
     return _Check(bool(value >= -eta), value, trace, vector)
 
 
@@ -456,44 +593,49 @@ def _shifted_inverse(problem: _Problem, lam: np.ndarray, sigma: float) -> Linear
                           matvec=lambda v: _Problem.solve_shifted(factor, v.reshape(n, 1))[:, 0])
 
 
-def _nearest_above(problem, lam, sigma, start) -> tuple[float, np.ndarray]:
-    """The smallest eigenvalue of S when all lie above sigma: the largest of (S - sigma)^-1."""
-    values, vectors = _eigsh(_shifted_inverse(problem, lam, sigma), k=1, which="LA",
-                             v0=start, tol=1e-10)
+def _nearest_above(problem, lam, sigma, start) -> tuple[float, np.ndarray | None]:
+    """The smallest eigenvalue of S when all lie above sigma: the largest of (S - sigma)^-1;
+    (NaN, None) when ARPACK did not converge."""
+    values, vectors, converged = _eigsh(_shifted_inverse(problem, lam, sigma), k=1,
+                                        which="LA", v0=start, tol=1e-10)
+    if not converged:
+        return math.nan, None
     return float(sigma + 1.0 / np.real(values[0])), vectors[:, 0]
 
 
-def _below(problem, lam, sigma, count) -> tuple[np.ndarray, np.ndarray]:
-    """The ``count`` eigenvalues of S below sigma: the most negative of (S - sigma)^-1."""
-    values, vectors = _eigsh(_shifted_inverse(problem, lam, sigma), k=count, which="SA",
-                             tol=1e-8)
-    return sigma + 1.0 / np.real(values), vectors
+def _below(problem, lam, sigma, count) -> tuple[np.ndarray, np.ndarray, bool]:
+    """The ``count`` eigenvalues of S below sigma: the most negative of (S - sigma)^-1; and
+    whether ARPACK converged on all of them (if not, those it did converge on)."""
+    values, vectors, converged = _eigsh(_shifted_inverse(problem, lam, sigma), k=count,
+                                        which="SA", tol=1e-8)
+    return sigma + 1.0 / np.real(values), vectors, converged
 
 
-def _eigsh(op: LinearOperator, **options) -> tuple[np.ndarray, np.ndarray]:
-    """ARPACK's eigenpairs of ``op``; a partial result is kept, a failure is a SolverError."""
+def _eigsh(op: LinearOperator, **options) -> tuple[np.ndarray, np.ndarray, bool]:
+    """ARPACK's eigenpairs of ``op`` and whether all converged: a partial result (maybe
+    empty) comes back with False; a failure is a SolverError."""
     try:
-        return eigsh(op, maxiter=2000, **options)
+        values, vectors = eigsh(op, **_ARPACK_OPTIONS, **options)
     except ArpackNoConvergence as error:
-        if len(error.eigenvalues) == 0:
-            raise SolverError("the minimum-eigenvalue computation did not converge") from None
-        return error.eigenvalues, error.eigenvectors
+        return np.asarray(error.eigenvalues), np.asarray(error.eigenvectors), False
     except ArpackError as error:
         raise SolverError(f"the minimum-eigenvalue computation failed: {error}") from None
+    return values, vectors, True
 
 
-def _escape(problem: _Problem, y: np.ndarray, vector: np.ndarray, grad_tol: float) -> np.ndarray:
+def _escape(problem: _Problem, y: np.ndarray, vector: np.ndarray) -> tuple[np.ndarray, bool]:
     """Y at rank r + 1, lower than Y, along the eigenvector of lambda_min(S) in the new column
-    (a second-order descent direction from the saddle [Y, 0])."""
+    (a second-order descent direction from the saddle [Y, 0]); and whether it descended (if
+    not, after ``_ESCAPE_HALVINGS`` halvings, the last, shortest trial is returned)."""
     f0 = problem.cost(y)
     v = vector / np.max(np.abs(vector))
     alpha = 1.0
-    for _ in range(30):
+    for _ in range(_ESCAPE_HALVINGS):
         y_new = _retract(np.hstack([y, alpha * v[:, None]]))
         if problem.cost(y_new) < f0:
-            return y_new
+            return y_new, True
         alpha *= 0.5
-    return _retract(np.hstack([y, alpha * v[:, None]]))
+    return _retract(np.hstack([y, alpha * v[:, None]])), False
 
 
 def _round(y: np.ndarray) -> np.ndarray:
@@ -504,13 +646,19 @@ def _round(y: np.ndarray) -> np.ndarray:
 
 
 def _certificate(problem: _Problem, check: _Check, estimate: float, eta: float, rank: int,
-                 started: float) -> Certificate:
+                 started: float, stop: Status) -> Certificate:
+    """The certificate of the rounded estimate; ``stop``: the status when ``S`` is not
+    known to be positive semidefinite (NaN numbers where nothing was verified)."""
     n = problem.n
-    lower = check.trace + n * min(check.min_eigenvalue, 0.0)
+    lower = check.trace + n * min(check.min_eigenvalue, 0.0)  # NaN stays NaN
     gap = max(estimate - lower, 0.0)
-    certified = check.certified and gap <= n * eta + _GAP_TOLERANCE * abs(estimate)
+    if check.certified:
+        exact = gap <= n * eta + _GAP_TOLERANCE * abs(estimate)
+        status = Status.CERTIFIED if exact else Status.NOT_TIGHT
+    else:
+        status = stop
     return Certificate(
-        certified=bool(certified),
+        status=status,
         lower_bound=float(lower),
         estimate_cost=float(estimate),
         suboptimality_bound=float(gap),

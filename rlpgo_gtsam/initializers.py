@@ -288,7 +288,8 @@ class CertifiedInitializer(Initializer):
     the :class:`~rlpgo_gtsam.certified.Certificate`: whether the relaxation was exact (the
     rounded estimate is then the global optimum of the relaxation's cost), its dual lower
     bound and the estimate's suboptimality bound, all in the relaxation's cost, which is
-    not GTSAM's (see :mod:`rlpgo_gtsam.certified`).
+    not GTSAM's (see :mod:`rlpgo_gtsam.certified`), and its ``status``: how the staircase
+    ended. The certificate is the result's ``certificate`` (``details`` stays empty).
 
     Args:
         max_rank: highest rank of the Riemannian staircase.
@@ -305,8 +306,7 @@ class CertifiedInitializer(Initializer):
         start_theta = chordal_orientations(pose_graph) if start_poses is None else \
             start_poses[:, 2]
         theta, certificate = synchronize(pose_graph, start_theta, max_rank=self.max_rank)
-        return Estimate(poses_with_orientations(pose_graph, theta), certificate.record(),
-                        certificate)
+        return Estimate(poses_with_orientations(pose_graph, theta), certificate=certificate)
 
 
 class FastSyncInitializer(Initializer):

@@ -53,8 +53,8 @@ class MethodResult:
 
     def record(self) -> dict[str, Any]:
         """The JSON record: dataset, poses, edges, method, init_chi2, init_seconds, solver,
-        iters, refined_chi2, refine_seconds, failure, and the method's details (with its
-        certificate where it has one)."""
+        iters, refined_chi2, refine_seconds, failure, the method's details where it has any,
+        and its certificate's record (status included) where it has one."""
         record = {
             "dataset": self.dataset, "poses": self.poses, "edges": self.edges,
             "method": self.method, "init_chi2": self.init_chi2,

@@ -138,6 +138,9 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episod
         click.echo(f"\n{name}: {pose_graph.num_poses} poses, {pose_graph.num_edges} edges, "
                    f"{solver.upper()}{iters}")
         click.echo(_table(results))
+        for r in results:
+            if r.init is not None and r.init.certificate is not None:
+                click.echo(f"  certificate ({r.method}): {r.init.certificate.describe()}")
         records.extend(r.record() for r in results)
         failed = failed or any(r.failure for r in results)
         if plots:

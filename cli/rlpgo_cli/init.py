@@ -59,15 +59,6 @@ def _method_list(method: str, start: str) -> list[str]:
     return [name]
 
 
-def describe(certificate) -> str:
-    """One line on a certificate, in the relaxation's cost."""
-    verdict = "certified optimal" if certificate.certified else "NOT certified"
-    return (f"{verdict} (relaxation cost {certificate.estimate_cost:.6g}, lower bound "
-            f"{certificate.lower_bound:.6g}, suboptimality bound "
-            f"{certificate.suboptimality_bound:.3g}; lambda_min {certificate.min_eigenvalue:.3g}, "
-            f"tolerance {certificate.tolerance:.3g}, rank {certificate.rank})")
-
-
 def _check_robust_options(ctx: click.Context, robust: bool, method: str, refine: str,
                           outliers_out: Path | None) -> None:
     """Usage errors for options that do not go with --robust, or need it."""
@@ -137,7 +128,7 @@ def _print_stage(row: MethodResult, reason: str) -> None:
     click.echo(f"stage {row.method}: guess chi2 {guess}, result chi2 {result}, {seconds:.2f} s"
                f" ({reason})" + (f"  FAILED: {row.failure}" if row.failure else ""))
     if row.init is not None and row.init.certificate is not None:
-        click.echo(f"  certificate: {describe(row.init.certificate)}")
+        click.echo(f"  certificate: {row.init.certificate.describe()}")
 
 
 @click.command(cls=RlpgoCommand)
@@ -227,7 +218,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
                                   pose_graph=pose_graph)
         chosen = best_of(results)
         if len(results) == 1 and chosen.init.certificate is not None:
-            click.echo(f"certificate: {describe(chosen.init.certificate)}")
+            click.echo(f"certificate: {chosen.init.certificate.describe()}")
     run.write_g2o(output, graph, chosen.refined)
     seconds = time.perf_counter() - began
     if len(results) > 1 and method != "auto":

@@ -1,0 +1,179 @@
+"""How the certified relaxation ends: every status of its certificate reached on a generated
+graph (by the graph itself or by a forced limit), said in one line; the sparse verification
+agrees with the dense one; the chordal estimate is the rank-1 optimum of an exact graph."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from rlpgo_cli.compare import main as compare_main
+from rlpgo_cli.init import main as init_main
+
+import rlpgo_gtsam.certified as certified
+from rlpgo_gtsam import PoseGraph2D, generate, write_g2o
+from rlpgo_gtsam.certified import Status, certify, synchronize
+from rlpgo_gtsam.initializers import chordal_orientations
+from rlpgo_gtsam.rotations import wrap
+
+
+def _graph(n, sigma_r, seed, noisy=True) -> PoseGraph2D:
+    sample = generate(n, sigma_r, 0.05, 3.0, 0.5, np.random.default_rng(seed),
+                      noisy_measurements=noisy)
+    return PoseGraph2D.from_gtsam(sample.graph, sample.initial)
+
+
+@pytest.fixture(scope="module")
+def heavy_sample():
+    """100 poses, sigma_R 0.5, noisy measurements: rank 1 is a saddle, rank 2 solves the
+    relaxation, which is not exact."""
+    return generate(100, 0.5, 0.05, 3.0, 0.5, np.random.default_rng(1), noisy_measurements=True)
+
+
+@pytest.fixture(scope="module")
+def heavy(heavy_sample) -> PoseGraph2D:
+    return PoseGraph2D.from_gtsam(heavy_sample.graph, heavy_sample.initial)
+
+
+def _ended(certificate, status: Status) -> None:
+    """The certificate has ``status``, its ``certified`` agrees, and its line names it."""
+    assert certificate.status == status and certificate.status is status
+    assert certificate.certified is (status == "certified")
+    record = certificate.record()
+    assert record["status"] == status.value and type(record["status"]) is str
+    assert record["certified"] is certificate.certified
+    line = certificate.describe()
+    assert "\n" not in line and f"rank {certificate.rank}" in line
+    assert line.startswith("certified optimal" if certificate.certified else "NOT certified: ")
+    assert line.endswith(f"{certificate.seconds:.2f} s)")
+
+
+def test_an_exact_graph_ends_certified():
+    theta, certificate = synchronize(_graph(100, 0.3, 21, noisy=False))
+    _ended(certificate, Status.CERTIFIED)
+    assert certificate.rank == 1 and certificate.suboptimality_bound < 1e-6
+
+
+def test_a_solved_relaxation_that_is_not_exact_ends_not_tight(heavy):
+    _, certificate = synchronize(heavy)
+    _ended(certificate, Status.NOT_TIGHT)
+    assert certificate.min_eigenvalue >= -certificate.tolerance  # the relaxation is solved ...
+    assert certificate.suboptimality_bound > 1.0  # ... but the rounded estimate misses it
+    assert "not exact" in certificate.describe()
+
+
+def test_max_rank_one_on_a_hard_graph_ends_at_the_rank_limit(heavy):
+    _, certificate = synchronize(heavy, max_rank=1)
+    _ended(certificate, Status.RANK_LIMIT)
+    assert certificate.rank == 1 and certificate.min_eigenvalue < -certificate.tolerance
+    assert "rank limit" in certificate.describe()
+
+
+def test_too_few_trust_region_iterations_end_at_the_iteration_limit(heavy):
+    _, certificate = synchronize(heavy, max_iterations=1, max_rank=3)
+    _ended(certificate, Status.ITERATION_LIMIT)
+    assert certificate.rank == 3 and "iteration limit" in certificate.describe()
+
+
+def test_a_spent_time_limit_rounds_what_it_has_and_verifies_nothing(heavy):
+    theta, certificate = synchronize(heavy, time_limit_s=0.0)
+    _ended(certificate, Status.TIME_LIMIT)
+    assert theta.shape == (heavy.num_poses,) and np.all(np.isfinite(theta))
+    assert certificate.rank == 1 and certificate.seconds < 1.0
+    assert math.isnan(certificate.min_eigenvalue) and math.isnan(certificate.lower_bound)
+    assert certificate.record()["lower_bound"] is None  # strict JSON: no NaN
+    assert math.isfinite(certificate.estimate_cost)
+    assert "time limit" in certificate.describe() and "not verified" in certificate.describe()
+    # A limit the call does not reach changes nothing.
+    assert np.array_equal(synchronize(heavy, max_rank=1, time_limit_s=600.0)[0],
+                          synchronize(heavy, max_rank=1)[0])
+
+
+def test_a_failed_saddle_escape_is_reported(monkeypatch):
+    # This graph needs rank 3; with no step halvings the escape to rank 2 cannot descend.
+    graph = _graph(30, 2.0, 2)
+    monkeypatch.setattr(certified, "_ESCAPE_HALVINGS", 0)
+    _, certificate = synchronize(graph, max_rank=2)
+    _ended(certificate, Status.SADDLE_ESCAPE_FAILED)
+    assert "saddle escape failed at rank 2" in certificate.describe()
+
+
+def test_an_unconverged_eigenvalue_is_reported_and_its_bound_stays_a_bound(monkeypatch, heavy):
+    _, exact = synchronize(heavy, max_rank=1)  # the dense verification's lambda_min
+    monkeypatch.setattr(certified, "_DENSE_BELOW", 0)
+    monkeypatch.setattr(certified, "_ARPACK_OPTIONS", {"maxiter": 1, "ncv": 5})
+    _, certificate = synchronize(heavy, max_rank=1)
+    _ended(certificate, Status.EIGENVALUE_IMPRECISE)
+    assert certificate.estimate_cost == exact.estimate_cost  # the same Y, verified otherwise
+    assert certificate.min_eigenvalue <= exact.min_eigenvalue  # a floor, not the value
+    assert certificate.lower_bound <= exact.lower_bound
+    assert "did not converge" in certificate.describe()
+
+
+def test_certify_refuses_a_non_optimal_estimate(heavy):
+    certificate = certify(heavy, heavy.poses[:, 2])  # the odometry guess
+    _ended(certificate, Status.NOT_OPTIMAL)
+    assert "not the relaxation's optimum" in certificate.describe()
+
+
+@pytest.mark.parametrize("sigma_r, seed, point", [(0.4, 1, "optimum"), (0.5, 2, "saddle"),
+                                                   (0.4, 1, "odometry")])
+def test_sparse_and_dense_verification_agree(monkeypatch, sigma_r, seed, point):
+    graph = _graph(200, sigma_r, seed)
+    problem = certified._Problem(graph)
+    eta = problem.tolerance(None)
+    if point == "odometry":  # many negative eigenvalues
+        y = np.exp(1j * graph.poses[:, 2])[:, None]
+    else:  # a critical point at rank 1: the optimum, or a saddle with a few negative ones
+        y, _ = certified._trust_region(problem, problem.chordal()[:, None], 300,
+                                       1e-9 * np.sqrt(problem.n) * problem.scale)
+    assert problem.n < certified._DENSE_BELOW
+    dense = certified._verify(problem, y, eta)
+    monkeypatch.setattr(certified, "_DENSE_BELOW", 0)
+    sparse = certified._verify(problem, y, eta)
+    assert dense.certified is sparse.certified is (point == "optimum")
+    assert not sparse.imprecise and sparse.trace == dense.trace
+    # At an optimum lambda_min is 0 up to round-off: compared on the problem's scale.
+    scale = problem.scale if point == "optimum" else abs(dense.min_eigenvalue)
+    assert abs(sparse.min_eigenvalue - dense.min_eigenvalue) <= 1e-6 * scale
+
+
+def test_the_chordal_estimate_is_the_rank_one_optimum_of_an_exact_graph():
+    sample = generate(150, 0.3, 0.05, 3.0, 0.5, np.random.default_rng(5))
+    graph = PoseGraph2D.from_gtsam(sample.graph, sample.initial)
+    truth = PoseGraph2D.from_gtsam(sample.graph, sample.ground_truth).poses[:, 2]
+
+    def gauge_free(theta):
+        return wrap(theta - theta[graph.anchor])
+
+    def error(a, b):
+        return np.abs(wrap(gauge_free(a) - gauge_free(b))).max()
+
+    chordal = chordal_orientations(graph)
+    theta, certificate = synchronize(graph, max_rank=1)  # the staircase held at rank 1
+    assert certificate.certified and certificate.rank == 1
+    assert error(chordal, truth) < 1e-8 and error(theta, truth) < 1e-8
+    assert error(theta, chordal) < 1e-8
+    # From the odometry guess the trust region reaches the same optimum, as closely as the
+    # round-off of the cost (about 1e-9 absolute here) resolves it.
+    from_odometry, certificate = synchronize(graph, graph.poses[:, 2], max_rank=1)
+    assert certificate.certified and error(from_odometry, truth) < 1e-6
+
+
+def test_both_commands_print_the_status_and_json_records_the_certificate_once(tmp_path,
+                                                                              heavy_sample):
+    path, json_path = tmp_path / "in.g2o", tmp_path / "rows.json"
+    write_g2o(path, heavy_sample.graph, heavy_sample.initial)
+    line = "NOT certified: the relaxation is solved but not exact"
+    result = CliRunner().invoke(compare_main, [str(path), "--methods", "chordal,certified",
+                                               "--iters", "5", "--json", str(json_path)])
+    assert result.exit_code == 0, result.output
+    assert f"  certificate (certified): {line}" in result.stdout
+    assert "certificate (chordal)" not in result.stdout
+    record = {r["method"]: r for r in json.loads(json_path.read_text())}["certified"]
+    assert record["certificate"]["status"] == "not_tight" and "details" not in record
+    result = CliRunner().invoke(init_main, [str(path), "-o", str(tmp_path / "out.g2o"),
+                                            "--method", "certified", "--refine", "none"])
+    assert result.exit_code == 0, result.output
+    assert f"certificate: {line}" in result.stdout
