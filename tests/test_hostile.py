@@ -1,0 +1,306 @@
+"""Hostile input, one test per class of case: each gives a one-line error or a correct result,
+and loses nothing (no temporary file left, no output half written, no input replaced)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from rlpgo_cli.compare import main as compare_main
+from rlpgo_cli.generate import main as generate_main
+from rlpgo_cli.init import main as init_main
+
+from rlpgo_gtsam import (
+    G2oFormatError,
+    GraphError,
+    OutputError,
+    PoseGraph2D,
+    SolverError,
+    make_initializer,
+    read_g2o,
+    write_g2o,
+)
+from rlpgo_gtsam.g2o import MAX_LINE_BYTES
+
+CHAIN = "".join(f"VERTEX_SE2 {k} {k}.0 0 0\n" for k in range(4))
+
+
+def _chain_file(tmp_path: Path, information: str = "1 0 0 1 0 1", name: str = "g.g2o") -> Path:
+    edges = "".join(f"EDGE_SE2 {k} {k + 1} 1 0 0.1 {information}\n" for k in range(3))
+    path = tmp_path / name
+    path.write_text(CHAIN + edges + "EDGE_SE2 3 0 -3 0 -0.3 1 0 0 1 0 1\n")
+    return path
+
+
+def _command(name: str, *args: str, **run) -> subprocess.CompletedProcess:
+    executable = Path(sys.executable).with_name(name)
+    return subprocess.run([str(executable), *args], capture_output=True, timeout=120, **run)
+
+
+def _no_temporary_files(folder: Path) -> bool:
+    return not list(folder.glob(".rlpgo-*.tmp"))
+
+
+# 1. a signal during an output's write leaves no temporary file
+
+def test_sigterm_while_writing_leaves_no_temporary_file(tmp_path):
+    executable = Path(sys.executable).with_name("rlpgo-generate")
+    process = subprocess.Popen(
+        [str(executable), "--n", "40000", "-o", str(tmp_path / "g.g2o"), "--ground-truth",
+         str(tmp_path / "gt.g2o")], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    while _no_temporary_files(tmp_path) and process.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.002)
+    process.send_signal(signal.SIGTERM)  # while a temporary output is being written
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert stderr.decode() == "Error: interrupted\n"
+    assert _no_temporary_files(tmp_path)
+    assert not (tmp_path / "g.g2o").exists() and not (tmp_path / "gt.g2o").exists()
+
+
+# 2. finite but extreme input: a one-line error or a result, never a traceback
+
+@pytest.mark.parametrize("text", [
+    # a square of side 1e200 m: the relaxation's factorization is singular in floating point
+    "".join(f"VERTEX_SE2 {k} 0 0 0\n" for k in range(4)) + "".join(
+        f"EDGE_SE2 {k} {(k + 1) % 4} 1e200 0 1.5707963267948966 1 0 0 1 0 1\n" for k in range(4)),
+    # poses at the ends of the float range
+    "VERTEX_SE2 0 1e308 -1e308 0\nVERTEX_SE2 1 -1e308 1e308 1\nVERTEX_SE2 2 1e308 1e308 2\n"
+    "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n"
+    "EDGE_SE2 2 0 1 0 0 1 0 0 1 0 1\n",
+], ids=["square_1e200", "poses_1e308"])
+@pytest.mark.parametrize("refine", ["lm", "none"])
+def test_extreme_coordinates_give_one_line(tmp_path, text, refine):
+    path = tmp_path / "x.g2o"
+    path.write_text(text)
+    done = _command("rlpgo-init", str(path), "-o", str(tmp_path / "out.g2o"), "--refine", refine,
+                    "--budget", "5", env={**os.environ, "PYTHONWARNINGS": "error"})
+    stderr = done.stderr.decode()
+    assert "Traceback" not in stderr and "Warning" not in stderr
+    if done.returncode:
+        assert stderr.startswith("Error: ") and stderr.count("\n") == 1
+        assert not (tmp_path / "out.g2o").exists()
+
+
+def test_compare_plot_and_json_on_a_non_finite_chi2(tmp_path):
+    path = tmp_path / "far.g2o"
+    path.write_text("VERTEX_SE2 0 1e308 -1e308 0\nVERTEX_SE2 1 -1e308 1e308 1\n"
+                    "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    result = CliRunner().invoke(compare_main, [str(path), "--methods", "odometry,chordal",
+                                               "--plot", str(tmp_path / "plots"),
+                                               "--json", str(tmp_path / "out.json")])
+    assert result.exit_code == 1 and result.exception is None or isinstance(
+        result.exception, SystemExit)
+    assert "Traceback" not in result.output
+    text = (tmp_path / "out.json").read_text()
+    records = json.loads(text, parse_constant=lambda name: pytest.fail(f"{name} in JSON"))
+    assert [r["method"] for r in records] == ["odometry", "chordal"]
+    assert (tmp_path / "plots" / "far.png").stat().st_size > 1000
+
+
+# 3. two outputs that are one file through a symlinked folder
+
+def test_two_outputs_through_a_symlinked_folder_are_refused(tmp_path):
+    source = _chain_file(tmp_path)
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "up").symlink_to(tmp_path)
+    same = str(tmp_path / "d" / "up" / "out.g2o")
+    result = CliRunner().invoke(init_main, [str(source), "-o", str(tmp_path / "out.g2o"),
+                                            "--robust", "--outliers-out", same])
+    assert result.exit_code == 1
+    assert result.stderr.endswith("given as two different outputs\n")
+    result = CliRunner().invoke(generate_main, ["--n", "20", "-o", str(tmp_path / "out.g2o"),
+                                                "--ground-truth", same])
+    assert result.exit_code == 1 and "given as two different outputs" in result.stderr
+    assert not (tmp_path / "out.g2o").exists()
+
+
+# 4. a written file reads back: many FIXed poses
+
+def test_many_fixed_poses_write_lines_the_reader_takes(tmp_path):
+    n = 2500
+    values, graph = gtsam.Values(), gtsam.NonlinearFactorGraph()
+    for k in range(n):
+        values.insert(10**12 + k, gtsam.Pose2(float(k), 0.0, 0.0))
+    for k in range(n - 1):
+        graph.add(gtsam.BetweenFactorPose2(10**12 + k, 10**12 + k + 1, gtsam.Pose2(1, 0, 0),
+                                           gtsam.noiseModel.Unit.Create(3)))
+    for k in range(n):
+        graph.add(gtsam.PriorFactorPose2(10**12 + k, values.atPose2(10**12 + k),
+                                         gtsam.noiseModel.Constrained.All(3)))
+    path = tmp_path / "fixed.g2o"
+    write_g2o(path, graph, values)
+    lines = path.read_text().splitlines()
+    assert max(len(line) for line in lines) < MAX_LINE_BYTES
+    assert sum(line.startswith("FIX ") for line in lines) == 3
+    graph2, values2 = read_g2o(path)
+    assert graph2.size() == graph.size() and values2.size() == n
+
+
+# 5. information that no method can use is refused where it is read
+
+@pytest.mark.parametrize(("information", "reason"), [
+    ("1e300 0 0 1e-300 0 1", "outside the usable"),
+    ("1e-300 0 0 1e-300 0 1e-300", "outside the usable"),
+    ("1e300 0 0 1e300 0 1e300", "outside the usable"),
+    ("1e6 0 0 1e-6 0 1", "too ill-conditioned"),
+    ("1e-320 0 0 1 0 1", "outside the usable"),
+])
+def test_unusable_information_is_refused_with_its_line(tmp_path, information, reason):
+    path = _chain_file(tmp_path, information)
+    with pytest.raises(G2oFormatError, match=rf"g\.g2o:5: EDGE_SE2 information matrix .*{reason}"):
+        read_g2o(path)
+
+
+@pytest.mark.parametrize("method", ["chordal", "lago", "shonan", "certified", "robust"])
+def test_a_zero_precision_axis_is_a_graph_error_for_every_method(method):
+    values, graph = gtsam.Values(), gtsam.NonlinearFactorGraph()
+    for k in range(3):
+        values.insert(k, gtsam.Pose2(float(k), 0.0, 0.0))
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        precisions = np.array([0.0, 1.0, 1.0] if (i, j) == (1, 2) else [1.0, 1.0, 1.0])
+        graph.add(gtsam.BetweenFactorPose2(i, j, gtsam.Pose2(1, 0, 0),
+                                           gtsam.noiseModel.Diagonal.Precisions(precisions)))
+    with pytest.raises(GraphError, match="^between factor 1-2: information matrix is not "
+                                         "positive definite"):
+        if method == "robust":
+            from rlpgo_gtsam import robust_initialize
+
+            robust_initialize(graph, values)
+        else:
+            make_initializer(method).initialize(graph, values)
+
+
+# 6. a same-named path in the working directory is never taken for a shipped model
+
+def test_a_folder_named_like_the_shipped_model_does_not_break_the_default(tmp_path):
+    source = _chain_file(tmp_path)
+    (tmp_path / "preset4").mkdir()
+    (tmp_path / "preset1").write_text("not a model")
+    done = _command("rlpgo-init", str(source), "-o", "out.g2o", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "out.g2o").exists()
+
+
+# 7. an output folder that cannot be written is found before the work
+
+def test_an_unwritable_output_folder_is_refused_before_any_work(tmp_path):
+    source = _chain_file(tmp_path)
+    result = CliRunner().invoke(init_main, [str(source), "-o", "/sys/kernel/out.g2o"])
+    assert result.exit_code == 1
+    assert result.stderr.startswith("Error: /sys/kernel/out.g2o: cannot write in /sys/kernel")
+    assert "stage" not in result.stdout  # nothing ran
+
+
+# 8. names that are not UTF-8, terminals that cannot show them
+
+def test_a_non_utf8_input_name_and_a_latin1_terminal(tmp_path):
+    name = os.fsdecode(b"graph\xff.g2o")
+    source = _chain_file(tmp_path, name=name)
+    listed = tmp_path / "rejected.txt"
+    done = _command("rlpgo-init", str(source), "-o", str(tmp_path / "out.g2o"), "--robust",
+                    "--outliers-out", str(listed),
+                    env={**os.environ, "PYTHONIOENCODING": "latin-1"})
+    assert done.returncode == 0, done.stderr
+    assert b"wrote" in done.stdout
+    assert listed.read_bytes().startswith(b"# edges that rlpgo-init --robust judged wrong")
+    assert b"graph\xff.g2o" in listed.read_bytes().splitlines()[0]
+
+
+# 9. signals while the command is still starting
+
+@pytest.mark.parametrize(("number", "delay_s"), [(signal.SIGTERM, 0.05), (signal.SIGTERM, 0.3),
+                                                 (signal.SIGINT, 0.05), (signal.SIGINT, 0.3)])
+def test_a_signal_during_start_up_is_one_line(tmp_path, number, delay_s):
+    executable = Path(sys.executable).with_name("rlpgo-init")
+    process = subprocess.Popen([str(executable), str(_chain_file(tmp_path)), "-o",
+                                str(tmp_path / "out.g2o")], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE)
+    time.sleep(delay_s)
+    process.send_signal(number)
+    _, stderr = process.communicate(timeout=60)
+    if process.returncode == 0:  # finished before the signal came
+        return
+    assert process.returncode in (130, -number), stderr
+    assert b"Traceback" not in stderr
+    if process.returncode == 130:
+        assert stderr == b"Error: interrupted\n"
+
+
+# 11. --json is strict JSON
+
+def test_json_records_are_strict_json(tmp_path):
+    path = tmp_path / "far.g2o"
+    path.write_text("VERTEX_SE2 0 1e308 -1e308 0\nVERTEX_SE2 1 -1e308 1e308 1\n"
+                    "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n")
+    CliRunner().invoke(compare_main, [str(path), "--methods", "odometry", "--json",
+                                      str(tmp_path / "out.json")])
+    text = (tmp_path / "out.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    assert json.loads(text)[0]["init_chi2"] is None
+
+
+# 12. line endings
+
+def test_classic_mac_line_endings_are_named(tmp_path):
+    path = tmp_path / "cr.g2o"
+    path.write_bytes(b"VERTEX_SE2 0 0 0 0\rVERTEX_SE2 1 1 0 0\rEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\r")
+    with pytest.raises(G2oFormatError, match=r"cr\.g2o:1: .*classic Mac line endings"):
+        read_g2o(path)
+
+
+# 13. the library: typed errors for what a g2o file cannot hold, bounded options
+
+def _pair():
+    values, graph = gtsam.Values(), gtsam.NonlinearFactorGraph()
+    values.insert(0, gtsam.Pose2(0, 0, 0))
+    values.insert(1, gtsam.Pose2(1, 0, 0))
+    graph.add(gtsam.BetweenFactorPose2(0, 1, gtsam.Pose2(1, 0, 0), gtsam.noiseModel.Unit.Create(3)))
+    return graph, values
+
+
+@pytest.mark.parametrize("case", ["pose3", "point2", "robust", "nan", "self_loop"])
+def test_write_g2o_refuses_what_would_not_read_back(tmp_path, case):
+    graph, values = _pair()
+    if case == "pose3":
+        values.insert(2, gtsam.Pose3())
+    elif case == "point2":
+        values.insert(2, gtsam.Point2(1.0, 2.0))
+    elif case == "robust":
+        robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.0),
+                                                gtsam.noiseModel.Unit.Create(3))
+        graph.add(gtsam.BetweenFactorPose2(1, 0, gtsam.Pose2(-1, 0, 0), robust))
+    elif case == "nan":
+        values.update(1, gtsam.Pose2(float("nan"), 0, 0))
+    else:
+        graph.add(gtsam.BetweenFactorPose2(1, 1, gtsam.Pose2(0, 0, 0),
+                                           gtsam.noiseModel.Unit.Create(3)))
+    with pytest.raises(OutputError):
+        write_g2o(tmp_path / "out.g2o", graph, values)
+    assert not (tmp_path / "out.g2o").exists()
+
+
+def test_missing_input_is_file_not_found(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nothing.g2o: no such file"):
+        read_g2o(tmp_path / "nothing.g2o")
+    result = CliRunner().invoke(init_main, [str(tmp_path / "nothing.g2o"), "-o",
+                                            str(tmp_path / "o.g2o")])
+    assert result.exit_code == 1 and result.stderr.endswith("nothing.g2o: no such file\n")
+
+
+def test_shonan_options_are_bounded():
+    with pytest.raises(SolverError, match="starts must lie in 1 .. 1000, got 0"):
+        make_initializer("shonan", starts=0)
+    graph, values = _pair()
+    assert PoseGraph2D.from_gtsam(graph, values).num_edges == 1
