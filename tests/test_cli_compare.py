@@ -14,7 +14,7 @@ def test_compare_runs_out_of_the_box(tmp_path):
     json_path = tmp_path / "out.json"
     result = CliRunner().invoke(
         main, ["--solver", "lm", "--iters", "30", "--methods", "odometry,chordal",
-               "--json", str(json_path), "--plot", str(tmp_path / "plots")]
+               "--json", str(json_path), "--plot", str(tmp_path / "new" / "plots")]
     )
     assert result.exit_code == 0, result.output
     assert "generated n=300" in result.output
@@ -22,8 +22,9 @@ def test_compare_runs_out_of_the_box(tmp_path):
     assert [r["method"] for r in records] == ["odometry", "chordal"]
     assert all(set(r) == RECORD_KEYS for r in records)
     assert all(r["refined_chi2"] <= r["init_chi2"] for r in records)
-    pngs = list((tmp_path / "plots").glob("*.png"))
+    pngs = list((tmp_path / "new" / "plots").glob("*.png"))  # the folders made
     assert len(pngs) == 1 and pngs[0].stat().st_size > 10_000
+    assert pngs[0].read_bytes()[:4] == b"\x89PNG"
 
 
 def test_compare_on_files_reports_each(tmp_path, small_noisy):
