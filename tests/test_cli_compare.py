@@ -4,7 +4,7 @@ from click.testing import CliRunner
 from rlpgo_cli.compare import main
 
 from rlpgo_gtsam import write_g2o
-from tests.conftest import dataset
+from tests.conftest import cli_error, dataset
 
 RECORD_KEYS = {"dataset", "poses", "edges", "method", "init_chi2", "init_seconds", "solver",
                "iters", "refined_chi2", "refine_seconds", "failure"}
@@ -47,8 +47,7 @@ def test_compare_on_files_reports_each(tmp_path, small_noisy):
 
 def test_unknown_method_is_a_usage_error():
     result = CliRunner().invoke(main, ["--methods", "odometry,magic"])
-    assert result.exit_code == 2
-    assert "unknown method 'magic'" in result.output
+    cli_error(result, "unknown method 'magic'", code=2)
 
 
 def test_a_failing_method_is_reported_and_the_others_still_run(tmp_path):
