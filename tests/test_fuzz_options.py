@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from rlpgo_cli.compare import main as compare_main
 from rlpgo_cli.evaluate import main as eval_main
@@ -105,6 +105,7 @@ ENV_FIELDS = ["n", "sigma_r", "sigma_t", "d", "lc", "cycles", "action_range_rad"
 @settings(SETTINGS, max_examples=200)
 @given(top=st.dictionaries(st.sampled_from(TOP_FIELDS), JSON_VALUES, max_size=3),
        env=st.dictionaries(st.sampled_from(ENV_FIELDS), JSON_VALUES, max_size=3))
+@example(top={"env": 3}, env={})
 def test_model_config_fields(tmp_path_factory, top, env):
     def edit(config):
         config["env"] = {**config["env"], **env}

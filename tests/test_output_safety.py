@@ -179,6 +179,13 @@ def test_write_together_writes_every_file_or_none(tmp_path):
     assert _snapshot(tmp_path) == {"a.txt": OLD}  # a.txt was staged, then dropped
 
 
+def test_write_together_writes_a_device_after_the_files(tmp_path, guard_dev):
+    device = _dev_full(tmp_path)
+    with pytest.raises(OutputError, match="^/dev/full: cannot write: No space left on device$"):
+        write_together([(device, b"x"), (tmp_path / "a.txt", b"new\n")])
+    assert _snapshot(tmp_path) == {"a.txt": b"new\n"}  # a device cannot be staged
+
+
 # --------------------------------------------------------------------------- successful writes
 
 
