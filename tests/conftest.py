@@ -69,15 +69,52 @@ def cli_ok(result: Result) -> None:
     assert result.stderr == ""
 
 
-def _between_rows(graph: gtsam.NonlinearFactorGraph) -> list:
+def cli_error(result: Result, message: str | None = None, code: int = 1) -> str:
+    """A command run that failed cleanly: exit ``code``, no traceback, and for a run error
+    (1) exactly one line ``Error: <message>`` on stderr and nothing on stdout; for a usage
+    error (2) click's usage lines and ``message`` somewhere on stderr. Returns the message
+    of a run error."""
+    # CliRunner swallows an uncaught exception: it would be a traceback in a real run.
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(
+        result.exception)
+    assert "Traceback" not in result.output
+    assert result.exit_code == code, (result.exit_code, result.output)
+    if code == 2:
+        assert message is None or message in result.stderr, result.stderr
+        return ""
+    assert result.stdout == ""
+    assert result.stderr.startswith("Error: ") and result.stderr.count("\n") == 1, result.stderr
+    if message is not None:
+        assert result.stderr == f"Error: {message}\n"
+    return result.stderr[len("Error: "):-1]
+
+
+def factor_rows(graph: gtsam.NonlinearFactorGraph) -> list:
+    """Each factor as ``(kind, keys, measured (x, y, theta) or None, information or None)``,
+    kind "between" or "prior": what a g2o file says about the graph."""
     rows = []
     for index in range(graph.size()):
         factor = graph.at(index)
         if isinstance(factor, gtsam.BetweenFactorPose2):
             z = factor.measured()
-            rows.append((tuple(factor.keys()), (z.x(), z.y(), z.theta()),
+            rows.append(("between", tuple(factor.keys()), (z.x(), z.y(), z.theta()),
                          factor.noiseModel().information()))
+        else:
+            assert isinstance(factor, gtsam.PriorFactorPose2), type(factor)
+            rows.append(("prior", tuple(factor.keys()), None, None))
     return rows
+
+
+def assert_same_factors(graph: gtsam.NonlinearFactorGraph, graph2: gtsam.NonlinearFactorGraph,
+                        kinds: tuple[str, ...] = ("between", "prior")) -> None:
+    """The same factors of ``kinds`` in the same order: keys and measurements exact,
+    information to 1e-12 relative."""
+    rows = [row for row in factor_rows(graph) if row[0] in kinds]
+    rows2 = [row for row in factor_rows(graph2) if row[0] in kinds]
+    assert [row[:3] for row in rows2] == [row[:3] for row in rows]
+    for row, row2 in zip(rows, rows2, strict=True):
+        if row[3] is not None:
+            np.testing.assert_allclose(row2[3], row[3], rtol=1e-12, atol=0)
 
 
 def assert_same_edges(source: Path, output: Path) -> None:
@@ -85,7 +122,4 @@ def assert_same_edges(source: Path, output: Path) -> None:
     edges = [line for line in source.read_text().splitlines() if line.startswith("EDGE_SE2")]
     written = [line for line in output.read_text().splitlines() if line.startswith("EDGE_SE2")]
     assert written == edges  # same count and the very same text
-    rows, rows_out = _between_rows(read_g2o(source)[0]), _between_rows(read_g2o(output)[0])
-    assert [r[:2] for r in rows_out] == [r[:2] for r in rows]
-    for row, row_out in zip(rows, rows_out, strict=True):
-        np.testing.assert_allclose(row_out[2], row[2], rtol=1e-12, atol=0)
+    assert_same_factors(read_g2o(source)[0], read_g2o(output)[0], kinds=("between",))

@@ -25,9 +25,3 @@ def test_generate_is_seeded(tmp_path):
         texts.append(path.read_text())
     assert texts[0] == texts[1] != texts[2]
 
-
-def test_generate_rejects_bad_parameters(tmp_path):
-    result = CliRunner().invoke(main, ["--lc", "1.5", "-o", str(tmp_path / "x.g2o")])
-    assert result.exit_code == 2
-    assert "--lc" in result.output
-    assert not (tmp_path / "x.g2o").exists()

@@ -1,16 +1,24 @@
-"""Hardening through the commands: every output checked before work, the model file an input,
-model files and option values bounded; each failure one line, nothing written, inputs intact.
+"""Bounded inputs and resources: model files (bombs, lying headers, the config schema, the
+weights' size) and training states are refused by the library on one line; option values are
+bounded at parse time; a signal, a file without line breaks, a trailing slash end a command
+with one line, no traceback and nothing written.
 
-(Line-length, signal, training-state and trailing-slash cases are in test_cli_limits.py.)
+(Output paths are in test_output_safety.py, g2o files in test_g2o_errors.py, random option
+values and configs in test_fuzz_options.py.)
 """
 
 from __future__ import annotations
 
-import json
+import os
+import signal
 import struct
+import subprocess
+import sys
+import time
 import zipfile
 from pathlib import Path
 
+import click
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -20,33 +28,20 @@ from rlpgo_cli.generate import main as generate_main
 from rlpgo_cli.init import main as init_main
 from rlpgo_cli.train import main as train_main
 
-from rlpgo_gtsam import generate, read_g2o, write_g2o
+from rlpgo_gtsam import ModelError, generate, read_g2o, write_g2o
+from rlpgo_gtsam.g2o import MAX_LINE_BYTES
+from rlpgo_gtsam.rl.agent import checkpoint
 from rlpgo_gtsam.rl.agent.checkpoint import load_model, save_model
+from rlpgo_gtsam.rl.agent.config import SacConfig
 from rlpgo_gtsam.rl.agent.networks import Actor
 from rlpgo_gtsam.rl.episode import PRESETS
-
-REFUSED = "is an input of this run; refusing to overwrite it"
+from rlpgo_gtsam.rl.train import TrainConfig, train
+from tests.conftest import cli_error, model_with_config
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() if p.is_file() else b"<dir>"
             for p in sorted(folder.rglob("*"))}
-
-
-def _one_line_failure(result, code: int, text: str) -> None:
-    assert result.exit_code == code, result.output
-    assert "Traceback" not in result.output
-    assert text in result.stderr, result.stderr
-    if code == 1:  # a usage error (2) adds click's usage lines
-        assert result.stderr.count("\n") == 1 and result.stdout == ""
-
-
-@pytest.fixture
-def graph_file(tmp_path: Path) -> Path:
-    sample = generate(20, 0.2, 0.05, 3.0, 0.5, np.random.default_rng(3))
-    path = tmp_path / "g.g2o"
-    write_g2o(path, sample.graph, sample.initial)
-    return path
 
 
 @pytest.fixture
@@ -56,86 +51,7 @@ def model_file(tmp_path: Path) -> Path:
     return path
 
 
-# --- the model file is an input ---------------------------------------------------------
-
-
-def test_init_refuses_to_write_over_its_model(tmp_path, graph_file, model_file):
-    before = _snapshot(tmp_path)
-    result = CliRunner().invoke(init_main, [str(graph_file), "-o", str(model_file), "--method",
-                                            "rl", "--model", str(model_file)])
-    _one_line_failure(result, 1, f"{model_file}: {REFUSED}")
-    assert _snapshot(tmp_path) == before
-    load_model(model_file)  # intact
-
-
-def test_eval_refuses_json_over_its_model(tmp_path, model_file):
-    before = _snapshot(tmp_path)
-    result = CliRunner().invoke(eval_main, ["--preset", "1", "--model", str(model_file),
-                                            "--json", str(model_file), "--graphs", "1"])
-    _one_line_failure(result, 1, f"{model_file}: {REFUSED}")
-    assert _snapshot(tmp_path) == before
-
-
-def test_compare_refuses_json_over_its_model(tmp_path, graph_file, model_file):
-    before = _snapshot(tmp_path)
-    result = CliRunner().invoke(compare_main, [str(graph_file), "--methods", "rl", "--model",
-                                               str(model_file), "--json", str(model_file)])
-    _one_line_failure(result, 1, f"{model_file}: {REFUSED}")
-    assert _snapshot(tmp_path) == before
-
-
-# --- rlpgo-compare: --plot PNGs and --json checked together, before any work ------------
-
-
-def test_compare_refuses_a_plot_that_is_an_input(tmp_path, graph_file):
-    source = tmp_path / "g.png"  # a g2o file named .png: its plot would be itself
-    source.write_bytes(graph_file.read_bytes())
-    before = _snapshot(tmp_path)
-    result = CliRunner().invoke(compare_main, [str(source), "--methods", "chordal", "--plot",
-                                               str(tmp_path)])
-    _one_line_failure(result, 1, f"{source}: {REFUSED}")
-    assert _snapshot(tmp_path) == before
-
-
-def test_compare_refuses_json_named_like_a_plot(tmp_path, graph_file):
-    before = _snapshot(tmp_path)
-    result = CliRunner().invoke(compare_main, [str(graph_file), "--methods", "chordal",
-                                               "--plot", str(tmp_path), "--json",
-                                               str(tmp_path / "g.png")])
-    _one_line_failure(result, 1, "given as two different outputs")
-    assert _snapshot(tmp_path) == before
-
-
-def test_compare_refuses_two_files_whose_plots_collide(tmp_path, graph_file):
-    for folder in ("a", "b"):
-        (tmp_path / folder).mkdir()
-        (tmp_path / folder / "g.g2o").write_bytes(graph_file.read_bytes())
-    before = _snapshot(tmp_path)
-    result = CliRunner().invoke(compare_main, [str(tmp_path / "a" / "g.g2o"),
-                                               str(tmp_path / "b" / "g.g2o"), "--methods",
-                                               "chordal", "--plot", str(tmp_path / "plots")])
-    _one_line_failure(result, 1, "two FILES have the same name")
-    assert _snapshot(tmp_path) == before
-
-
-def test_compare_plot_folder_name_too_long_creates_nothing(tmp_path, graph_file):
-    before = _snapshot(tmp_path)
-    plots = tmp_path / "new" / ("p" * 256)
-    result = CliRunner().invoke(compare_main, [str(graph_file), "--methods", "chordal",
-                                               "--plot", str(plots)])
-    _one_line_failure(result, 1, "longer than 255 bytes")
-    assert _snapshot(tmp_path) == before
-
-
-def test_compare_writes_plots_into_a_new_folder(tmp_path, graph_file):
-    result = CliRunner().invoke(compare_main, [str(graph_file), "--methods", "chordal",
-                                               "--iters", "2", "--plot",
-                                               str(tmp_path / "new" / "plots")])
-    assert result.exit_code == 0, result.output
-    assert (tmp_path / "new" / "plots" / "g.png").read_bytes()[:4] == b"\x89PNG"
-
-
-# --- model files: bombs, lying headers, config schema, through rlpgo-init -----------------
+# --- model files ------------------------------------------------------------------------
 
 
 def _bomb(path: Path, model_file: Path, megabytes: int, declared: int | None = None) -> Path:
@@ -164,25 +80,34 @@ def _bomb(path: Path, model_file: Path, megabytes: int, declared: int | None = N
     (None, "member actor.pt is larger than"),
     (50_000, "not a readable model zip (Bad CRC-32"),
 ], ids=["honest-header", "lying-header"])
-def test_a_model_zip_bomb_is_one_line(tmp_path, graph_file, model_file, declared, message):
+def test_a_model_zip_bomb_is_refused_on_one_line(tmp_path, model_file, declared, message):
     bomb = _bomb(tmp_path / "bomb.zip", model_file, 32, declared)
-    output = tmp_path / "out.g2o"
-    before = _snapshot(tmp_path)
-    result = CliRunner().invoke(init_main, [str(graph_file), "-o", str(output), "--method",
-                                            "rl", "--model", str(bomb)])
-    _one_line_failure(result, 1, f"{bomb}: {message}")
-    assert _snapshot(tmp_path) == before
+    with pytest.raises(ModelError) as excinfo:
+        load_model(bomb)
+    assert str(excinfo.value).startswith(f"{bomb}: {message}")
+    assert "\n" not in str(excinfo.value)
 
 
-def _with_config(model_file: Path, path: Path, change) -> Path:
+def test_wider_weights_than_the_config_are_refused_before_unpickling(tmp_path, model_file):
     with zipfile.ZipFile(model_file) as zf:
-        config = json.loads(zf.read("config.json"))
+        config = zf.read("config.json")
+    wide = tmp_path / "wide.zip"
+    save_model(wide, Actor(256), PRESETS[1], {})
+    with zipfile.ZipFile(wide) as zf:
         weights = zf.read("actor.pt")
-    change(config)
-    with zipfile.ZipFile(path, "w") as zf:
-        zf.writestr("config.json", json.dumps(config))
-        zf.writestr("actor.pt", weights)
-    return path
+    mixed = tmp_path / "mixed.zip"
+    with zipfile.ZipFile(mixed, "w") as zf:
+        zf.writestr("config.json", config)  # hidden 8
+        zf.writestr("actor.pt", weights)  # 256 wide: about 3 MB
+    with pytest.raises(ModelError, match="member actor.pt is larger than"):
+        load_model(mixed)
+
+
+def test_model_members_are_capped_whatever_the_config(model_file, monkeypatch):
+    load_model(model_file)  # fits the real caps
+    monkeypatch.setattr(checkpoint, "_MAX_WEIGHTS_BYTES", 1000)
+    with pytest.raises(ModelError, match="member actor.pt is larger than 1000 bytes"):
+        load_model(model_file)
 
 
 @pytest.mark.parametrize(("change", "message"), [
@@ -197,62 +122,91 @@ def _with_config(model_file: Path, path: Path, change) -> Path:
     (lambda c: c["env"].update(d=1e308), "env.d must be a finite number in [0, 1e+06]"),
 ], ids=["cycles-at-top", "test-cycles-in-env", "test-cycles-huge", "hidden-wide",
         "seed-negative", "seconds-nan", "sac-str", "command-int", "d-huge"])
-def test_model_config_fields_are_checked_against_the_schema(tmp_path, graph_file, model_file,
-                                                            change, message):
-    broken = _with_config(model_file, tmp_path / "broken.zip", change)
-    output = tmp_path / "out.g2o"
-    before = _snapshot(tmp_path)
-    result = CliRunner().invoke(init_main, [str(graph_file), "-o", str(output), "--method",
-                                            "rl", "--model", str(broken)])
-    _one_line_failure(result, 1, f"{broken}: ")
-    assert message in result.stderr
-    assert _snapshot(tmp_path) == before
+def test_model_config_fields_are_checked_against_the_schema(tmp_path, change, message):
+    broken = model_with_config(tmp_path, change)
+    with pytest.raises(ModelError) as excinfo:
+        load_model(broken)
+    assert str(excinfo.value).startswith(f"{broken}: ") and message in str(excinfo.value)
 
 
-def test_wider_weights_than_the_config_are_refused_before_unpickling(tmp_path, model_file):
-    with zipfile.ZipFile(model_file) as zf:
-        config = zf.read("config.json")
-    wide = tmp_path / "wide.zip"
-    save_model(wide, Actor(256), PRESETS[1], {})
-    with zipfile.ZipFile(wide) as zf:
-        weights = zf.read("actor.pt")
-    mixed = tmp_path / "mixed.zip"
-    with zipfile.ZipFile(mixed, "w") as zf:
-        zf.writestr("config.json", config)  # hidden 8
-        zf.writestr("actor.pt", weights)  # 256 wide: about 3 MB
-    from rlpgo_gtsam import ModelError
+# --- training states --------------------------------------------------------------------
 
-    with pytest.raises(ModelError, match="member actor.pt is larger than"):
-        load_model(mixed)
+SAC = SacConfig(hidden=8, batch_size=2, gradient_steps=1, warmup_episodes=1, window=8,
+                burn_in=2)
+
+
+@pytest.mark.parametrize("content", [
+    ["a", "list"], {}, b"garbage", {"agent": {}, "episode": -3, "seconds": 1.0},
+    {"agent": {"actor": 1}, "episode": 1, "seconds": 1.0},
+], ids=["list", "empty-dict", "garbage", "negative-episode", "wrong-agent"])
+def test_resume_from_a_corrupt_training_state_is_one_line(tmp_path, content):
+    import torch
+
+    state = tmp_path / "m.train.pt"
+    if isinstance(content, bytes):
+        state.write_bytes(content)
+    else:
+        torch.save(content, state)
+    before = state.read_bytes()
+    with pytest.raises(ModelError) as excinfo:
+        train(TrainConfig(preset=1, episodes=2, out=str(tmp_path / "m"), sac=SAC), resume=True)
+    assert str(excinfo.value).startswith(f"{state}: ") and "\n" not in str(excinfo.value)
+    assert _snapshot(tmp_path) == {"m.train.pt": before}
+
+
+def test_training_outputs_are_replaced_together_or_not_at_all(tmp_path):
+    """Outputs are written together at checkpoints only: a run stopped before its first
+    checkpoint leaves the earlier run's files as they were; a run that gets there replaces
+    every one of them."""
+    out = str(tmp_path / "m")
+    train(TrainConfig(preset=1, episodes=2, out=out, sac=SAC, checkpoint_every=2))
+    first = _snapshot(tmp_path)
+
+    def stop(episode_number, episode, seconds):
+        raise KeyboardInterrupt
+
+    second = TrainConfig(preset=1, episodes=3, seed=1, out=out, sac=SAC, checkpoint_every=2)
+    with pytest.raises(KeyboardInterrupt):
+        train(second, on_episode=stop)
+    assert _snapshot(tmp_path) == first
+
+    train(second)
+    after = _snapshot(tmp_path)
+    names = {"m.zip", "m.csv", "m.png", "m.train.pt"}
+    assert names <= set(first) and names <= set(after)
+    assert all(first[name] != after[name] for name in names)  # none is left from run one
+    assert after["m.csv"].decode().splitlines()[-1].startswith("3,")
+    assert load_model(tmp_path / "m.zip").metadata["episodes"] == 3
+    assert not [name for name in after if name.endswith(".tmp")]
 
 
 # --- option values: bounded at parse time, ranges in --help --------------------------------
 
+OUT_OF_RANGE = [
+    (init_main, "--episodes", "101"), (init_main, "--cycles", "nan"),
+    (init_main, "--budget", "inf"), (init_main, "--iters", "2147483648"),
+    (init_main, "--seed", "-1"),
+    (compare_main, "--episodes", "1000000"), (compare_main, "--iters", "-1"),
+    (compare_main, "--seed", "-1"),
+    (generate_main, "--n", "1000001"), (generate_main, "--lc", "1.5"),
+    (generate_main, "--d", "nan"), (generate_main, "--sigma-t", "1e308"),
+    (generate_main, "--sigma-r", "inf"), (generate_main, "--seed", "-1"),
+    (eval_main, "--seed", "-1"), (eval_main, "--graphs", "0"),
+    (train_main, "--hidden", "1025"), (train_main, "--episodes", "2147483648"),
+    (train_main, "--preset", "9"), (train_main, "--seed", "-1"),
+]
 
-@pytest.mark.parametrize(("command", "args", "option"), [
-    (init_main, ["--episodes", "101"], "--episodes"),
-    (init_main, ["--cycles", "nan"], "--cycles"),
-    (init_main, ["--budget", "inf"], "--budget"),
-    (compare_main, ["--episodes", "1000000"], "--episodes"),
-    (compare_main, ["--iters", "-1"], "--iters"),
-    (generate_main, ["--n", "1000001"], "--n"),
-    (generate_main, ["--lc", "1.5"], "--lc"),
-    (generate_main, ["--d", "nan"], "--d"),
-    (eval_main, ["--preset", "1", "--seed", "-1"], "--seed"),
-    (eval_main, ["--preset", "1", "--graphs", "0"], "--graphs"),
-    (train_main, ["--preset", "1", "--hidden", "1025"], "--hidden"),
-    (train_main, ["--preset", "1", "--episodes", "2147483648"], "--episodes"),
-    (train_main, ["--preset", "9"], "--preset"),
-], ids=lambda value: value.name if hasattr(value, "name") else None)
-def test_out_of_range_option_values_are_usage_errors(tmp_path, graph_file, command, args,
-                                                     option):
+
+@pytest.mark.parametrize(("command", "option", "value"), [
+    pytest.param(*row, id=f"{row[0].name}{row[1]}={row[2]}") for row in OUT_OF_RANGE])
+def test_out_of_range_option_values_are_usage_errors(tmp_path, command, option, value):
     output = tmp_path / "out.g2o"
-    extra = {init_main: [str(graph_file), "-o", str(output)], compare_main: [str(graph_file)],
-             generate_main: ["-o", str(output)], eval_main: [],
-             train_main: ["--out", str(tmp_path / "m")]}[command]
+    (tmp_path / "in.g2o").write_text("VERTEX_SE2 0 0 0 0\n")
+    required = {init_main: [str(tmp_path / "in.g2o"), "-o", str(output)], compare_main: [],
+                generate_main: ["-o", str(output)], eval_main: ["--preset", "1"],
+                train_main: ["--preset", "1", "--out", str(tmp_path / "m")]}[command]
     before = _snapshot(tmp_path)
-    result = CliRunner().invoke(command, [*extra, *args])
-    _one_line_failure(result, 2, option)
+    cli_error(CliRunner().invoke(command, [*required, option, value]), option, code=2)
     assert _snapshot(tmp_path) == before
 
 
@@ -270,44 +224,6 @@ def test_help_shows_the_ranges(command, shown):
         assert range_text in text, range_text
 
 
-# --- rlpgo-train: outputs checked before work ----------------------------------------------
-
-
-def test_train_refuses_a_stem_whose_names_are_too_long_before_work(tmp_path):
-    stem = tmp_path / "new" / ("m" * 250)  # 250 + ".train.pt" > 255
-    result = CliRunner().invoke(train_main, ["--preset", "1", "--episodes", "2", "--out",
-                                             str(stem)])
-    _one_line_failure(result, 1, "file name longer than 255 bytes")
-    assert list(tmp_path.iterdir()) == []
-
-
-def test_train_refuses_an_output_that_is_a_folder(tmp_path):
-    (tmp_path / "m.csv").mkdir()
-    result = CliRunner().invoke(train_main, ["--preset", "1", "--episodes", "2", "--out",
-                                             str(tmp_path / "m")])
-    _one_line_failure(result, 1, "m.csv: is a directory")
-    assert [p.name for p in tmp_path.iterdir()] == ["m.csv"]
-
-
-def test_a_new_training_run_replaces_all_earlier_outputs_together(tmp_path):
-    from rlpgo_gtsam.rl.agent.config import SacConfig
-    from rlpgo_gtsam.rl.train import TrainConfig, train
-
-    sac = SacConfig(hidden=8, batch_size=2, gradient_steps=1, warmup_episodes=1, window=8,
-                    burn_in=2)
-    out = str(tmp_path / "m")
-    train(TrainConfig(preset=1, episodes=2, out=out, sac=sac, checkpoint_every=2))
-    first = _snapshot(tmp_path)
-    train(TrainConfig(preset=1, episodes=3, seed=1, out=out, sac=sac, checkpoint_every=2))
-    second = _snapshot(tmp_path)
-    names = {"m.zip", "m.csv", "m.png", "m.train.pt"}
-    assert names <= set(first) and names <= set(second)
-    assert all(first[name] != second[name] for name in names)  # none is left from run one
-    assert second["m.csv"].decode().splitlines()[-1].startswith("3,")
-    assert load_model(tmp_path / "m.zip").metadata["episodes"] == 3
-    assert not [name for name in second if name.endswith(".tmp")]
-
-
 def test_generate_within_its_bounds_writes_a_file_its_reader_takes(tmp_path):
     output = tmp_path / "out.g2o"
     result = CliRunner().invoke(generate_main, ["--n", "12", "--d", "1000000", "--sigma-t",
@@ -322,3 +238,83 @@ def test_generate_within_its_bounds_writes_a_file_its_reader_takes(tmp_path):
     assert result.exit_code == 1
     assert "condition number above 1e+09" in result.stderr
     assert not refused.exists()
+
+
+def test_a_trailing_slash_names_a_folder_and_is_refused(tmp_path):
+    (tmp_path / "out").mkdir()
+    (tmp_path / "in.g2o").write_text("VERTEX_SE2 0 0 0 0\n")
+    result = CliRunner().invoke(init_main, [str(tmp_path / "in.g2o"), "-o",
+                                            f"{tmp_path}/out/new.g2o/"])
+    cli_error(result, "names a folder; give a file name", code=2)
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+# --- resources and signals, in real processes ---------------------------------------------
+
+
+def test_dev_zero_is_refused_in_bounded_memory(tmp_path):
+    """Measured from a fresh parent process, so that only this command's peak counts."""
+    output = tmp_path / "out.g2o"
+    script = ("import resource, subprocess, sys\n"
+              "done = subprocess.run([sys.executable, '-m', 'rlpgo_cli.init', '/dev/zero', '-o',"
+              " sys.argv[1], '--method', 'chordal'], capture_output=True, text=True)\n"
+              "print(done.returncode, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)\n"
+              "sys.stderr.write(done.stderr)\n")
+    done = subprocess.run([sys.executable, "-c", script, str(output)], capture_output=True,
+                          text=True, timeout=60)
+    code, peak_kb = done.stdout.split()
+    assert code == "1"
+    assert done.stderr == (f"Error: /dev/zero:1: line longer than {MAX_LINE_BYTES} bytes "
+                           "(not a g2o file?)\n")
+    assert int(peak_kb) / 1024 < 500
+    assert not output.exists()
+
+
+def test_sigterm_ends_a_run_with_one_line_and_no_temporary_file(tmp_path):
+    """The agent's rollout is a Python loop: the signal lands at once (inside a long GTSAM
+    call it would wait for the call to return)."""
+    sample = generate(1000, 0.3, 0.05, 3.0, 0.5, np.random.default_rng(0),
+                      noisy_measurements=True)
+    path, output = tmp_path / "in.g2o", tmp_path / "out.g2o"
+    write_g2o(path, sample.graph, sample.initial)
+    process = subprocess.Popen([sys.executable, "-m", "rlpgo_cli.init", str(path), "-o",
+                                str(output), "--method", "rl", "--cycles", "1000"],
+                               stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    time.sleep(3.0)
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130, stderr
+    assert stderr.splitlines()[-1] == "Error: interrupted"  # after the agent's progress bar
+    assert "Traceback" not in stderr
+    assert sorted(os.listdir(tmp_path)) == ["in.g2o"]
+
+
+def test_ctrl_c_while_a_command_is_still_importing_is_one_line():
+    """SIGINT 0.3 s after start lands in the imports (GTSAM, numpy, scipy)."""
+    process = subprocess.Popen([sys.executable, "-c", "from rlpgo_cli.launch import init; "
+                                "init()", "--help"], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    time.sleep(0.3)
+    process.send_signal(signal.SIGINT)
+    stdout, stderr = process.communicate(timeout=60)
+    assert "Traceback" not in stderr
+    # 0: --help answered first; -2: the signal came before Python's own handler was set up.
+    if process.returncode not in (0, -signal.SIGINT):
+        assert (process.returncode, stderr) == (130, "Error: interrupted\n")
+
+
+def test_ctrl_c_while_the_options_are_parsed_is_one_line():
+    # --help prints inside click's parsing, before the command runs: click alone answers a
+    # Ctrl-C there with "Aborted!" and exit code 1 (seen as a flaky failure of the test above)
+    from rlpgo_cli.errors import RlpgoCommand
+
+    def interrupt(ctx, param, value):
+        if value:
+            raise KeyboardInterrupt
+
+    command = RlpgoCommand("demo", callback=lambda: None, params=[
+        click.Option(["--slow-help"], is_flag=True, is_eager=True, expose_value=False,
+                     callback=interrupt)])
+    result = CliRunner().invoke(command, ["--slow-help"])
+    assert (result.exit_code, result.stderr) == (130, "Error: interrupted\n")

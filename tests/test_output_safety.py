@@ -1,33 +1,41 @@
 """Outputs never destroy an input or an existing file, and every failure is one clear line.
 
-Covered: ``rlpgo-init`` and ``rlpgo-generate`` (through click's CliRunner) and
-:func:`write_g2o` directly. For the CLIs a failed write must give exit code 1, exactly one
-``Error: ...`` line on stderr, nothing on stdout and no traceback; the input and any file
-already at the output path must keep their bytes, and no temporary file (``.rlpgo-*.tmp``) may
-be left beside the output.
+Each case runs once where its code lives: the atomic writers (:func:`write_g2o`,
+:mod:`rlpgo_gtsam.files`) for bad output paths and failed writes, the commands' policy
+(:class:`RunFiles`) for "the output may never be an input". Then one smoke path per command
+shows that the command feeds its outputs and inputs to that policy and turns the refusal into
+``Error: <message>``, exit 1, with nothing written.
 """
 
 from __future__ import annotations
 
 import errno
 import os
+import stat
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner, Result
+from click.testing import CliRunner
+from rlpgo_cli.compare import main as compare_main
+from rlpgo_cli.evaluate import main as eval_main
 from rlpgo_cli.generate import main as generate_main
 from rlpgo_cli.init import main as init_main
 from rlpgo_cli.output import RunFiles
+from rlpgo_cli.train import main as train_main
 
 from rlpgo_gtsam import OutputError, read_g2o, write_g2o
+from rlpgo_gtsam.files import write_bytes, write_text, write_together
+from rlpgo_gtsam.rl.agent.checkpoint import load_model, save_model
+from rlpgo_gtsam.rl.agent.networks import Actor
+from rlpgo_gtsam.rl.episode import PRESETS
 from rlpgo_gtsam.synthetic import generate
+from tests.conftest import cli_error
 
 REFUSED = "is an input of this run; refusing to overwrite it"
-
-
-# --------------------------------------------------------------------------- helpers
+OLD = b"VERTEX_SE2 0 0 0 0\n# an existing output that must survive a failed write\n"
 
 
 @pytest.fixture
@@ -52,32 +60,6 @@ def guard_dev(monkeypatch):
     monkeypatch.setattr(os, "replace", replace)
 
 
-def _dev_full() -> str:
-    if not os.path.exists("/dev/full"):
-        pytest.skip("/dev/full not available")
-    return "/dev/full"
-
-
-def _skip_if_root() -> None:
-    if hasattr(os, "geteuid") and os.geteuid() == 0:
-        pytest.skip("running as root: folder permissions are not enforced")
-
-
-def run_init(input_path: str | Path, output: str | Path, *extra: str) -> Result:
-    """rlpgo-init with a fast classical method (no model needed)."""
-    return CliRunner().invoke(
-        init_main, [str(input_path), "-o", str(output), "--method", "chordal",
-                    "--refine", "none", *extra]
-    )
-
-
-def run_generate(output: str | Path, *extra: str) -> Result:
-    return CliRunner().invoke(
-        generate_main, ["--n", "40", "--seed", "1", "--noisy-measurements", "-o", str(output),
-                        *extra]
-    )
-
-
 def _snapshot(folder: Path) -> dict[str, bytes | None]:
     """Every entry below ``folder`` with its bytes (None for folders and links)."""
     entries = {}
@@ -91,20 +73,173 @@ def _temp_files(folder: Path) -> list[str]:
     return sorted(str(p.relative_to(folder)) for p in folder.rglob(".*"))
 
 
-def assert_clean_failure(result: Result, message: str | None = None) -> str:
-    """Exit 1, one ``Error: ...`` line on stderr, empty stdout, no traceback; returns it."""
-    # CliRunner swallows an uncaught exception: it would be a traceback in a real run.
-    assert result.exception is None or isinstance(result.exception, SystemExit), repr(
-        result.exception
-    )
-    assert "Traceback" not in result.output + result.stderr
-    assert result.exit_code == 1, (result.exit_code, result.output)
-    assert result.stdout == ""
-    assert result.stderr.startswith("Error: ") and result.stderr.endswith("\n")
-    assert result.stderr.count("\n") == 1, result.stderr
-    if message is not None:
-        assert result.stderr == f"Error: {message}\n"
-    return result.stderr[len("Error: "):-1]
+# --------------------------------------------------------------------------- bad output paths
+
+
+def _directory(tmp: Path) -> Path:
+    (tmp / "out").mkdir()
+    (tmp / "out" / "keep.txt").write_text("keep\n")
+    return tmp / "out"
+
+
+def _in_a_regular_file(tmp: Path) -> Path:
+    (tmp / "file.txt").write_text("a regular file\n")
+    return tmp / "file.txt" / "out.g2o"
+
+
+def _read_only_folder(tmp: Path) -> Path:
+    if hasattr(os, "geteuid") and os.geteuid() == 0:
+        pytest.skip("running as root: folder permissions are not enforced")
+    folder = tmp / "locked"
+    folder.mkdir()
+    (folder / "old.g2o").write_bytes(OLD)
+    folder.chmod(0o500)
+    return folder / "old.g2o"
+
+
+def _dev_full(tmp: Path) -> Path:
+    if not os.path.exists("/dev/full"):
+        pytest.skip("/dev/full not available")
+    return Path("/dev/full")
+
+
+# (builder of the output path, what the message says after "<output>: ")
+BAD_OUTPUTS = {
+    "directory": (_directory, "is a directory; give a file name for the output"),
+    "folder_missing": (lambda tmp: tmp / "missing" / "deeper" / "out.g2o",
+                       "folder {tmp}/missing/deeper does not exist"),
+    "inside_a_regular_file": (_in_a_regular_file, "{tmp}/file.txt is not a folder"),
+    "name_too_long": (lambda tmp: tmp / ("y" * 252 + ".g2o"), "file name longer than 255 bytes"),
+    "folder_name_too_long": (lambda tmp: tmp / ("p" * 256) / "out.g2o",
+                             "a folder name in it is longer than 255 bytes"),
+    "read_only_folder": (_read_only_folder, "cannot write: Permission denied"),
+    "full_disk": (_dev_full, "cannot write: No space left on device"),
+}
+
+
+@pytest.mark.parametrize("build, reason", BAD_OUTPUTS.values(), ids=BAD_OUTPUTS.keys())
+def test_write_g2o_refuses_a_bad_output_and_changes_nothing(tmp_path, input_file, guard_dev,
+                                                            build, reason):
+    graph, values = read_g2o(input_file)
+    output = build(tmp_path)
+    before = _snapshot(tmp_path)
+    try:
+        with pytest.raises(OutputError) as excinfo:
+            write_g2o(output, graph, values)
+    finally:
+        if output.parent.name == "locked":
+            output.parent.chmod(0o700)
+    assert str(excinfo.value) == f"{output}: {reason.format(tmp=tmp_path)}"
+    assert _snapshot(tmp_path) == before  # no folder made, no temporary file left
+
+
+def test_the_longest_file_name_is_written(tmp_path, input_file):
+    graph, values = read_g2o(input_file)
+    longest = tmp_path / ("x" * 251 + ".g2o")  # 255 bytes
+    write_g2o(longest, graph, values)
+    assert read_g2o(longest)[1].size() == values.size()
+
+
+# --------------------------------------------------------------------------- failed writes
+
+
+def _fail(monkeypatch, step: str) -> None:
+    """Make one step of the atomic write fail as a full or broken disk would."""
+    def fail(*args, **kwargs):
+        raise OSError(errno.EIO, "Input/output error")
+
+    module, name = step.split(".")
+    monkeypatch.setattr({"os": os, "tempfile": tempfile}[module], name, fail)
+
+
+WRITERS: dict[str, Callable[[Path, bytes], None]] = {
+    "write_bytes": write_bytes,
+    "write_together": lambda path, data: write_together([(path, data)]),
+}
+
+
+@pytest.mark.parametrize("existing", [True, False], ids=["existing", "new"])
+@pytest.mark.parametrize("step", ["tempfile.mkstemp", "os.fsync", "os.replace"])
+@pytest.mark.parametrize("writer", WRITERS.values(), ids=WRITERS.keys())
+def test_a_failed_write_keeps_the_existing_file(tmp_path, monkeypatch, writer, step, existing):
+    output = tmp_path / "out.g2o"
+    if existing:
+        output.write_bytes(OLD)
+    _fail(monkeypatch, step)
+    with pytest.raises(OutputError) as excinfo:
+        writer(output, b"new\n")
+    assert str(excinfo.value) == f"{output}: cannot write: Input/output error"
+    assert _snapshot(tmp_path) == ({"out.g2o": OLD} if existing else {})  # no temporary file
+
+
+def test_write_together_writes_every_file_or_none(tmp_path):
+    (tmp_path / "a.txt").write_bytes(OLD)
+    with pytest.raises(OutputError, match="missing/b.txt: folder .* does not exist"):
+        write_together([(tmp_path / "a.txt", b"new\n"), (tmp_path / "missing" / "b.txt", b"x")])
+    assert _snapshot(tmp_path) == {"a.txt": OLD}  # a.txt was staged, then dropped
+
+
+def test_write_together_writes_a_device_after_the_files(tmp_path, guard_dev):
+    device = _dev_full(tmp_path)
+    with pytest.raises(OutputError, match="^/dev/full: cannot write: No space left on device$"):
+        write_together([(device, b"x"), (tmp_path / "a.txt", b"new\n")])
+    assert _snapshot(tmp_path) == {"a.txt": b"new\n"}  # a device cannot be staged
+
+
+# --------------------------------------------------------------------------- successful writes
+
+
+def test_write_g2o_replaces_an_existing_output(tmp_path, input_file):
+    graph, values = read_g2o(input_file)
+    output = tmp_path / "out.g2o"
+    output.write_bytes(OLD)
+    write_g2o(output, graph, values)
+    assert output.read_bytes() == input_file.read_bytes()  # write -> read -> write is stable
+    # the library keeps no marks of what it read: a file read may be written over
+    write_g2o(output, *read_g2o(output))
+    assert output.read_bytes() == input_file.read_bytes()
+    assert _temp_files(tmp_path) == []
+
+
+def test_write_g2o_replaces_a_symlink_not_its_target(tmp_path, input_file):
+    graph, values = read_g2o(input_file)
+    target = tmp_path / "target.g2o"
+    target.write_bytes(OLD)
+    link = tmp_path / "link.g2o"
+    link.symlink_to(target)
+    write_g2o(link, graph, values)
+    assert target.read_bytes() == OLD
+    assert not link.is_symlink() and link.read_bytes() == input_file.read_bytes()
+
+
+@pytest.mark.parametrize("device", ["/dev/null", "/dev/stdout"])
+def test_a_device_is_written_through_not_replaced(guard_dev, device):
+    path = Path(device)
+    if not path.exists():
+        pytest.skip(f"{device} not available")
+
+    def kind(p: Path) -> tuple:
+        return (stat.S_IFMT(p.lstat().st_mode), os.readlink(p) if p.is_symlink() else None,
+                stat.S_IFMT(p.stat().st_mode))
+
+    before = kind(path)
+    write_bytes(path, b"")  # /dev/stdout: through whatever fd 1 is (pytest's capture file)
+    assert kind(path) == before  # still the same device, or the same link to it
+
+
+def test_new_outputs_get_the_usual_mode_and_replaced_ones_keep_theirs(tmp_path):
+    umask = os.umask(0o022)
+    try:
+        fresh = tmp_path / "fresh.txt"
+        write_text(fresh, "x\n")
+        assert fresh.stat().st_mode & 0o777 == 0o644
+        kept = tmp_path / "kept.txt"
+        kept.write_text("old\n")
+        kept.chmod(0o640)
+        write_text(kept, "new\n")
+        assert kept.stat().st_mode & 0o777 == 0o640
+    finally:
+        os.umask(umask)
 
 
 # --------------------------------------------------------------------------- output == input
@@ -112,10 +247,6 @@ def assert_clean_failure(result: Result, message: str | None = None) -> str:
 # Each form builds, inside tmp_path (the current directory where it chdirs), the
 # (input argument, output argument) pair naming the same file.
 Form = Callable[[Path, Path, pytest.MonkeyPatch], tuple[str, str]]
-
-
-def _same_path(tmp: Path, source: Path, mp: pytest.MonkeyPatch) -> tuple[str, str]:
-    return str(source), str(source)
 
 
 def _symlink_output(tmp: Path, source: Path, mp: pytest.MonkeyPatch) -> tuple[str, str]:
@@ -133,66 +264,30 @@ def _hard_link(tmp: Path, source: Path, mp: pytest.MonkeyPatch) -> tuple[str, st
     return str(source), str(tmp / "hard.g2o")
 
 
-def _relative(tmp: Path, source: Path, mp: pytest.MonkeyPatch) -> tuple[str, str]:
-    mp.chdir(tmp)
-    return str(source), source.name
+def _in(folder: str, input_arg: str, output_arg: str) -> Form:
+    """A form that makes ``tmp/<folder>`` (if named), changes into it and gives the two
+    arguments, ``{source}`` standing for the input's absolute path, ``{name}`` its name."""
+    def form(tmp: Path, source: Path, mp: pytest.MonkeyPatch) -> tuple[str, str]:
+        (tmp / "dir").mkdir()
+        mp.chdir(tmp / folder)
+        return (input_arg.format(source=source, name=source.name, tmp=tmp),
+                output_arg.format(source=source, name=source.name, tmp=tmp))
+
+    return form
 
 
-def _relative_input(tmp: Path, source: Path, mp: pytest.MonkeyPatch) -> tuple[str, str]:
-    mp.chdir(tmp)
-    return source.name, str(source)
-
-
-def _dot_slash(tmp: Path, source: Path, mp: pytest.MonkeyPatch) -> tuple[str, str]:
-    mp.chdir(tmp)
-    return source.name, f"./{source.name}"
-
-
-def _dot_dot(tmp: Path, source: Path, mp: pytest.MonkeyPatch) -> tuple[str, str]:
-    (tmp / "dir").mkdir()
-    mp.chdir(tmp)
-    return str(source), f"./dir/../{source.name}"
-
-
-def _absolute_dot_dot(tmp: Path, source: Path, mp: pytest.MonkeyPatch) -> tuple[str, str]:
-    (tmp / "dir").mkdir()
-    return str(source), f"{tmp}/dir/../{source.name}"
-
-
-def _from_subfolder(tmp: Path, source: Path, mp: pytest.MonkeyPatch) -> tuple[str, str]:
-    (tmp / "dir").mkdir()
-    mp.chdir(tmp / "dir")
-    return str(source), f"../{source.name}"
-
-
-SAME_FILE_FORMS = {
-    "same_path": _same_path,
+SAME_FILE_FORMS: dict[str, Form] = {
+    "same_path": _in(".", "{source}", "{source}"),
     "symlink_output": _symlink_output,
     "symlink_input": _symlink_input,
     "hard_link": _hard_link,
-    "relative_output": _relative,
-    "relative_input": _relative_input,
-    "dot_slash": _dot_slash,
-    "dot_dot": _dot_dot,
-    "absolute_dot_dot": _absolute_dot_dot,
-    "parent_of_cwd": _from_subfolder,
+    "relative_output": _in(".", "{source}", "{name}"),
+    "relative_input": _in(".", "{name}", "{source}"),
+    "dot_slash": _in(".", "{name}", "./{name}"),
+    "dot_dot": _in(".", "{source}", "./dir/../{name}"),
+    "absolute_dot_dot": _in(".", "{source}", "{tmp}/dir/../{name}"),
+    "parent_of_cwd": _in("dir", "{source}", "../{name}"),
 }
-
-
-def _shown(output: str) -> str:
-    # The CLIs take -o as a pathlib.Path, which drops a leading "./" (and nothing else):
-    # "./dir/../input.g2o" is reported as "dir/../input.g2o".
-    return str(Path(output))
-
-
-@pytest.mark.parametrize("form", SAME_FILE_FORMS.values(), ids=SAME_FILE_FORMS.keys())
-def test_init_refuses_to_overwrite_its_input(tmp_path, input_file, monkeypatch, form):
-    input_arg, output_arg = form(tmp_path, input_file, monkeypatch)
-    before = _snapshot(tmp_path)
-    result = run_init(input_arg, output_arg)
-    assert_clean_failure(result, f"{_shown(output_arg)}: {REFUSED}")
-    assert _snapshot(tmp_path) == before  # input bytes kept, no temp file, links intact
-    assert (tmp_path / "input.g2o").is_file() and not (tmp_path / "input.g2o").is_symlink()
 
 
 @pytest.mark.parametrize("form", SAME_FILE_FORMS.values(), ids=SAME_FILE_FORMS.keys())
@@ -206,334 +301,86 @@ def test_a_run_refuses_an_output_that_names_an_input(tmp_path, input_file, monke
     assert _snapshot(tmp_path) == before
 
 
-def test_the_library_writer_has_no_process_wide_input_marks(tmp_path, input_file):
-    graph, values = read_g2o(input_file)
-    copy = tmp_path / "copy.g2o"
-    write_g2o(copy, graph, values)  # reading a file does not make it unwritable for the API
-    graph2, _ = read_g2o(copy)
-    write_g2o(copy, graph2, values)
-    assert read_g2o(copy)[1].size() == values.size()
+def test_a_run_refuses_the_same_output_twice(tmp_path):
+    (tmp_path / "x").mkdir()
+    with pytest.raises(OutputError, match="given as two different outputs"):
+        RunFiles().check(tmp_path / "a.g2o", tmp_path / "x" / ".." / "a.g2o")
 
 
-def test_generate_refuses_the_same_path_twice(tmp_path):
-    result = run_generate(tmp_path / "graph.g2o", "--ground-truth", str(tmp_path / "graph.g2o"))
-    assert_clean_failure(result, f"{tmp_path / 'graph.g2o'}: given as two different outputs")
-    assert not (tmp_path / "graph.g2o").exists()
-
-
-# --------------------------------------------------------------------------- bad output paths
-
-
-def test_init_output_is_a_directory(tmp_path, input_file):
-    folder = tmp_path / "out"
-    folder.mkdir()
-    (folder / "keep.txt").write_text("keep\n")
-    before = _snapshot(tmp_path)
-    result = run_init(input_file, folder)
-    assert_clean_failure(result, f"{folder}: is a directory; give a file name for the output")
-    assert _snapshot(tmp_path) == before
-
-
-def test_generate_output_is_a_directory(tmp_path):
-    folder = tmp_path / "out"
-    folder.mkdir()
-    (folder / "keep.txt").write_text("keep\n")
-    before = _snapshot(tmp_path)
-    result = run_generate(folder)
-    assert_clean_failure(result, f"{folder}: is a directory; give a file name for the output")
-    assert _snapshot(tmp_path) == before
-
-
-def test_write_g2o_output_is_a_directory(tmp_path, input_file):
-    graph, values = read_g2o(input_file)
-    folder = tmp_path / "out"
-    folder.mkdir()
-    before = _snapshot(tmp_path)
-    with pytest.raises(OutputError, match="is a directory"):
-        write_g2o(folder, graph, values)
-    assert _snapshot(tmp_path) == before
-
-
-def _check_missing_folder(message: str, output: Path) -> None:
-    assert message.startswith(f"{output}: ")
-    assert "does not exist" in message or "No such file or directory" in message
-
-
-def test_init_output_folder_missing(tmp_path, input_file):
-    output = tmp_path / "missing" / "out.g2o"
-    before = _snapshot(tmp_path)
-    _check_missing_folder(assert_clean_failure(run_init(input_file, output)), output)
-    assert _snapshot(tmp_path) == before  # the folder is not created either
-
-
-def test_generate_output_folder_missing(tmp_path):
-    output = tmp_path / "missing" / "deeper" / "out.g2o"
-    _check_missing_folder(assert_clean_failure(run_generate(output)), output)
-    assert list(tmp_path.iterdir()) == []
-
-
-def test_write_g2o_output_folder_missing(tmp_path, input_file):
-    graph, values = read_g2o(input_file)
-    output = tmp_path / "missing" / "out.g2o"
-    with pytest.raises(OutputError) as excinfo:
-        write_g2o(output, graph, values)
-    _check_missing_folder(str(excinfo.value), output)
-    assert not (tmp_path / "missing").exists()
-
-
-def _check_not_a_folder(message: str, output: Path) -> None:
-    """The message must say that the parent is a file, not that it does not exist."""
-    assert message.startswith(f"{output}: ")
-    assert "does not exist" not in message
-    assert "not a folder" in message or "not a directory" in message.lower()
-
-
-def _regular_file(tmp_path: Path) -> Path:
-    blocker = tmp_path / "file.txt"
-    blocker.write_text("a regular file\n")
-    return blocker
-
-
-def test_init_output_inside_a_regular_file(tmp_path, input_file):
-    output = _regular_file(tmp_path) / "out.g2o"
-    before = _snapshot(tmp_path)
-    result = run_init(input_file, output)
-    assert _snapshot(tmp_path) == before
-    _check_not_a_folder(assert_clean_failure(result), output)
-
-
-def test_generate_output_inside_a_regular_file(tmp_path):
-    output = _regular_file(tmp_path) / "out.g2o"
-    before = _snapshot(tmp_path)
-    result = run_generate(output)
-    assert _snapshot(tmp_path) == before
-    _check_not_a_folder(assert_clean_failure(result), output)
-
-
-def test_write_g2o_output_inside_a_regular_file(tmp_path, input_file):
-    graph, values = read_g2o(input_file)
-    output = _regular_file(tmp_path) / "out.g2o"
-    with pytest.raises(OutputError) as excinfo:
-        write_g2o(output, graph, values)
-    assert (tmp_path / "file.txt").read_text() == "a regular file\n"
-    _check_not_a_folder(str(excinfo.value), output)
-
-
-def test_output_inside_a_regular_file_is_still_one_clean_line(tmp_path, input_file):
-    """Whatever the wording, this failure is already clean: one line, exit 1, file kept."""
-    output = _regular_file(tmp_path) / "out.g2o"
-    before = _snapshot(tmp_path)
-    for result in (run_init(input_file, output), run_generate(output)):
-        assert assert_clean_failure(result).startswith(f"{output}: ")
-    assert _snapshot(tmp_path) == before
+# --------------------------------------------------------------------------- each command
 
 
 @pytest.fixture
-def read_only_folder(tmp_path):
-    _skip_if_root()
-    folder = tmp_path / "locked"
-    folder.mkdir()
-    (folder / "old.g2o").write_text("old\n")
-    folder.chmod(0o500)
-    yield folder
-    folder.chmod(0o700)
+def model_file(tmp_path: Path) -> Path:
+    path = tmp_path / "m.zip"
+    save_model(path, Actor(8), PRESETS[1], {"test_cycles": 2})
+    return path
 
 
-def _check_permission(message: str, output: Path) -> None:
-    assert message.startswith(f"{output}: ")
-    assert "Permission denied" in message or "permission denied" in message
+def _copy_as_png(tmp: Path, graph: Path) -> Path:
+    """A g2o file named .png: its plot in ``tmp`` would be itself."""
+    (tmp / "input.png").write_bytes(graph.read_bytes())
+    return tmp / "input.png"
 
 
-def test_init_unwritable_folder(read_only_folder, input_file):
-    for name in ("new.g2o", "old.g2o"):
-        output = read_only_folder / name
-        _check_permission(assert_clean_failure(run_init(input_file, output)), output)
-    assert sorted(p.name for p in read_only_folder.iterdir()) == ["old.g2o"]
-    assert (read_only_folder / "old.g2o").read_text() == "old\n"
+def _two_of_the_same_name(tmp: Path, graph: Path) -> list[Path]:
+    for folder in ("a", "b"):
+        (tmp / folder).mkdir()
+        (tmp / folder / "g.g2o").write_bytes(graph.read_bytes())
+    return [tmp / "a" / "g.g2o", tmp / "b" / "g.g2o"]
 
 
-def test_generate_unwritable_folder(read_only_folder):
-    output = read_only_folder / "new.g2o"
-    _check_permission(assert_clean_failure(run_generate(output)), output)
-    assert sorted(p.name for p in read_only_folder.iterdir()) == ["old.g2o"]
+# (command, arguments from (tmp_path, graph, model), message from the same); every refusal
+# comes before any work and leaves tmp_path as it was.
+COMMAND_REFUSALS = {
+    "init_graph": (init_main, lambda t, g, m: [g, "-o", t / "." / g.name],
+                   lambda t, g, m: f"{t / g.name}: {REFUSED}"),
+    "init_model": (init_main, lambda t, g, m: [g, "-o", m, "--method", "rl", "--model", m],
+                   lambda t, g, m: f"{m}: {REFUSED}"),
+    "compare_model": (compare_main, lambda t, g, m: [g, "--methods", "rl", "--model", m,
+                                                     "--json", m],
+                      lambda t, g, m: f"{m}: {REFUSED}"),
+    "compare_plot_is_input": (compare_main,
+                              lambda t, g, m: [_copy_as_png(t, g), "--methods", "chordal",
+                                               "--plot", t],
+                              lambda t, g, m: f"{t / 'input.png'}: {REFUSED}"),
+    "compare_json_is_a_plot": (compare_main, lambda t, g, m: [g, "--methods", "chordal", "--plot",
+                                                              t, "--json", t / "input.png"],
+                               lambda t, g, m: f"{t / 'input.png'}: given as two different "
+                                               "outputs"),
+    "compare_plots_collide": (compare_main,
+                              lambda t, g, m: [*_two_of_the_same_name(t, g), "--methods",
+                                               "chordal", "--plot", t / "plots"],
+                              lambda t, g, m: f"{t / 'plots'}: two FILES have the same name; "
+                                              "their plots would overwrite each other"),
+    "compare_plot_name_too_long": (compare_main, lambda t, g, m: [g, "--plot",
+                                                                  t / "new" / ("p" * 256)],
+                                   lambda t, g, m: f"{t / 'new' / ('p' * 256)}/input.png: a "
+                                                   "folder name in it is longer than 255 bytes"),
+    "eval_model": (eval_main, lambda t, g, m: ["--preset", "1", "--model", m, "--json", m,
+                                               "--graphs", "1"],
+                   lambda t, g, m: f"{m}: {REFUSED}"),
+    "generate_twice": (generate_main, lambda t, g, m: ["-o", t / "new.g2o", "--ground-truth",
+                                                       t / "new.g2o"],
+                       lambda t, g, m: f"{t / 'new.g2o'}: given as two different outputs"),
+    "train_name_too_long": (train_main, lambda t, g, m: ["--preset", "1", "--out",
+                                                         t / "new" / ("m" * 250)],
+                            lambda t, g, m: f"{t / 'new' / ('m' * 250)}.train.pt: file name "
+                                            "longer than 255 bytes"),
+    "train_log_is_a_folder": (train_main, lambda t, g, m: ["--preset", "1", "--out", t / "d"],
+                              lambda t, g, m: f"{t / 'd.csv'}: is a directory; give a file "
+                                              "name for the output"),
+}
 
 
-def test_write_g2o_unwritable_folder(read_only_folder, input_file):
-    graph, values = read_g2o(input_file)
-    output = read_only_folder / "old.g2o"
-    with pytest.raises(OutputError) as excinfo:
-        write_g2o(output, graph, values)
-    _check_permission(str(excinfo.value), output)
-    assert (read_only_folder / "old.g2o").read_text() == "old\n"
-
-
-def test_init_permission_denied_simulated(tmp_path, input_file, monkeypatch):
-    """The same failure where root cannot see it: the temporary file cannot be created."""
-    import tempfile
-
-    def denied(*args, dir=None, **kwargs):
-        raise PermissionError(errno.EACCES, "Permission denied", dir)
-
-    monkeypatch.setattr(tempfile, "mkstemp", denied)
-    output = tmp_path / "out.g2o"
-    output.write_bytes(OLD)
-    _check_permission(assert_clean_failure(run_init(input_file, output)), output)
-    assert output.read_bytes() == OLD
-
-
-def _check_full(message: str) -> None:
-    assert message.startswith("/dev/full: ")
-    assert "No space left on device" in message
-
-
-def test_init_full_disk(input_file, guard_dev):
-    before = input_file.read_bytes()
-    _check_full(assert_clean_failure(run_init(input_file, _dev_full())))
-    assert input_file.read_bytes() == before
-
-
-def test_generate_full_disk(guard_dev):
-    _check_full(assert_clean_failure(run_generate(_dev_full())))
-
-
-def test_generate_full_disk_for_ground_truth(tmp_path, guard_dev):
-    result = run_generate(tmp_path / "graph.g2o", "--ground-truth", _dev_full())
-    assert result.exception is None or isinstance(result.exception, SystemExit)
-    assert result.exit_code == 1
-    assert "Traceback" not in result.output
-    assert result.stderr.count("\n") == 1
-    _check_full(result.stderr.removeprefix("Error: ").rstrip("\n"))
-
-
-def test_write_g2o_full_disk(input_file, guard_dev):
-    graph, values = read_g2o(input_file)
-    with pytest.raises(OutputError) as excinfo:
-        write_g2o(_dev_full(), graph, values)
-    _check_full(str(excinfo.value))
-    assert "\n" not in str(excinfo.value)
-
-
-def test_write_g2o_writes_through_dev_null(input_file, guard_dev):
-    if not os.path.exists("/dev/null"):
-        pytest.skip("/dev/null not available")
-    graph, values = read_g2o(input_file)
-    write_g2o("/dev/null", graph, values)
-    assert not Path("/dev/null").is_file()
-
-
-# --------------------------------------------------------------------------- failed writes
-
-OLD = b"VERTEX_SE2 0 0 0 0\n# an existing output that must survive a failed write\n"
-
-
-def _fail(monkeypatch, name: str) -> None:
-    def fail(*args, **kwargs):
-        raise OSError(errno.EIO, "Input/output error")
-
-    monkeypatch.setattr(os, name, fail)
-
-
-@pytest.mark.parametrize("step", ["replace", "fsync"])
-def test_write_g2o_failure_keeps_the_existing_file(tmp_path, input_file, monkeypatch, step):
-    graph, values = read_g2o(input_file)
-    folder = tmp_path / "outputs"
-    folder.mkdir()
-    output = folder / "out.g2o"
-    output.write_bytes(OLD)
-    _fail(monkeypatch, step)
-    with pytest.raises(OutputError) as excinfo:
-        write_g2o(output, graph, values)
-    assert str(excinfo.value) == f"{output}: cannot write: Input/output error"
-    assert output.read_bytes() == OLD
-    assert sorted(p.name for p in folder.iterdir()) == ["out.g2o"]  # no temporary file left
-
-
-def test_write_g2o_failure_creates_nothing(tmp_path, input_file, monkeypatch):
-    graph, values = read_g2o(input_file)
-    folder = tmp_path / "outputs"
-    folder.mkdir()
-    _fail(monkeypatch, "replace")
-    with pytest.raises(OutputError):
-        write_g2o(folder / "out.g2o", graph, values)
-    assert list(folder.iterdir()) == []
-
-
-def test_init_failed_write_keeps_the_existing_output(tmp_path, input_file, monkeypatch):
-    output = tmp_path / "out.g2o"
-    output.write_bytes(OLD)
-    _fail(monkeypatch, "replace")
-    message = assert_clean_failure(run_init(input_file, output))
-    assert message == f"{output}: cannot write: Input/output error"
-    assert output.read_bytes() == OLD
-    assert _temp_files(tmp_path) == []
-
-
-def test_generate_failed_write_keeps_the_existing_output(tmp_path, monkeypatch):
-    output = tmp_path / "out.g2o"
-    output.write_bytes(OLD)
-    _fail(monkeypatch, "replace")
-    message = assert_clean_failure(run_generate(output))
-    assert message == f"{output}: cannot write: Input/output error"
-    assert output.read_bytes() == OLD
-    assert _temp_files(tmp_path) == []
-
-
-# --------------------------------------------------------------------------- successful replacement
-
-
-def test_init_replaces_an_existing_output(tmp_path, input_file):
-    output = tmp_path / "out.g2o"
-    output.write_bytes(OLD)
-    result = run_init(input_file, output)
-    assert result.exit_code == 0, result.output
-    assert output.read_bytes() != OLD
-    graph, values = read_g2o(output)
-    assert values.size() == 40
-    assert _temp_files(tmp_path) == []
-
-
-def test_generate_replaces_an_existing_output(tmp_path):
-    output = tmp_path / "out.g2o"
-    output.write_bytes(OLD)
-    result = run_generate(output)
-    assert result.exit_code == 0, result.output
-    assert read_g2o(output)[1].size() == 40
-    assert _temp_files(tmp_path) == []
-
-
-def test_write_g2o_replaces_an_existing_output(tmp_path, input_file):
-    graph, values = read_g2o(input_file)
-    output = tmp_path / "out.g2o"
-    output.write_bytes(OLD)
-    write_g2o(output, graph, values)
-    assert output.read_bytes() == input_file.read_bytes()  # write -> read -> write is stable
-    assert _temp_files(tmp_path) == []
-
-
-def test_write_g2o_replaces_a_symlink_not_its_target(tmp_path, input_file):
-    """An output symlink to a non-input file: the link is replaced, the target kept."""
-    graph, values = read_g2o(input_file)
-    target = tmp_path / "target.g2o"
-    target.write_bytes(OLD)
-    link = tmp_path / "link.g2o"
-    link.symlink_to(target)
-    write_g2o(link, graph, values)
-    assert target.read_bytes() == OLD
-    assert not link.is_symlink() and link.read_bytes() == input_file.read_bytes()
-
-
-def test_new_outputs_get_the_usual_mode_and_replaced_ones_keep_theirs(tmp_path):
-    from rlpgo_gtsam.files import write_text
-
-    umask = os.umask(0o022)
-    try:
-        fresh = tmp_path / "fresh.txt"
-        write_text(fresh, "x\n")
-        assert fresh.stat().st_mode & 0o777 == 0o644
-        kept = tmp_path / "kept.txt"
-        kept.write_text("old\n")
-        kept.chmod(0o640)
-        write_text(kept, "new\n")
-        assert kept.stat().st_mode & 0o777 == 0o640
-    finally:
-        os.umask(umask)
+@pytest.mark.parametrize("command, arguments, message", COMMAND_REFUSALS.values(),
+                         ids=COMMAND_REFUSALS.keys())
+def test_each_command_refuses_a_bad_output_before_work(tmp_path, input_file, model_file,
+                                                       command, arguments, message):
+    (tmp_path / "d.csv").mkdir()
+    args = [str(a) for a in arguments(tmp_path, input_file, model_file)]
+    before = _snapshot(tmp_path)
+    result = CliRunner().invoke(command, args)
+    cli_error(result, message(tmp_path, input_file, model_file))
+    assert _snapshot(tmp_path) == before  # inputs intact, nothing made
+    load_model(model_file)  # still a model
