@@ -151,11 +151,11 @@ def test_many_fixed_poses_write_lines_the_reader_takes(tmp_path):
 # 5. information that no method can use is refused where it is read
 
 @pytest.mark.parametrize(("information", "reason"), [
-    ("1e300 0 0 1e-300 0 1", "outside the usable"),
+    ("1e300 0 0 1e-300 0 1", "(not positive definite|outside the usable)"),
     ("1e-300 0 0 1e-300 0 1e-300", "outside the usable"),
     ("1e300 0 0 1e300 0 1e300", "outside the usable"),
     ("1e6 0 0 1e-6 0 1", "too ill-conditioned"),
-    ("1e-320 0 0 1 0 1", "outside the usable"),
+    ("1e-320 0 0 1 0 1", "(not positive definite|outside the usable)"),
 ])
 def test_unusable_information_is_refused_with_its_line(tmp_path, information, reason):
     path = _chain_file(tmp_path, information)
