@@ -80,7 +80,7 @@ def _agent(g: PoseGraph2D, start: np.ndarray, k: int, model: str) -> float:
     rl = RLInitializer(model=model, episodes=k, seed=1)
     config = rl.model.env_config
     result = rollout(rl.policy, g, start[:, 2], rl.cycles, config.action_range_rad,
-                     rl.last_actions(), observation=config.observation, keep=config.keep)
+                     rl.last_actions())
     return min(_lm(g, poses_with_orientations(g, theta)) for theta in result.best_theta)
 
 

@@ -19,7 +19,7 @@ from rlpgo_gtsam import PoseGraphEnv, read_g2o, refine
 
 def _cycle_seconds(env: PoseGraphEnv, seed: int) -> tuple[float, int]:
     env.reset(seed=seed)
-    actions = np.random.default_rng(seed).uniform(-1, 1, (len(env.action_edges), 2))
+    actions = np.random.default_rng(seed).uniform(-1, 1, (env.steps_per_episode, 2))
     start = time.perf_counter()
     for action in actions:
         env.step(action)

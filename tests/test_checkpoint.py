@@ -387,43 +387,41 @@ def test_the_width_limit_is_the_one_the_commands_show():
     assert checkpoint._MAX_HIDDEN == MAX_HIDDEN
 
 
-# --- issue 11: models with the new environment fields -------------------------------------
+# --- files written while issue 11's options existed ------------------------------------
 
 
-def test_a_rich_observation_model_round_trips(tmp_path):
-    """A model of the rich observation (12 inputs) saves its env fields and loads with the
-    matching network; a format-1 file without the fields reads them as the old defaults."""
-    import dataclasses
-
-    torch.manual_seed(0)
-    actor = Actor(HIDDEN, observation_size=12)
-    env = dataclasses.replace(PRESETS[1], observation="rich", reward="chi2", keep="chi2",
-                              sigma_r_max=0.6, start="certified", oc_shaping=0.1)
-    path = tmp_path / "rich.zip"
-    save_model(path, actor, env, {})
-    loaded = load_model(path)
-    assert loaded.env_config == env
-    assert loaded.actor.trunk.encoder.observation_size == 12
-    x = torch.randn(1, 3, 12), torch.zeros(1, 3, 2)
-    with torch.no_grad():
-        assert torch.equal(loaded.actor.deterministic(*x)[0], actor.deterministic(*x)[0])
-    old = _rewrite(path, tmp_path / "old.zip", {"config.json": json.dumps(
-        {**_config(path), "env": {k: v for k, v in _config(path)["env"].items()
-                                  if k in ("n", "sigma_r", "sigma_t", "d", "lc", "cycles",
-                                           "action_range_rad", "noisy_measurements")}})})
-    with pytest.raises(ModelError, match="weights do not match"):  # 4 inputs by default
-        load_model(old)
-
-
-@pytest.mark.parametrize("field, value, message", [
-    ("observation", "big", "env.observation must be one of paper, rich"),
-    ("keep", 3, "env.keep must be a string"),
-    ("reward", "", "env.reward must be a string"),
-    ("sigma_r_max", 9.0, "env.sigma_r_max must be a finite number"),
-])
-def test_bad_new_env_fields_are_refused(model, tmp_path, field, value, message):
+def _with_env(model: Path, dst: Path, **fields) -> Path:
     config = _config(model)
-    config["env"][field] = value
-    bad = _rewrite(model, tmp_path / "bad.zip", {"config.json": json.dumps(config)})
-    with pytest.raises(ModelError, match=message):
+    config["env"] |= fields
+    return _rewrite(model, dst, {"config.json": json.dumps(config)})
+
+
+def test_removed_env_fields_at_their_off_values_load_as_before(model, tmp_path):
+    """Models saved while issue 11's options existed hold them at their defaults: such a file
+    loads, with the same environment and the same actions as one without the fields."""
+    from rlpgo_gtsam.rl.agent.checkpoint import REMOVED_ENV_FIELDS
+
+    assert REMOVED_ENV_FIELDS == {"observation": "paper", "reward": "oc", "oc_shaping": 0.0,
+                                  "keep": "oc", "sigma_r_max": 0.0, "start": "odometry"}
+    fields = REMOVED_ENV_FIELDS | {"oc_shaping": 0}  # JSON may hold 0 for 0.0
+    old = load_model(_with_env(model, tmp_path / "old.zip", **fields))
+    new = load_model(model)
+    assert old.env_config == new.env_config == PRESETS[3]
+    x = torch.randn(1, 5, 4), torch.zeros(1, 5, 2)
+    with torch.no_grad():
+        assert torch.equal(old.actor.deterministic(*x)[0], new.actor.deterministic(*x)[0])
+
+
+@pytest.mark.parametrize("field, value", [
+    ("observation", "rich"), ("reward", "chi2"), ("keep", "chi2"), ("start", "certified"),
+    ("oc_shaping", 0.1), ("sigma_r_max", 0.6), ("oc_shaping", False), ("observation", None),
+])
+def test_removed_env_fields_at_other_values_are_refused_with_what_to_do(model, tmp_path,
+                                                                        field, value):
+    bad = _with_env(model, tmp_path / "bad.zip", **{field: value})
+    with pytest.raises(ModelError) as error:
         load_model(bad)
+    message = str(error.value)
+    assert f"this model was trained with env.{field}=" in message
+    assert "removed in rlpgo-gtsam 0.1.0; retrain it" in message
+    assert "bad.zip" in message and "\n" not in message

@@ -18,7 +18,7 @@ LAYERS = [
     "errors", "numerics", "rotations", "graph", "linear", "files", "g2o", "synthetic",
     "translations",
     "certified", "solvers", "initializers", "ranking", "residuals", "staged",
-    "robust.consistency", "robust.gnc", "robust.pipeline", "robust", "rl.episode", "rl.pool",
+    "robust.consistency", "robust.gnc", "robust.pipeline", "robust", "rl.episode",
     "rl.agent", "rl.agent.config", "rl.agent.networks", "rl.agent.buffer", "rl.agent.inference",
     "rl.agent.checkpoint", "rl.models", "rl.env", "rl.agent.sac", "rl.initializer",
     "rl.evaluation", "plotting", "rl.train", "rl",

@@ -14,11 +14,15 @@ from rlpgo_gtsam.rl.models import DEFAULT_PRESET_MODEL, model_path, resolve_mode
 @click.command(cls=RlpgoCommand)
 @click.option("--model", default=None,
               help="Shipped model name or model file [default: the preset's shipped agent].")
-@click.option("--preset", type=click.IntRange(1, len(PRESETS)), required=True)
-@click.option("--graphs", type=COUNT, default=50, show_default=True)
-@click.option("--seed", type=SEED, default=1000, show_default=True)
+@click.option("--preset", type=click.IntRange(1, len(PRESETS)), required=True,
+              help="The paper's environment (Table I) whose generated graphs are evaluated.")
+@click.option("--graphs", type=COUNT, default=50, show_default=True,
+              help="Generated graphs to evaluate on, the same for the agent and both controls.")
+@click.option("--seed", type=SEED, default=1000, show_default=True,
+              help="Graph k is generated with seed + k; also seeds the random control.")
 @click.option("--noisy-measurements", is_flag=True, help="Evaluate on noisy-measurement graphs.")
-@click.option("--json", "json_path", type=OutputFile())
+@click.option("--json", "json_path", type=OutputFile(),
+              help="Also write the figures to this JSON file.")
 def main(model, preset, graphs, seed, noisy_measurements, json_path):
     """Deterministic rollouts on fresh graphs of a preset; mean initial and best OC."""
     from rlpgo_gtsam.rl.evaluation import evaluate

@@ -13,7 +13,7 @@ from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import COUNT, SEED, FiniteFloat, OutputFile
 from rlpgo_gtsam.files import check_name
 from rlpgo_gtsam.rl.agent.config import SacConfig
-from rlpgo_gtsam.rl.episode import CHOICES, PRESETS, EnvConfig
+from rlpgo_gtsam.rl.episode import PRESETS, EnvConfig
 from rlpgo_gtsam.rl.models import MAX_HIDDEN
 
 _ENV_FIELDS = {name: type(value) for name, value in
@@ -21,7 +21,8 @@ _ENV_FIELDS = {name: type(value) for name, value in
 
 
 class EnvSetting(click.ParamType):
-    """``KEY=VALUE`` for one EnvConfig field, the value read as that field's type."""
+    """``KEY=VALUE`` for one EnvConfig field, the value read as that field's type (ranges
+    are checked with the model schema's, before the progress bar shows)."""
 
     name = "key=value"
 
@@ -37,11 +38,6 @@ class EnvSetting(click.ParamType):
             if text.lower() not in ("true", "false", "1", "0"):
                 self.fail(f"{key}: expected true or false, got {text!r}", param, ctx)
             return key, text.lower() in ("true", "1")
-        if kind is str:
-            if text not in CHOICES.get(key, ()):
-                self.fail(f"{key}: expected one of {', '.join(CHOICES[key])}, got {text!r}",
-                          param, ctx)
-            return key, text
         try:
             number = int(text) if kind is int else FiniteFloat(0.0, 1e6).convert(text, param,
                                                                                    ctx)
@@ -55,8 +51,10 @@ class EnvSetting(click.ParamType):
 @click.command(cls=RlpgoCommand)
 @click.option("--preset", type=click.IntRange(1, len(PRESETS)), required=True,
               help="The paper's training environment (Table I).")
-@click.option("--episodes", type=COUNT, default=300, show_default=True)
-@click.option("--seed", type=SEED, default=0, show_default=True)
+@click.option("--episodes", type=COUNT, default=300, show_default=True,
+              help="Episodes to collect in all, the random warm-up ones included.")
+@click.option("--seed", type=SEED, default=0, show_default=True,
+              help="Seeds torch, the training graphs and the replay sampling.")
 @click.option("--out", type=OutputFile(), default=None,
               help="Path stem of the outputs [default: models/presetP].")
 @click.option("--resume", is_flag=True, help="Continue from <out>.train.pt.")
@@ -72,31 +70,14 @@ class EnvSetting(click.ParamType):
               help="Ship the checkpoint that does best on this many validation graphs "
                    "(0: ship the last one).")
 @click.option("--env", "env_settings", type=EnvSetting(), multiple=True,
-              help="Override one training-environment field, KEY=VALUE (repeatable), e.g. "
-                   "observation=rich, reward=chi2, oc_shaping=0.1, keep=chi2, n=200, "
-                   "sigma_r=0.3, sigma_r_max=0.6, sigma_t=0.05, d=3, cycles=2, "
-                   "start=certified, noisy_measurements=true.")
-@click.option("--pool-graphs", type=click.IntRange(0, 100_000), default=0, show_default=True,
-              help="Draw episodes from this many generated graphs with their classical "
-                   "(certified + LM) starts, computed once and cached in <out>.pool.npz "
-                   "(0: a new graph every episode).")
-@click.option("--validation", "validation_metric", type=click.Choice(["oc", "chi2"]),
-              default="oc", show_default=True,
-              help="What validation measures: best-OC ratio from dead reckoning, or chi2 "
-                   "after LM from the classical optimum (the arena's criterion).")
-@click.option("--initial-last-action", type=click.Choice(["uniform", "zero"]),
-              default="uniform", show_default=True,
-              help="The last action a training episode starts with.")
+              help="Override one field of the preset's environment, KEY=VALUE (repeatable): "
+                   "n, sigma_r, sigma_t, d, lc, cycles, action_range_rad, "
+                   "noisy_measurements; e.g. --env n=200 --env cycles=2.")
 @click.option("--reward-scale", type=FiniteFloat(0.0, 1e6, min_open=True),
               default=SacConfig.reward_scale, show_default=True,
               help="Rewards are multiplied by this in the critic targets.")
-@click.option("--fresh-critic-features", is_flag=True,
-              help="The actor loss uses the critics' features recomputed after their step.")
-@click.option("--burn-in-prefix", is_flag=True,
-              help="Burn-in steps come before each window and carry no gradients (R2D2).")
 def main(preset, episodes, seed, out, resume, hidden, batch_size, gradient_steps,
-         noisy_measurements, validation_graphs, env_settings, pool_graphs, validation_metric,
-         initial_last_action, reward_scale, fresh_critic_features, burn_in_prefix):
+         noisy_measurements, validation_graphs, env_settings, reward_scale):
     """Train an agent; writes <out>.zip (the model), <out>.csv and <out>.png (the log)."""
     from rlpgo_gtsam.rl.train import TrainConfig, train
 
@@ -113,16 +94,11 @@ def main(preset, episodes, seed, out, resume, hidden, batch_size, gradient_steps
     config = TrainConfig(
         preset=preset, episodes=episodes, seed=seed, out=out,
         sac=SacConfig(hidden=hidden, batch_size=batch_size, gradient_steps=gradient_steps,
-                      reward_scale=reward_scale, fresh_critic_features=fresh_critic_features,
-                      burn_in_prefix=burn_in_prefix),
+                      reward_scale=reward_scale),
         env_overrides=env_overrides,
         validation_graphs=validation_graphs,
         command=shlex.join(["rlpgo-train", *sys.argv[1:]]),
-        pool_graphs=pool_graphs, validation=validation_metric,
-        initial_last_action=initial_last_action,
     )
-    if validation_metric == "chi2" and not validation_graphs:
-        raise click.UsageError("--validation chi2 needs --validation-graphs > 0")
     from rlpgo_gtsam.rl.agent.checkpoint import check_env_config
 
     check_env_config(config.env_config, outputs[0])  # before the progress bar shows

@@ -8,10 +8,8 @@ never calls GTSAM. Importing this module registers ``rlpgo/PoseGraph-v0``.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Sequence
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gtsam
 import gymnasium as gym
@@ -19,12 +17,14 @@ import numpy as np
 
 from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import PoseGraph2D
-from rlpgo_gtsam.rl.episode import OBSERVATION_SIZES, PRESETS, EdgeWalk, EnvConfig, make_state
-from rlpgo_gtsam.rl.pool import classical_start, training_graph
-from rlpgo_gtsam.translations import TranslationStep, poses_with_orientations
-
-if TYPE_CHECKING:
-    from rlpgo_gtsam.rl.pool import PoolEntry
+from rlpgo_gtsam.rl.episode import (
+    PRESETS,
+    EdgeWalk,
+    EnvConfig,
+    OrientationState,
+    generated_graph,
+)
+from rlpgo_gtsam.translations import poses_with_orientations
 
 __all__ = ["ENV_ID", "PoseGraphEnv"]
 
@@ -57,9 +57,6 @@ class PoseGraphEnv(gym.Env):
     Index 0 is the input of the paper's graph encoder (its messages beta*c_e summed per
     node and averaged; beta and the linear layer belong to the agent); index 1 is the
     paper's residual; 2 and 3 are local slopes the paper's state does not have.
-    With ``observation="rich"``: ``Box((12,), float32)``, these four and eight more
-    (:meth:`~rlpgo_gtsam.rl.episode.EdgeWalk.observe`): the real cost's view of the edge and of
-    its poses' other edges (positions from the last translation step), and the horizon.
 
     ## Action
     ``Box(-1, 1, (2,), float32)``: R_i <- R_i Exp(a0 * range), R_j <- R_j Exp(a1 * range),
@@ -69,18 +66,12 @@ class PoseGraphEnv(gym.Env):
     ``100 / (OC + 1)`` after the step, with OC = sqrt(sum_e ||R~_ij - R_i^T R_j||_F^2)
     (unweighted), plus 25 each time OC first falls below a tenth of the previous bonus
     level (the episode's initial OC, then a tenth of it, ...).
-    With ``reward="chi2"``: ``100 log(chi2_before / chi2_after)``, chi2 being GTSAM's chi2
-    of the orientations with the translation step's positions (the real cost of the
-    orientations): near the start, the percentage decrease of the step; the episode's
-    return is ``100 log(chi2_start / chi2_end)``, which a walk far off the optimum (chi2
-    up a hundredfold) cannot swamp. Plus ``oc_shaping`` times the paper's reward.
 
     ## Starting state
     Generated graphs (``preset`` / parameters): a new lawn-mower graph at every reset, the
-    noisy dead-reckoned orientations (``start="certified"``: the orientations of certified +
-    LM on it). A pool (``pool``): a random entry at every reset, from its cached classical
-    start. A fixed graph (``graph`` + ``values``, or ``pose_graph``): its values'
-    orientations. ``options={"orientations": theta}`` overrides any of these.
+    noisy dead-reckoned orientations. A fixed graph (``graph`` + ``values``, or
+    ``pose_graph``): its values' orientations. ``options={"orientations": theta}``
+    overrides either.
 
     ## Episode end
     ``terminated`` after the last edge of the last cycle (a fixed horizon, no bootstrap past
@@ -91,11 +82,8 @@ class PoseGraphEnv(gym.Env):
 
     ## Arguments
     - ``preset``: 1..5, the paper's Table I training environments (default 1).
-    - ``n, sigma_r, sigma_t, d, lc, cycles, action_range_rad, noisy_measurements``,
-      ``observation, reward, oc_shaping, keep, sigma_r_max, start``: override any preset
-      value (:class:`~rlpgo_gtsam.rl.episode.EnvConfig`).
-    - ``pool``: :class:`~rlpgo_gtsam.rl.pool.PoolEntry` graphs to draw from instead of
-      generating (:func:`~rlpgo_gtsam.rl.pool.build_pool`).
+    - ``n, sigma_r, sigma_t, d, lc, cycles, action_range_rad, noisy_measurements``:
+      override any preset value (:class:`~rlpgo_gtsam.rl.episode.EnvConfig`).
     - ``graph``, ``values``: a GTSAM graph and values to wrap instead.
     - ``pose_graph``: the same, already extracted as a :class:`PoseGraph2D`.
     """
@@ -109,7 +97,6 @@ class PoseGraphEnv(gym.Env):
         graph: gtsam.NonlinearFactorGraph | None = None,
         values: gtsam.Values | None = None,
         pose_graph: PoseGraph2D | None = None,
-        pool: Sequence[PoolEntry] | None = None,
         **overrides: Any,
     ) -> None:
         if preset is not None and preset not in PRESETS:
@@ -125,32 +112,19 @@ class PoseGraphEnv(gym.Env):
             raise RlpgoError("give both graph and values, or neither")
         if graph is not None and pose_graph is None:
             pose_graph = PoseGraph2D.from_gtsam(graph, values)
-        if pool is not None and (pose_graph is not None or not pool):
-            raise RlpgoError("give a non-empty pool or a graph, not both")
-        self._pool = list(pool) if pool is not None else None
         self._fixed = pose_graph is not None
-        low = [0.0, -np.pi, -_UNBOUNDED, -_UNBOUNDED]
-        high = [_UNBOUNDED, np.pi, _UNBOUNDED, _UNBOUNDED]
-        if self.config.observation == "rich":
-            extra = OBSERVATION_SIZES["rich"] - len(low)
-            low += [-_UNBOUNDED, 0.0, -_UNBOUNDED, -_UNBOUNDED, -_UNBOUNDED, -_UNBOUNDED,
-                    0.0, 0.0][:extra]
-            high += [_UNBOUNDED] * (extra - 2) + [1.0, 1.0]
-        self.observation_space = gym.spaces.Box(np.array(low, np.float32),
-                                                np.array(high, np.float32))
+        self.observation_space = gym.spaces.Box(
+            np.array([0.0, -np.pi, -_UNBOUNDED, -_UNBOUNDED], np.float32),
+            np.array([_UNBOUNDED, np.pi, _UNBOUNDED, _UNBOUNDED], np.float32))
         self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.pose_graph: PoseGraph2D | None = None
         if pose_graph is not None:
             self._load(pose_graph)
 
     def _load(self, pose_graph: PoseGraph2D) -> None:
-        c = self.config
         self.pose_graph = pose_graph
-        self.walk = EdgeWalk(pose_graph, c.observation, c.cycles)
-        needs_translation = c.observation != "paper" or c.reward == "chi2"
-        self.translation = TranslationStep(pose_graph) if needs_translation else None
-        self.state = make_state(pose_graph, pose_graph.poses[:, 2], c.observation,
-                                self.translation)
+        self.walk = EdgeWalk(pose_graph)
+        self.state = OrientationState(pose_graph, pose_graph.poses[:, 2])
 
     @property
     def steps_per_episode(self) -> int:
@@ -158,20 +132,13 @@ class PoseGraphEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        start = None
-        if self._pool is not None:
-            entry = self._pool[int(self.np_random.integers(len(self._pool)))]
-            self._load(entry.pose_graph)
-            start = entry.start_theta
-        elif not self._fixed:
-            self._load(training_graph(self.config, self.np_random)[0])
-            if self.config.start == "certified":
-                start = classical_start(self.pose_graph)[0]
+        if not self._fixed:
+            self._load(generated_graph(self.config, self.np_random))
         if self.pose_graph is None:
             raise RlpgoError("no graph: give graph and values, or generate (preset)")
         orientations = (options or {}).get("orientations")
         if orientations is None:
-            orientations = self.pose_graph.poses[:, 2] if start is None else start
+            orientations = self.pose_graph.poses[:, 2]
         elif np.shape(orientations) != (self.pose_graph.num_poses,):
             raise RlpgoError(
                 f"orientations must have shape ({self.pose_graph.num_poses},), "
@@ -181,8 +148,6 @@ class PoseGraphEnv(gym.Env):
         self.initial_oc = self.state.oc
         self._bonus_level = self.initial_oc
         self._step = 0
-        if self.config.reward == "chi2":
-            self.chi2 = self.initial_chi2 = self.best_chi2 = self._chi2_now()
         return self._observation(), self._info()
 
     def step(self, action):
@@ -192,24 +157,15 @@ class PoseGraphEnv(gym.Env):
         if oc < self._bonus_level / _BONUS_FACTOR:
             reward += _BONUS
             self._bonus_level /= _BONUS_FACTOR
-        if self.config.reward == "chi2":
-            before, self.chi2 = self.chi2, self._chi2_now()
-            self.best_chi2 = min(self.best_chi2, self.chi2)
-            reward = (100.0 * math.log(max(before, 1e-300) / max(self.chi2, 1e-300))
-                      + self.config.oc_shaping * reward)
         self._step += 1
         terminated = self._step >= self.steps_per_episode
         return self._observation(), reward, terminated, False, self._info()
-
-    def _chi2_now(self) -> float:
-        """GTSAM's chi2 of the current orientations with the translation step's positions."""
-        return self.translation.chi2(np.array(self.state.theta))
 
     def _observation(self) -> np.ndarray:
         return np.array(self.walk.observe(self.state, self._step), dtype=np.float32)
 
     def _info(self) -> dict:
-        info = {
+        return {
             "oc": self.state.oc,
             "best_oc": self.state.best_oc,
             "initial_oc": self.initial_oc,
@@ -217,10 +173,6 @@ class PoseGraphEnv(gym.Env):
             "cycle": self._step // len(self.walk),
             "edge": self.walk.edge_list[self._step % len(self.walk)],
         }
-        if self.config.reward == "chi2":
-            info |= {"chi2": self.chi2, "best_chi2": self.best_chi2,
-                     "initial_chi2": self.initial_chi2}
-        return info
 
     def best_orientations(self) -> np.ndarray:
         """Orientations of the lowest-OC configuration of the episode so far."""

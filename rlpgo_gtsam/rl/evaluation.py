@@ -16,28 +16,33 @@ import numpy as np
 from rlpgo_gtsam.graph import PoseGraph2D
 from rlpgo_gtsam.rl.agent.checkpoint import LoadedModel
 from rlpgo_gtsam.rl.agent.inference import NumpyPolicy
-from rlpgo_gtsam.rl.episode import PRESETS, BalancingPolicy, EnvConfig, RandomPolicy, rollout
-from rlpgo_gtsam.synthetic import generate
+from rlpgo_gtsam.rl.episode import (
+    PRESETS,
+    BalancingPolicy,
+    EnvConfig,
+    RandomPolicy,
+    generated_graph,
+    rollout,
+)
 
-__all__ = ["evaluate", "evaluation_graph", "best_oc_ratios"]
+__all__ = ["evaluate", "evaluation_graph", "initial_and_best_oc"]
 
 
 def evaluation_graph(config: EnvConfig, seed: int) -> PoseGraph2D:
     """The generated graph of ``config`` for ``seed`` (the one the environment draws after
     ``reset(seed=seed)``)."""
-    sample = generate(config.n, config.sigma_r, config.sigma_t, config.d, config.lc,
-                      np.random.default_rng(seed), noisy_measurements=config.noisy_measurements)
-    return PoseGraph2D.from_gtsam(sample.graph, sample.initial)
+    return generated_graph(config, np.random.default_rng(seed))
 
 
-def best_oc_ratios(policy, config: EnvConfig, seeds: list[int]) -> tuple[list[float], list[float]]:
-    """Initial OC and best OC of one deterministic rollout per seed's graph."""
+def initial_and_best_oc(policy, config: EnvConfig,
+                        seeds: list[int]) -> tuple[list[float], list[float]]:
+    """The initial OC and the best OC (raw values, not ratios) of one deterministic rollout
+    of ``config.cycles`` cycles per seed's graph, from its dead reckoning."""
     initial, best = [], []
     for seed in seeds:
         graph = evaluation_graph(config, seed)
         result = rollout(policy, graph, graph.poses[:, 2], config.cycles,
-                         config.action_range_rad, np.zeros((1, 2)),
-                         observation=config.observation)
+                         config.action_range_rad, np.zeros((1, 2)))
         initial.append(result.initial_oc)
         best.append(float(result.best_oc[0]))
     return initial, best
@@ -48,15 +53,15 @@ def evaluate(model: LoadedModel, preset: int, graphs: int, seed: int,
     """Mean initial OC, and mean best OC of the agent, random actions and the rule.
 
     Graph ``k`` is the preset's generator seeded with ``seed + k``, the same for all three.
-    The environment takes the preset's parameters, with the model's action range and
-    observation kind (what the agent was trained with) and the given overrides.
+    The environment takes the preset's parameters, with the model's action range (what the
+    agent was trained with) and the given overrides.
     """
     config = replace(PRESETS[preset], action_range_rad=model.env_config.action_range_rad,
-                     observation=model.env_config.observation, **(overrides or {}))
+                     **(overrides or {}))
     seeds = [seed + k for k in range(graphs)]
-    initial, agent = best_oc_ratios(NumpyPolicy(model.actor), config, seeds)
-    _, random = best_oc_ratios(RandomPolicy(np.random.default_rng(seed)), config, seeds)
-    _, greedy = best_oc_ratios(BalancingPolicy(config.action_range_rad), config, seeds)
+    initial, agent = initial_and_best_oc(NumpyPolicy(model.actor), config, seeds)
+    _, random = initial_and_best_oc(RandomPolicy(np.random.default_rng(seed)), config, seeds)
+    _, greedy = initial_and_best_oc(BalancingPolicy(config.action_range_rad), config, seeds)
     return {
         "preset": preset,
         "graphs": graphs,

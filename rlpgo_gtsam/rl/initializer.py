@@ -5,8 +5,7 @@
 
 The agent walks the graph deterministically (tanh of the policy mean), ``cycles`` passes
 over its edges, through :func:`~rlpgo_gtsam.rl.episode.rollout` and the numpy policy; the
-orientations each rollout keeps (the lowest-OC ones, or for a model with ``keep="chi2"`` the
-lowest-chi2 cycle end) get positions from the linear translation step.
+lowest-OC orientations each rollout saw get positions from the linear translation step.
 ``episodes=k`` runs k rollouts that differ only in their initial "last action", batched,
 and keeps the guess with the lowest chi2. What the call learned (every rollout's chi2, the
 chosen one) comes back in :meth:`run`'s :class:`~rlpgo_gtsam.initializers.InitResult`.
@@ -78,8 +77,7 @@ class RLInitializer(Initializer):
         start_theta = pose_graph.poses[:, 2] if start_poses is None else start_poses[:, 2]
         config = self.model.env_config
         result = rollout(self.policy, pose_graph, start_theta, self.cycles,
-                         config.action_range_rad, self.last_actions(), self.progress,
-                         observation=config.observation, keep=config.keep)
+                         config.action_range_rad, self.last_actions(), self.progress)
         guesses = [poses_with_orientations(pose_graph, theta) for theta in result.best_theta]
         costs = [chi2(pose_graph.graph, pose_graph.to_values(poses)) for poses in guesses]
         chosen = int(np.argmin(costs))

@@ -1,7 +1,6 @@
 """Training one agent on a preset's generated graphs: TrainConfig + train().
 
-Logs go to a CSV (episode, reward, initial OC, best OC, final OC, seconds; with the real-cost
-reward also the episode's initial, best and final chi2), to TensorBoard
+Logs go to a CSV (episode, reward, initial OC, best OC, final OC, seconds), to TensorBoard
 when it is installed, and to a PNG of the reward curve; nothing is printed (a caller may
 pass ``on_episode`` to show progress). The training state is checkpointed to
 ``<out>.train.pt`` so that ``resume=True`` continues an interrupted run; the shipped model
@@ -33,21 +32,15 @@ from rlpgo_gtsam.rl.agent.config import SacConfig
 from rlpgo_gtsam.rl.agent.inference import NumpyPolicy
 from rlpgo_gtsam.rl.agent.sac import Episode, SacAgent, run_episode
 from rlpgo_gtsam.rl.env import PoseGraphEnv
-from rlpgo_gtsam.rl.episode import OBSERVATION_SIZES, PRESETS, EnvConfig
-from rlpgo_gtsam.rl.evaluation import best_oc_ratios
+from rlpgo_gtsam.rl.episode import PRESETS, EnvConfig
+from rlpgo_gtsam.rl.evaluation import initial_and_best_oc
 
-__all__ = ["TrainConfig", "train", "CSV_FIELDS", "CHI2_FIELDS", "VALIDATION_METRICS",
-           "INITIAL_LAST_ACTIONS", "POOL_SEED", "VALIDATION_POOL_SEED"]
+__all__ = ["TrainConfig", "train", "CSV_FIELDS", "VALIDATION_SEED"]
 
 CSV_FIELDS = ["episode", "reward", "initial_oc", "best_oc", "final_oc", "seconds"]
-# Added to the log when the environment's reward is the real cost.
-CHI2_FIELDS = ["initial_chi2", "best_chi2", "final_chi2"]
-VALIDATION_METRICS = ("oc", "chi2")
-INITIAL_LAST_ACTIONS = ("uniform", "zero")
-# Generator seeds of the pools: training graphs 20000 + k, validation graphs 30000 + k
-# (apart from the environment's streams, rlpgo-eval's 1000 + k and the arena's 101-103).
-POOL_SEED, VALIDATION_POOL_SEED = 20_000, 30_000
-_VALIDATION_LM_ITERS = 100
+# Generator seeds of the validation graphs: 10000 + k (neither the environment's streams nor
+# rlpgo-eval's default 1000 + k use them).
+VALIDATION_SEED = 10_000
 
 
 @dataclass(frozen=True)
@@ -64,22 +57,10 @@ class TrainConfig:
             (e.g. ``{"noisy_measurements": True}``).
         checkpoint_every: episodes between training checkpoints.
         validation_graphs: if > 0, at each checkpoint the deterministic policy runs on this
-            many validation graphs (generator seeds 10000 + k, which neither training nor
-            rlpgo-eval's default seeds use) and the shipped model is the checkpoint with the
-            lowest mean best-OC / initial-OC; if 0, the last checkpoint is shipped.
+            many validation graphs (generator seeds ``VALIDATION_SEED + k``) and the shipped
+            model is the checkpoint with the lowest mean best-OC / initial-OC; if 0, the
+            last checkpoint is shipped.
         command: the command line that started the run, kept in the model's metadata.
-        pool_graphs: if > 0, episodes draw from this many generated graphs with their
-            classical starts (certified + LM), computed once and cached in
-            ``<out>.pool.npz`` (generator seeds 20000 + k); 0: a new graph every episode.
-        validation: what validation measures: "oc" (mean best-OC / initial-OC from the
-            dead reckoning, default) or "chi2": on ``validation_graphs`` pool graphs
-            (seeds 30000 + k, cached in ``<out>.validation.npz``) the deterministic policy
-            starts from the classical optimum, runs ``test_cycles`` cycles, its kept
-            orientations get the translation step and LM100, and the score is the mean of
-            that chi2 over the classical optimum's (the arena's criterion, one rollout).
-        initial_last_action: the "last action" a training episode starts with: "uniform"
-            (random in [-1, 1]^2, default; inference's rollouts 1..k-1 draw the same) or
-            "zero" (what evaluation and inference's first rollout use).
     """
 
     preset: int = 1
@@ -91,25 +72,13 @@ class TrainConfig:
     checkpoint_every: int = 25
     validation_graphs: int = 0
     command: str = ""
-    pool_graphs: int = 0
-    validation: str = "oc"
-    initial_last_action: str = "uniform"
-
-    def __post_init__(self) -> None:
-        if self.validation not in VALIDATION_METRICS:
-            raise RlpgoError(f"validation must be one of {', '.join(VALIDATION_METRICS)}")
-        if self.initial_last_action not in INITIAL_LAST_ACTIONS:
-            raise RlpgoError("initial_last_action must be one of "
-                             f"{', '.join(INITIAL_LAST_ACTIONS)}")
 
     @property
     def env_config(self) -> EnvConfig:
+        unknown = set(self.env_overrides) - set(EnvConfig.__dataclass_fields__)
+        if unknown:
+            raise RlpgoError(f"unknown environment parameter(s): {', '.join(sorted(unknown))}")
         return replace(PRESETS[self.preset], **self.env_overrides)
-
-    @property
-    def log_fields(self) -> list[str]:
-        """The columns of the training log."""
-        return CSV_FIELDS + (CHI2_FIELDS if self.env_config.reward == "chi2" else [])
 
 
 def train(
@@ -123,15 +92,8 @@ def train(
     check_env_config(config.env_config, out.with_name(out.name + ".zip"))
     out.parent.mkdir(parents=True, exist_ok=True)
     paths = {s: out.with_name(out.name + s) for s in (".zip", ".csv", ".png", ".train.pt")}
-    pool = None
-    if config.pool_graphs:
-        from rlpgo_gtsam.rl.pool import build_pool
-
-        pool = build_pool(config.env_config,
-                          [POOL_SEED + k for k in range(config.pool_graphs)],
-                          out.with_name(out.name + ".pool.npz"))
-    env = PoseGraphEnv(config.preset, pool=pool, **config.env_overrides)
-    agent = SacAgent(config.sac, config.seed, OBSERVATION_SIZES[config.env_config.observation])
+    env = PoseGraphEnv(config.preset, **config.env_overrides)
+    agent = SacAgent(config.sac, config.seed)
     rng = np.random.default_rng(config.seed)
     start_episode, elapsed, best_validation = 0, 0.0, float("inf")
     if resume and paths[".train.pt"].exists():
@@ -151,16 +113,14 @@ def train(
     # The log is kept in memory and written atomically with each checkpoint, so that the zip,
     # the CSV and the training state on disk always belong to the same run and episode: an
     # interrupted run leaves the previous checkpoint's files as they were.
-    rows = _log_rows(paths[".csv"], start_episode, config.log_fields) if start_episode else []
+    rows = _log_rows(paths[".csv"], start_episode) if start_episode else []
     env.reset(seed=config.seed + start_episode)
     warmup = config.sac.warmup_episodes
     for episode_index in range(start_episode, config.episodes):
         began = time.perf_counter()
         # A resumed run starts with an empty replay (it is not checkpointed): it refills
         # from the current policy, sampled with replacement until it grows.
-        episode = run_episode(
-            env, None if episode_index < warmup else agent.actor, rng,
-            initial_last_action=np.zeros(2) if config.initial_last_action == "zero" else None)
+        episode = run_episode(env, None if episode_index < warmup else agent.actor, rng)
         agent.replay.add(episode.observations, episode.last_actions, episode.actions,
                          episode.rewards)
         losses = agent.update() if episode_index + 1 >= warmup else {}
@@ -168,16 +128,15 @@ def train(
         reward = float(episode.rewards.sum())
         rows.append([episode_index + 1, f"{reward:.4f}", f"{episode.initial_oc:.6g}",
                      f"{episode.best_oc:.6g}", f"{episode.final_oc:.6g}", f"{elapsed:.2f}"])
-        if config.env_config.reward == "chi2":
-            rows[-1] += [f"{episode.initial_chi2:.8g}", f"{episode.best_chi2:.8g}",
-                         f"{episode.final_chi2:.8g}"]
         if writer is not None:
             writer.add_scalar("episode/reward", reward, episode_index + 1)
             writer.add_scalar("episode/best_oc_ratio",
                               episode.best_oc / max(episode.initial_oc, 1e-12),
                               episode_index + 1)
-            for name, value in losses.items():
-                writer.add_scalar(f"loss/{name}", value, episode_index + 1)
+            if losses:  # "alpha" is the temperature after the round, not a loss
+                writer.add_scalar("loss/q", losses["q_loss"], episode_index + 1)
+                writer.add_scalar("loss/actor", losses["actor_loss"], episode_index + 1)
+                writer.add_scalar("sac/alpha", losses["alpha"], episode_index + 1)
         if on_episode is not None:
             on_episode(episode_index + 1, episode, elapsed)
         done = episode_index + 1
@@ -190,9 +149,7 @@ def train(
                     writer.add_scalar("validation/best_oc_ratio", score, done)
                 if score < best_validation:
                     best_validation = score
-                    key = "validation_best_oc_ratio" if config.validation == "oc" else \
-                        "validation_chi2_ratio"
-                    metadata |= {key: score, "selected_episode": done}
+                    metadata |= {"validation_best_oc_ratio": score, "selected_episode": done}
                     files.append((paths[".zip"], model_bytes(agent.actor, config.env_config,
                                                              metadata)))
             else:
@@ -201,7 +158,7 @@ def train(
             buffer = io.BytesIO()
             torch.save({"agent": agent.state_dict(), "episode": done, "seconds": elapsed,
                         "best_validation": best_validation}, buffer)
-            files += [(paths[".csv"], _log_text(rows, config.log_fields).encode()),
+            files += [(paths[".csv"], _log_text(rows).encode()),
                       (paths[".png"], _plot_rewards(rows, config)),
                       (paths[".train.pt"], buffer.getvalue())]
             write_together(files)  # all of a checkpoint's files, or none of them
@@ -237,45 +194,10 @@ def _training_state(path: Path, config: TrainConfig) -> dict:
 
 def _validate(agent: SacAgent, config: TrainConfig) -> float:
     """Mean best-OC / initial-OC of the deterministic policy on the validation graphs,
-    through the rollout and numpy policy that users run (``validation="chi2"``: see
-    :func:`_validate_chi2`)."""
-    if config.validation == "chi2":
-        return _validate_chi2(agent, config)
-    seeds = [10_000 + k for k in range(config.validation_graphs)]
-    initial, best = best_oc_ratios(NumpyPolicy(agent.actor), config.env_config, seeds)
+    through the rollout and numpy policy that users run."""
+    seeds = [VALIDATION_SEED + k for k in range(config.validation_graphs)]
+    initial, best = initial_and_best_oc(NumpyPolicy(agent.actor), config.env_config, seeds)
     return float(np.mean([b / max(i, 1e-12) for i, b in zip(initial, best, strict=True)]))
-
-
-_VALIDATION_POOLS: dict[str, list] = {}
-
-
-def _validate_chi2(agent: SacAgent, config: TrainConfig) -> float:
-    """Mean (chi2 after LM from the agent's guess) / (the classical optimum's chi2) on the
-    validation pool: one deterministic rollout from the classical optimum, through the
-    numpy policy, :func:`~rlpgo_gtsam.rl.episode.rollout` and the translation step, as
-    :class:`~rlpgo_gtsam.rl.initializer.RLInitializer` runs them."""
-    from rlpgo_gtsam.rl.episode import rollout
-    from rlpgo_gtsam.rl.pool import build_pool
-    from rlpgo_gtsam.solvers import refine
-    from rlpgo_gtsam.translations import poses_with_orientations
-
-    env = config.env_config
-    out = Path(config.out)
-    cache = out.with_name(out.name + ".validation.npz")
-    key = f"{cache}:{config.validation_graphs}"
-    if key not in _VALIDATION_POOLS:
-        _VALIDATION_POOLS[key] = build_pool(
-            env, [VALIDATION_POOL_SEED + k for k in range(config.validation_graphs)], cache)
-    policy = NumpyPolicy(agent.actor)
-    ratios = []
-    for entry in _VALIDATION_POOLS[key]:
-        g = entry.pose_graph
-        result = rollout(policy, g, entry.start_theta, 2 * env.cycles, env.action_range_rad,
-                         np.zeros((1, 2)), observation=env.observation, keep=env.keep)
-        guess = g.to_values(poses_with_orientations(g, result.best_theta[0]))
-        refined = refine(g.graph, guess, "lm", _VALIDATION_LM_ITERS, pose_graph=g)
-        ratios.append(refined.chi2 / entry.start_chi2)
-    return float(np.mean(ratios))
 
 
 def _metadata(config: TrainConfig, episodes: int, seconds: float) -> dict:
@@ -298,20 +220,20 @@ def _tensorboard(out: Path):
     return SummaryWriter(log_dir=str(out.parent / "runs" / out.name))
 
 
-def _log_rows(path: Path, episodes: int, fields: list[str] = CSV_FIELDS) -> list[list]:
+def _log_rows(path: Path, episodes: int) -> list[list]:
     """The rows of an earlier run's log up to ``episodes`` (those a resumed run keeps)."""
     try:
         with path.open(newline="") as handle:
             rows = list(csv.reader(handle))[1:]
     except OSError:
         return []
-    return [row for row in rows if _log_row(row, fields) and int(row[0]) <= episodes]
+    return [row for row in rows if _log_row(row) and int(row[0]) <= episodes]
 
 
-def _log_row(row: list[str], fields: list[str] = CSV_FIELDS) -> bool:
+def _log_row(row: list[str]) -> bool:
     """A well-formed log row: an episode number and a number per other field (a
     hand-edited or truncated earlier log loses its bad rows, not the resumed run)."""
-    if len(row) != len(fields) or not (row[0].isdigit() and len(row[0]) <= 12):
+    if len(row) != len(CSV_FIELDS) or not (row[0].isdigit() and len(row[0]) <= 12):
         return False
     try:
         return all(math.isfinite(float(value)) for value in row[1:])
@@ -319,10 +241,10 @@ def _log_row(row: list[str], fields: list[str] = CSV_FIELDS) -> bool:
         return False
 
 
-def _log_text(rows: list[list], fields: list[str] = CSV_FIELDS) -> str:
+def _log_text(rows: list[list]) -> str:
     text = io.StringIO()
     writer = csv.writer(text, lineterminator="\n")
-    writer.writerow(fields)
+    writer.writerow(CSV_FIELDS)
     writer.writerows(rows)
     return text.getvalue()
 
@@ -331,5 +253,5 @@ def _plot_rewards(rows: list[list], config: TrainConfig) -> bytes:
     """The PNG of the reward curve of the log ``rows``."""
     from rlpgo_gtsam.plotting import plot_training_curve
 
-    records = [dict(zip(config.log_fields, map(str, row), strict=True)) for row in rows]
+    records = [dict(zip(CSV_FIELDS, map(str, row), strict=True)) for row in rows]
     return plot_training_curve(records, title=f"preset {config.preset}, seed {config.seed}")

@@ -15,18 +15,14 @@ class EpisodeBatch:
     """A batch of ``B`` windows of ``T`` steps cut from stored episodes.
 
     Attributes:
-        observations: (B, T + 1, 4) the observation before each step and after the last.
+        observations: (B, T + 1, 4) the observation before each step and after the last
+            (:data:`~rlpgo_gtsam.rl.episode.OBSERVATION_SIZE` numbers each).
         last_actions: (B, T + 1, 2) the action before each observation (index 0: the
             episode's initial "last action").
         actions: (B, T, 2) the action taken at each step.
         rewards: (B, T, 1).
         dones: (B, T, 1) 1.0 on the episode's final step (no bootstrap past it) and on
             the padding after it.
-        prefix: the first ``prefix`` columns of ``observations`` and ``last_actions`` are
-            a burn-in prefix (``sample(..., prefix=True)``); actions, rewards and dones
-            cover the window after it only. 0 otherwise.
-        prefix_valid: (B, prefix) 1.0 where the prefix column holds a step of the
-            episode, 0.0 on the columns before the episode's start.
     """
 
     observations: torch.Tensor
@@ -34,8 +30,6 @@ class EpisodeBatch:
     actions: torch.Tensor
     rewards: torch.Tensor
     dones: torch.Tensor
-    prefix: int = 0
-    prefix_valid: torch.Tensor | None = None
 
 
 class EpisodeReplay:
@@ -65,48 +59,35 @@ class EpisodeReplay:
         self.position = (self.position + 1) % self.capacity
 
     def sample(
-        self, batch_size: int, window: int, burn_in: int, prefix: bool = False
+        self, batch_size: int, window: int, burn_in: int
     ) -> tuple[EpisodeBatch, torch.Tensor]:
         """``batch_size`` windows of ``window`` steps from random episodes and offsets.
 
         The LSTMs run over each window from a zero state; the first ``burn_in`` steps of a
         window that does not open its episode only warm that state up: the returned
         (B, window, 1) mask is zero there, and after an episode's end.
-
-        With ``prefix=True`` the up to ``burn_in`` steps before each window come as a
-        separate prefix (right-aligned in the first ``burn_in`` columns of observations
-        and last actions, see :class:`EpisodeBatch`), and the mask is one on every step of
-        the window that lies in its episode.
         """
         width = self.episodes[0]["observations"].shape[1]
-        p = burn_in if prefix else 0
-        observations = np.zeros((batch_size, p + window + 1, width), np.float32)
-        last_actions = np.zeros((batch_size, p + window + 1, 2), np.float32)
+        observations = np.zeros((batch_size, window + 1, width), np.float32)
+        last_actions = np.zeros((batch_size, window + 1, 2), np.float32)
         actions = np.zeros((batch_size, window, 2), np.float32)
         rewards = np.zeros((batch_size, window, 1), np.float32)
         dones = np.ones((batch_size, window, 1), np.float32)
         mask = np.zeros((batch_size, window, 1), np.float32)
-        valid = np.zeros((batch_size, p), np.float32)
         for b, k in enumerate(self.rng.integers(len(self.episodes), size=batch_size)):
             episode = self.episodes[k]
             steps = len(episode["actions"])
             start = int(self.rng.integers(steps))
             end = min(start + window, steps)
             length = end - start
-            before = min(p, start)
-            observations[b, p - before : p + length + 1] = \
-                episode["observations"][start - before : end + 1]
-            last_actions[b, p - before : p + length + 1] = \
-                episode["last_actions"][start - before : end + 1]
-            valid[b, p - before :] = 1.0
+            observations[b, : length + 1] = episode["observations"][start : end + 1]
+            last_actions[b, : length + 1] = episode["last_actions"][start : end + 1]
             actions[b, :length] = episode["actions"][start:end]
             rewards[b, :length] = episode["rewards"][start:end]
             dones[b, :length] = 0.0
             if end == steps:
                 dones[b, length - 1] = 1.0
-            first = 0 if start == 0 or prefix else min(burn_in, length)
-            mask[b, first:length] = 1.0
+            mask[b, (0 if start == 0 else min(burn_in, length)) : length] = 1.0
         batch = EpisodeBatch(*(torch.from_numpy(a) for a in (observations, last_actions, actions,
-                                                               rewards, dones)),
-                             prefix=p, prefix_valid=torch.from_numpy(valid) if prefix else None)
+                                                               rewards, dones)))
         return batch, torch.from_numpy(mask)

@@ -24,10 +24,10 @@ import torch
 from rlpgo_gtsam.errors import ModelError
 from rlpgo_gtsam.files import write_bytes
 from rlpgo_gtsam.rl.agent.networks import Actor
-from rlpgo_gtsam.rl.episode import CHOICES, OBSERVATION_SIZES, EnvConfig
+from rlpgo_gtsam.rl.episode import EnvConfig
 
-__all__ = ["FORMAT_VERSION", "save_model", "model_bytes", "load_model", "LoadedModel",
-           "check_env_config"]
+__all__ = ["FORMAT_VERSION", "REMOVED_ENV_FIELDS", "save_model", "model_bytes", "load_model",
+           "LoadedModel", "check_env_config"]
 
 FORMAT_VERSION = 1
 _CONFIG, _WEIGHTS = "config.json", "actor.pt"
@@ -98,16 +98,18 @@ _ENV_SCHEMA = {
     "n": (int, 2, 1_000_000), "sigma_r": (float, 0.0, 3.2), "sigma_t": (float, 0.0, 1e6),
     "d": (float, 0.0, 1e6), "lc": (float, 0.0, 1.0), "cycles": (int, 1, _MAX_CYCLES),
     "action_range_rad": (float, 0.0, 3.2), "noisy_measurements": (bool, None, None),
-    # Added for issue 11; absent from older files, whose defaults reproduce them.
-    "observation": (str, 1, 20), "reward": (str, 1, 20), "oc_shaping": (float, 0.0, 1e6),
-    "keep": (str, 1, 20), "sigma_r_max": (float, 0.0, 3.2), "start": (str, 1, 20),
 }
+# Environment options of issue 11, removed in 0.1.0 (they measured nothing: models/README.md),
+# and the value that meant "off". Files written while they existed hold them: a file with a
+# field at this value loads as before; any other value needs the removed code, and is refused.
+REMOVED_ENV_FIELDS = {"observation": "paper", "reward": "oc", "oc_shaping": 0.0, "keep": "oc",
+                      "sigma_r_max": 0.0, "start": "odometry"}
+_REMOVED_IN = "0.1.0"
 _TOP_SCHEMA = {
     "format": (int, 0, 1_000_000), "hidden": (int, 1, _MAX_HIDDEN),
     "test_cycles": (int, 1, _MAX_CYCLES), "preset": (int, 1, 5), "seed": (int, 0, 2**64 - 1),
     "episodes": (int, 0, 10**9), "selected_episode": (int, 0, 10**9),
     "train_seconds": (float, 0.0, 1e12), "validation_best_oc_ratio": (float, 0.0, 1e12),
-    "validation_chi2_ratio": (float, 0.0, 1e12),
     "package_version": (str, 0, 200), "torch_version": (str, 0, 200),
     "command": (str, 0, 100_000),
 }
@@ -163,19 +165,30 @@ def _check_config(path: Path, config: dict) -> EnvConfig:
     env = config.get("env")
     if not isinstance(env, dict):
         raise ModelError(f"{path}: config field env must be an object")
+    known = {}
     for name, value in env.items():
         if name in _ENV_SCHEMA:
             _check_field(path, f"env.{name}", value, *_ENV_SCHEMA[name])
-            if name in CHOICES and value not in CHOICES[name]:
-                raise ModelError(f"{path}: config field env.{name} must be one of "
-                                 f"{', '.join(CHOICES[name])}, got {_shown(value)}")
+            known[name] = value
+        elif name in REMOVED_ENV_FIELDS:
+            _check_removed(path, name, value)
         elif name in _TOP_SCHEMA:
             raise ModelError(f"{path}: env field {name} belongs at the top level of {_CONFIG}, "
                              "not inside \"env\"")
         else:
-            known = ", ".join(_ENV_SCHEMA)
-            raise ModelError(f"{path}: unknown env field {_shown(name)} (known: {known})")
-    return EnvConfig(**env)
+            raise ModelError(f"{path}: unknown env field {_shown(name)} "
+                             f"(known: {', '.join(_ENV_SCHEMA)})")
+    return EnvConfig(**known)
+
+
+def _check_removed(path: Path, name: str, value) -> None:
+    """Accept a removed env field at its "off" value; refuse any other with what to do."""
+    off = REMOVED_ENV_FIELDS[name]
+    kinds = (int, float) if type(off) is float else (type(off),)
+    if type(value) in kinds and value == off:
+        return
+    raise ModelError(f"{path}: this model was trained with env.{name}={_shown(value)}, an "
+                     f"option removed in rlpgo-gtsam {_REMOVED_IN}; retrain it without it")
 
 
 def check_env_config(env_config: EnvConfig, path: Path) -> None:
@@ -184,11 +197,11 @@ def check_env_config(env_config: EnvConfig, path: Path) -> None:
     _check_config(path, {"format": FORMAT_VERSION, "hidden": 1, "env": asdict(env_config)})
 
 
-def _weights_limit(hidden: int, observation_size: int) -> int:
+def _weights_limit(hidden: int) -> int:
     """The most bytes a saved actor of width ``hidden`` takes (counted on torch's "meta"
     device, which allocates nothing), capped by :data:`_MAX_WEIGHTS_BYTES`."""
     with torch.device("meta"):
-        actor = Actor(hidden, observation_size)
+        actor = Actor(hidden)
     tensors = sum(t.numel() * t.element_size() for t in actor.state_dict().values())
     return min(tensors + _WEIGHTS_FRAMING, _MAX_WEIGHTS_BYTES)
 
@@ -214,8 +227,9 @@ def load_model(path: str | os.PathLike[str]) -> LoadedModel:
     Raises:
         ModelError: missing file, not a zip (or an encrypted or unknown-compression one),
             no config or weights, another format version, a config field of the wrong type
-            or out of range, or weights that are not finite or do not fit the network the
-            config describes.
+            or out of range, a removed option at a value other than its "off" one
+            (:data:`REMOVED_ENV_FIELDS`), or weights that are not finite or do not fit the
+            network the config describes.
     """
     path = Path(path)
     if not path.is_file():
@@ -234,9 +248,7 @@ def load_model(path: str | os.PathLike[str]) -> LoadedModel:
                 raise ModelError(f"{path}: {_CONFIG} is not a JSON object")
             env_config = _check_config(path, config)
             hidden = config["hidden"]
-            observation_size = OBSERVATION_SIZES[env_config.observation]
-            weights = _read_bounded(zf, _WEIGHTS, _weights_limit(hidden, observation_size),
-                                    path)
+            weights = _read_bounded(zf, _WEIGHTS, _weights_limit(hidden), path)
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, zlib.error,
             NotImplementedError, RuntimeError, ValueError, OverflowError) as error:
         # RuntimeError: an encrypted member; NotImplementedError: an unknown compression
@@ -251,7 +263,7 @@ def load_model(path: str | os.PathLike[str]) -> LoadedModel:
     if not isinstance(fc, torch.Tensor) or fc.shape[0] != hidden:
         raise ModelError(f"{path}: weights do not match the config (hidden {hidden})")
     try:
-        actor = Actor(hidden, observation_size)
+        actor = Actor(hidden)
         actor.load_state_dict(state, strict=True)
     except (KeyError, TypeError, ValueError, RuntimeError) as error:
         first = " ".join(str(error).split())[:200] or type(error).__name__

@@ -27,14 +27,6 @@ class SacConfig:
         burn_in: steps at the start of a window that only warm up the LSTM state.
         replay_episodes: capacity of the episode replay.
         warmup_episodes: episodes of uniformly random actions before learning starts.
-        fresh_critic_features: the actor loss evaluates the critics after their step
-            (their encoded states and LSTM outputs recomputed) rather than with the
-            features computed before it (the old behaviour, default False).
-        burn_in_prefix: each sampled window gets up to ``burn_in`` earlier steps of its
-            episode as a separate prefix that only warms the LSTM states, without
-            gradients (R2D2's burn-in); every step of the window then counts in the losses.
-            False (default): the first ``burn_in`` steps of a mid-episode window warm the
-            state with gradients flowing through them and are masked out of the losses.
     """
 
     hidden: int = 64
@@ -50,5 +42,3 @@ class SacConfig:
     initial_alpha: float = 0.1
     replay_episodes: int = 2000
     warmup_episodes: int = 10
-    fresh_critic_features: bool = False
-    burn_in_prefix: bool = False

@@ -29,8 +29,9 @@ class NumpyPolicy:
 
     The affine maps that follow each other are folded once: the encoder's Linear(1 -> 20)
     into the FC branch and the recurrent branch's input layer, both branches into one
-    (6 -> 2 hidden) matrix, and the LSTM's input and recurrent weights into one. The LSTM
-    state ``(h, c)`` (each ``(B, hidden)``) is passed in and returned.
+    (4 observations + 2 last actions -> 2 hidden) matrix, and the LSTM's input and recurrent
+    weights into one. The LSTM state ``(h, c)`` (each ``(B, hidden)``) is passed in and
+    returned.
     """
 
     def __init__(self, actor: Actor) -> None:
@@ -41,15 +42,16 @@ class NumpyPolicy:
         enc_b = _array(trunk.encoder.linear.bias)
         encoding = enc_w.shape[0]
 
-        def fold(weight: torch.Tensor, bias: torch.Tensor, extra: int) -> tuple:
-            # x = [obs0, obs1..3, extra inputs]; encoded = [obs0 * enc_w + enc_b, obs1..3, ...]
+        def fold(weight: torch.Tensor, bias: torch.Tensor) -> tuple:
+            # The layer reads [obs0 * enc_w + enc_b (20), obs1..3, extra inputs]; folded, it
+            # reads [obs0, obs1..3, extra inputs]: rows (20 + 3 + extra) -> (4 + extra).
             w = _array(weight).T  # (20 + 3 + extra, n)
             folded = np.vstack([enc_w @ w[:encoding], w[encoding:]])  # (4 + extra, n)
             return folded, _array(bias) + enc_b @ w[:encoding]
 
-        fc_w, fc_b = fold(trunk.fc.weight, trunk.fc.bias, 0)
-        rec_w, rec_b = fold(trunk.recurrent_in.weight, trunk.recurrent_in.bias, 2)
-        inputs = rec_w.shape[0]  # 4 observations + 2 last actions
+        fc_w, fc_b = fold(trunk.fc.weight, trunk.fc.bias)  # extra: none
+        rec_w, rec_b = fold(trunk.recurrent_in.weight, trunk.recurrent_in.bias)  # 2 last actions
+        inputs = rec_w.shape[0]  # 4 observations + 2 last actions = 6
         self.in_w = np.zeros((inputs, 2 * n))
         self.in_w[: fc_w.shape[0], :n] = fc_w
         self.in_w[:, n:] = rec_w

@@ -4,9 +4,9 @@ Every network sees the environment's observation through its own :class:`GraphEn
 (trained jointly), and a recurrent branch over ``[state, last action]`` whose LSTM state is
 passed in and returned, never kept inside the module.
 
-Shapes: ``B`` sequences (episodes) of ``T`` steps; observations ``(B, T, K)`` (``K`` = 4
-for the paper's observation, :data:`~rlpgo_gtsam.rl.episode.OBSERVATION_SIZES` for others),
-actions ``(B, T, 2)``; LSTM state a pair of ``(1, B, hidden)`` tensors.
+Shapes: ``B`` sequences (episodes) of ``T`` steps; observations ``(B, T, 4)``
+(:data:`~rlpgo_gtsam.rl.episode.OBSERVATION_SIZE`), actions ``(B, T, 2)``; LSTM state a
+pair of ``(1, B, hidden)`` tensors.
 """
 
 from __future__ import annotations
@@ -27,18 +27,17 @@ class GraphEncoder(nn.Module):
 
     The paper's messages ``beta * ||R_i R~_ij - R_j||_F``, summed per node and averaged over
     nodes, are ``beta`` times observation 0; the learnable ``beta`` and the Linear(1 -> 20)
-    layer give the 20-number encoding. Observations 1.. (residual, slopes, ...) pass through.
+    layer give the 20-number encoding. Observations 1..3 (residual, slopes) pass through.
     """
 
-    def __init__(self, observation_size: int = OBSERVATION_SIZE) -> None:
+    def __init__(self) -> None:
         super().__init__()
         self.beta = nn.Parameter(torch.ones(1))
         self.linear = nn.Linear(1, ENCODING_SIZE)
-        self.observation_size = observation_size
 
     @property
     def state_size(self) -> int:
-        return ENCODING_SIZE + self.observation_size - 1
+        return ENCODING_SIZE + OBSERVATION_SIZE - 1
 
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
         graph_value = self.beta * observation[..., :1]
@@ -48,10 +47,9 @@ class GraphEncoder(nn.Module):
 class _RecurrentTrunk(nn.Module):
     """Encoder, an FC branch on ``fc_input`` and an LSTM branch on [state, last action]."""
 
-    def __init__(self, hidden: int, fc_extra: int,
-                 observation_size: int = OBSERVATION_SIZE) -> None:
+    def __init__(self, hidden: int, fc_extra: int) -> None:
         super().__init__()
-        self.encoder = GraphEncoder(observation_size)
+        self.encoder = GraphEncoder()
         state = self.encoder.state_size
         self.fc = nn.Linear(state + fc_extra, hidden)
         self.recurrent_in = nn.Linear(state + ACTION_SIZE, hidden)
@@ -67,32 +65,13 @@ class _RecurrentTrunk(nn.Module):
         output, lstm_state = self.lstm(recurrent, lstm_state)
         return state, output, lstm_state
 
-    @torch.no_grad()
-    def warm(self, observation: torch.Tensor, last_action: torch.Tensor,
-             valid: torch.Tensor) -> LstmState:
-        """The LSTM state after a burn-in prefix (B, P, ...), without gradients.
-
-        ``valid`` (B, P) is 0 on the columns before a row's episode starts (its prefix is
-        shorter than P): the state is held at zero there, so each row's state is the one
-        after its own steps only.
-        """
-        batch = observation.shape[0]
-        zeros = torch.zeros(1, batch, self.hidden)
-        lstm_state: LstmState = (zeros, zeros.clone())
-        for t in range(observation.shape[1]):
-            _, _, (h, c) = self.memory(observation[:, t : t + 1], last_action[:, t : t + 1],
-                                       lstm_state)
-            keep = valid[:, t].view(1, batch, 1)
-            lstm_state = (h * keep, c * keep)
-        return lstm_state
-
 
 class Actor(nn.Module):
     """Gaussian policy squashed by tanh; actions in [-1, 1]^2."""
 
-    def __init__(self, hidden: int = 512, observation_size: int = OBSERVATION_SIZE) -> None:
+    def __init__(self, hidden: int = 512) -> None:
         super().__init__()
-        self.trunk = _RecurrentTrunk(hidden, fc_extra=0, observation_size=observation_size)
+        self.trunk = _RecurrentTrunk(hidden, fc_extra=0)
         self.head = nn.Sequential(
             nn.Linear(2 * hidden, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
         )
@@ -134,20 +113,17 @@ class Actor(nn.Module):
 class QNetwork(nn.Module):
     """Q(s_t, a | history): the action enters the FC branch, the history the LSTM branch."""
 
-    def __init__(self, hidden: int = 512, observation_size: int = OBSERVATION_SIZE) -> None:
+    def __init__(self, hidden: int = 512) -> None:
         super().__init__()
-        self.trunk = _RecurrentTrunk(hidden, fc_extra=ACTION_SIZE,
-                                     observation_size=observation_size)
+        self.trunk = _RecurrentTrunk(hidden, fc_extra=ACTION_SIZE)
         self.head = nn.Sequential(
             nn.Linear(2 * hidden, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(),
             nn.Linear(hidden, 1),
         )
 
-    def memory(self, observation: torch.Tensor, last_action: torch.Tensor,
-               lstm_state: LstmState | None = None):
-        """Encoded states and LSTM outputs over whole sequences (from ``lstm_state``, by
-        default zero)."""
-        state, memory, _ = self.trunk.memory(observation, last_action, lstm_state)
+    def memory(self, observation: torch.Tensor, last_action: torch.Tensor):
+        """Encoded states and LSTM outputs over whole sequences, from a zero LSTM state."""
+        state, memory, _ = self.trunk.memory(observation, last_action, None)
         return state, memory
 
     def value(self, state: torch.Tensor, memory: torch.Tensor, action: torch.Tensor):

@@ -27,7 +27,7 @@ from rlpgo_gtsam.rl.agent.buffer import EpisodeBatch, EpisodeReplay
 from rlpgo_gtsam.rl.agent.config import SacConfig
 from rlpgo_gtsam.rl.agent.networks import Actor, QNetwork
 from rlpgo_gtsam.rl.env import PoseGraphEnv
-from rlpgo_gtsam.rl.episode import ACTION_SIZE, OBSERVATION_SIZE
+from rlpgo_gtsam.rl.episode import ACTION_SIZE
 
 __all__ = ["SacAgent", "Episode", "run_episode"]
 
@@ -43,9 +43,6 @@ class Episode:
     initial_oc: float
     best_oc: float
     final_oc: float
-    initial_chi2: float = float("nan")
-    best_chi2: float = float("nan")
-    final_chi2: float = float("nan")
 
 
 @torch.no_grad()
@@ -57,17 +54,15 @@ def run_episode(
     deterministic: bool = False,
     seed: int | None = None,
     options: dict | None = None,
-    initial_last_action: np.ndarray | None = None,
 ) -> Episode:
     """Roll out one episode; ``policy=None`` takes uniformly random actions.
 
-    The LSTM state is carried from step to step here, one edge at a time.
+    The episode's initial "last action" is uniform in [-1, 1]^2 (inference's rollouts
+    1..k-1 draw theirs from the same range). The LSTM state is carried from step to step
+    here, one edge at a time.
     """
     observation, info = env.reset(seed=seed, options=options)
-    last_action = (
-        rng.uniform(-1.0, 1.0, ACTION_SIZE) if initial_last_action is None
-        else np.asarray(initial_last_action)
-    ).astype(np.float32)
+    last_action = rng.uniform(-1.0, 1.0, ACTION_SIZE).astype(np.float32)
     observations, last_actions, actions, rewards = [observation], [last_action], [], []
     lstm_state = None
     done = False
@@ -88,22 +83,19 @@ def run_episode(
         rewards.append(reward)
         last_action = action
         last_actions.append(action)
-    chi2 = [info.get(key, float("nan")) for key in ("initial_chi2", "best_chi2", "chi2")]
     return Episode(np.array(observations), np.array(last_actions), np.array(actions),
-                   np.array(rewards, np.float32), info["initial_oc"], info["best_oc"], info["oc"],
-                   *chi2)
+                   np.array(rewards, np.float32), info["initial_oc"], info["best_oc"], info["oc"])
 
 
 class SacAgent:
     """Actor, twin critics with target copies, the temperature, and their optimizers."""
 
-    def __init__(self, config: SacConfig, seed: int,
-                 observation_size: int = OBSERVATION_SIZE) -> None:
+    def __init__(self, config: SacConfig, seed: int) -> None:
         torch.manual_seed(seed)
         self.config = config
-        self.actor = Actor(config.hidden, observation_size)
-        self.q1 = QNetwork(config.hidden, observation_size)
-        self.q2 = QNetwork(config.hidden, observation_size)
+        self.actor = Actor(config.hidden)
+        self.q1 = QNetwork(config.hidden)
+        self.q2 = QNetwork(config.hidden)
         self.q1_target, self.q2_target = copy.deepcopy(self.q1), copy.deepcopy(self.q2)
         self.q_optimizer = torch.optim.Adam(
             list(self.q1.parameters()) + list(self.q2.parameters()), lr=config.learning_rate
@@ -122,8 +114,7 @@ class SacAgent:
         losses: dict[str, float] = {}
         for _ in range(self.config.gradient_steps):
             batch, mask = self.replay.sample(
-                self.config.batch_size, self.config.window, self.config.burn_in,
-                prefix=self.config.burn_in_prefix,
+                self.config.batch_size, self.config.window, self.config.burn_in
             )
             losses = self._gradient_step(batch, mask)
         return losses
@@ -132,29 +123,13 @@ class SacAgent:
         c = self.config
         alpha = self.log_alpha.exp().detach()
         count = mask.sum()
-        p = batch.prefix
-        observations, last_actions = batch.observations[:, p:], batch.last_actions[:, p:]
-        networks = {"actor": self.actor, "q1": self.q1, "q2": self.q2,
-                    "q1_target": self.q1_target, "q2_target": self.q2_target}
-
-        def warm(name: str):
-            """The LSTM state after the burn-in prefix (None: start from zero)."""
-            if not p:
-                return None
-            return networks[name].trunk.warm(batch.observations[:, :p],
-                                             batch.last_actions[:, :p], batch.prefix_valid)
-
-        start = {name: warm(name) for name in networks}
+        observations, last_actions = batch.observations, batch.last_actions
 
         # Critic targets: next actions from the current policy, values from the targets.
         with torch.no_grad():
-            next_actions, next_log_prob, _ = self.actor.sample(
-                observations, last_actions, start["actor"]
-            )
-            state_1, memory_1 = self.q1_target.memory(observations, last_actions,
-                                                      start["q1_target"])
-            state_2, memory_2 = self.q2_target.memory(observations, last_actions,
-                                                      start["q2_target"])
+            next_actions, next_log_prob, _ = self.actor.sample(observations, last_actions)
+            state_1, memory_1 = self.q1_target.memory(observations, last_actions)
+            state_2, memory_2 = self.q2_target.memory(observations, last_actions)
             next_q = torch.min(
                 self.q1_target.value(state_1, memory_1, next_actions),
                 self.q2_target.value(state_2, memory_2, next_actions),
@@ -162,22 +137,17 @@ class SacAgent:
             target = batch.rewards * c.reward_scale + c.gamma * (1.0 - batch.dones) * next_q
 
         # Critic loss on the actions taken.
-        state_1, memory_1 = self.q1.memory(observations, last_actions, start["q1"])
-        state_2, memory_2 = self.q2.memory(observations, last_actions, start["q2"])
+        state_1, memory_1 = self.q1.memory(observations, last_actions)
+        state_2, memory_2 = self.q2.memory(observations, last_actions)
         q1 = self.q1.value(state_1[:, :-1], memory_1[:, :-1], batch.actions)
         q2 = self.q2.value(state_2[:, :-1], memory_2[:, :-1], batch.actions)
         q_loss = (((q1 - target) ** 2 + (q2 - target) ** 2) * mask).sum() / count
         self.q_optimizer.zero_grad()
         q_loss.backward()
         self.q_optimizer.step()
-        if c.fresh_critic_features:  # the critics the actor is judged by are the updated ones
-            with torch.no_grad():
-                state_1, memory_1 = self.q1.memory(observations, last_actions, warm("q1"))
-                state_2, memory_2 = self.q2.memory(observations, last_actions, warm("q2"))
 
         # Policy loss through the (fixed) critics.
-        actions, log_prob, _ = self.actor.sample(observations[:, :-1], last_actions[:, :-1],
-                                                 start["actor"])
+        actions, log_prob, _ = self.actor.sample(observations[:, :-1], last_actions[:, :-1])
         q_pi = torch.min(
             self.q1.value(state_1[:, :-1].detach(), memory_1[:, :-1].detach(), actions),
             self.q2.value(state_2[:, :-1].detach(), memory_2[:, :-1].detach(), actions),
