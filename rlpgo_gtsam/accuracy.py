@@ -67,11 +67,11 @@ class TrajectoryErrors:
 
     def describe(self) -> str:
         """One line: APE and RPE with their units and how they were taken."""
-        how = "after SE(2) alignment" if self.aligned else "unaligned"
-        return (f"APE {self.ape_rmse_m:.4g} m rmse (mean {self.ape_mean_m:.4g}, max "
-                f"{self.ape_max_m:.4g}) {how}; RPE {self.rpe_rmse_m:.4g} m, "
-                f"{self.rpe_rmse_deg:.4g} deg rmse (delta {self.rpe_delta}); "
-                f"{self.poses} poses")
+        ape = (f"APE {self.ape_rmse_m:.4g} m rmse (mean {self.ape_mean_m:.4g}, max "
+               f"{self.ape_max_m:.4g}) " + ("after SE(2) alignment" if self.aligned else
+                                            "unaligned"))
+        rpe = f"RPE {self.rpe_rmse_m:.4g} m, {self.rpe_rmse_deg:.4g} deg rmse"
+        return f"{ape}; {rpe} (delta {self.rpe_delta}); {self.poses} poses"
 
 
 def trajectory_errors(values: gtsam.Values, ground_truth: gtsam.Values, *, align: bool = True,
