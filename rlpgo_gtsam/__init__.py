@@ -14,6 +14,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+from rlpgo_gtsam.accuracy import TrajectoryErrors, trajectory_errors
 from rlpgo_gtsam.errors import (
     G2oFormatError,
     GraphError,
@@ -94,6 +95,7 @@ __all__ = [
     "ShonanInitializer",
     "SolverError",
     "SyntheticGraph",
+    "TrajectoryErrors",
     "add_outliers",
     "best_of",
     "chi2",
@@ -108,5 +110,6 @@ __all__ = [
     "register",
     "rotation_weights",
     "solve_translations",
+    "trajectory_errors",
     "write_g2o",
 ]

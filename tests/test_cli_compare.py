@@ -20,7 +20,7 @@ def test_compare_runs_out_of_the_box(tmp_path):
     assert "generated lawn mower (n=300 sigma_r=0.3" in result.output
     records = json.loads(json_path.read_text())
     assert [r["method"] for r in records] == ["odometry", "chordal"]
-    assert all(set(r) == RECORD_KEYS for r in records)
+    assert all(set(r) == RECORD_KEYS | {"accuracy"} for r in records)  # generated: with truth
     assert all(r["refined_chi2"] <= r["init_chi2"] for r in records)
     pngs = list((tmp_path / "new" / "plots").glob("*.png"))  # the folders made
     assert len(pngs) == 1 and pngs[0].stat().st_size > 10_000

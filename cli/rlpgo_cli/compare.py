@@ -10,6 +10,7 @@ import numpy as np
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles, json_text
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, OutputFile
+from rlpgo_gtsam.accuracy import TrajectoryErrors, trajectory_errors
 from rlpgo_gtsam.errors import OutputError, RlpgoError
 from rlpgo_gtsam.files import check_name
 from rlpgo_gtsam.g2o import read_g2o
@@ -38,20 +39,30 @@ def _certificate(row: MethodResult) -> str:
     return "yes" if certificate.certified else f"no ({certificate.suboptimality_bound:.3g})"
 
 
-def _table(results: list[MethodResult]) -> str:
+def _accuracy_cells(errors: TrajectoryErrors | None) -> str:
+    """The APE and RPE columns of one row: rmse in metres, '-' without a refined result."""
+    ape, rpe = (None, None) if errors is None else (errors.ape_rmse_m, errors.rpe_rmse_m)
+    return f"{_format(ape, '.4g'):>10}{_format(rpe, '.4g'):>10}"
+
+
+def _table(results: list[MethodResult],
+           accuracy: list[TrajectoryErrors | None] | None = None) -> str:
     """One row per method; ``*`` marks the lowest refined chi2, ``=`` each row of a tie for
-    it (within a relative :data:`~rlpgo_gtsam.ranking.TIE_RELATIVE`)."""
+    it (within a relative :data:`~rlpgo_gtsam.ranking.TIE_RELATIVE`). With ``accuracy`` (one
+    entry per row): the refined result's APE and RPE against the ground truth."""
     best = tied_best(results)
     marker = "=" if len(best) > 1 else "*"
+    extra = "" if accuracy is None else f"{'APE m':>10}{'RPE m':>10}"
     header = (f"  {'method':<14}{'init chi2':>14}{'init s':>9}{'refined chi2':>15}"
-              f"{'refine s':>10}{'iters':>7}  certified (bound)")
+              f"{'refine s':>10}{'iters':>7}{extra}  certified (bound)")
     lines = [header, "-" * len(header)]
-    for r in results:
+    for r, errors in zip(results, accuracy or [None] * len(results), strict=True):
         mark = marker if any(r is b for b in best) else " "
+        cells = "" if accuracy is None else _accuracy_cells(errors)
         lines.append(
             f"{mark} {r.method:<14}{_format(r.init_chi2, '.6g'):>14}"
             f"{_format(r.init_seconds, '.3f'):>9}{_format(r.refined_chi2, '.6g'):>15}"
-            f"{_format(r.refine_seconds, '.3f'):>10}{_format(r.iters, 'd'):>7}  "
+            f"{_format(r.refine_seconds, '.3f'):>10}{_format(r.iters, 'd'):>7}{cells}  "
             f"{_certificate(r)}" + (f"  FAILED: {r.failure}" if r.failure else "")
         )
     if len(best) > 1:
@@ -95,8 +106,11 @@ def _methods(text: str, start: str) -> list[str]:
               show_default=True, help="Start of method rl (rl@<start> names it per method).")
 @click.option("--cycles", type=click.IntRange(1, 10_000), default=None,
               help="Passes over the edges of the rl methods [default: the model's test cycles].")
+@click.option("--ground-truth", "truth_path", type=click.Path(path_type=Path),
+              help="True poses (g2o) of the one FILE: adds evo's APE and RPE (rmse, m) of each "
+                   "refined result. With no FILE, the generated graph's own are used.")
 def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episodes, start,
-         cycles):
+         cycles, truth_path):
     """Compare initial guesses for the planar pose graphs in FILES (g2o).
 
     Each method's guess is refined by the same GTSAM solver; costs are g2o chi2
@@ -104,6 +118,11 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episod
     """
     method_list = _methods(methods, start)
     run = RunFiles(files)
+    if truth_path is not None:
+        if len(files) != 1:
+            raise click.UsageError("--ground-truth needs exactly one FILE (with none, the "
+                                   "generated graph's own ground truth is used)")
+        run.add_input(truth_path)
     uses_agent = any(m.partition("@")[0] == "rl" for m in method_list)
     if uses_agent:
         run.add_input(model_path(model))
@@ -121,11 +140,15 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episod
     # One check of every output: a PNG that is an input or is also --json is refused.
     run.check(*(plots if plot_dir is not None and plot_dir.is_dir() else []), json_path)
     inputs = [(path.name, *read_g2o(path)) for path in files]  # all validated before any run
+    truth = None if truth_path is None else read_g2o(truth_path)[1]
     if not inputs:
         demo = generate(rng=np.random.default_rng(seed), **DEMO)
         settings = " ".join(f"{key}={value}" for key, value in DEMO.items())
         inputs = [(f"generated lawn mower ({settings} seed={seed}; rlpgo-generate's model)",
                    demo.graph, demo.initial)]
+        truth = demo.ground_truth
+    if truth is not None:  # its keys checked before any run
+        trajectory_errors(inputs[0][2], truth, align=False)
     if plot_dir is not None:
         plot_dir.mkdir(parents=True, exist_ok=True)
     options = {"rl": {"model": model, "episodes": episodes, "cycles": cycles}}
@@ -137,11 +160,18 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episod
                                   options=options, pose_graph=pose_graph)
         click.echo(f"\n{name}: {pose_graph.num_poses} poses, {pose_graph.num_edges} edges, "
                    f"{solver.upper()}{iters}")
-        click.echo(_table(results))
+        accuracy = None if truth is None else [
+            trajectory_errors(r.refined, truth) if r.refined is not None and not r.failure
+            else None for r in results]
+        click.echo(_table(results, accuracy))
         for r in results:
             if r.init is not None and r.init.certificate is not None:
                 click.echo(f"  certificate ({r.method}): {r.init.certificate.describe()}")
-        records.extend(r.record() for r in results)
+        for r, errors in zip(results, accuracy or [None] * len(results), strict=True):
+            record = r.record()
+            if accuracy is not None:
+                record["accuracy"] = None if errors is None else errors.record()
+            records.append(record)
         failed = failed or any(r.failure for r in results)
         if plots:
             from rlpgo_gtsam.plotting import Panel, plot_trajectories
