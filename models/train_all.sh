@@ -2,11 +2,13 @@
 # Trains and evaluates the shipped agents one after another (2-core CPU machine), with the
 # commands recorded in each model's metadata (models/README.md has the table).
 # Usage: bash models/train_all.sh   (from the repository root, venv active)
+# It replaces the shipped models in place: hence --overwrite (rlpgo-train refuses to replace
+# an existing model without it, and writes under runs/ by default).
 set -euo pipefail
 train() {  # preset, episodes, extra options...
     local preset=$1 episodes=$2
     shift 2
-    rlpgo-train --preset "$preset" --episodes "$episodes" --seed 0 "$@"
+    rlpgo-train --preset "$preset" --episodes "$episodes" --seed 0 --overwrite "$@"
 }
 train 1 400 --out models/preset1
 train 2 400 --out models/preset2

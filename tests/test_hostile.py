@@ -307,3 +307,49 @@ def test_shonan_options_are_bounded():
         make_initializer("shonan", starts=0)
     graph, values = _pair()
     assert PoseGraph2D.from_gtsam(graph, values).num_edges == 1
+
+
+# nothing a user has is replaced by a command's default
+
+def test_an_existing_output_is_replaced_only_with_overwrite(tmp_path):
+    source = _chain_file(tmp_path)
+    output = tmp_path / "mine.g2o"
+    output.write_text("a file the user keeps\n")
+    result = CliRunner().invoke(init_main, [str(source), "-o", str(output), "--method",
+                                            "chordal"])
+    assert result.exit_code == 1
+    assert result.stderr == f"Error: {output}: exists; give --overwrite to replace it\n"
+    assert output.read_text() == "a file the user keeps\n"
+    result = CliRunner().invoke(init_main, [str(source), "-o", str(output), "--method",
+                                            "chordal", "--overwrite"])
+    assert result.exit_code == 0, result.output
+    assert read_g2o(output)[1].size() == 4
+
+
+def test_training_never_touches_the_shipped_models(tmp_path, monkeypatch):
+    from rlpgo_cli.train import main as train_main
+
+    from rlpgo_gtsam.rl.models import models_dir
+
+    shipped = {path.name: path.read_bytes() for path in models_dir().iterdir() if path.is_file()}
+    result = CliRunner().invoke(train_main, ["--preset", "1", "--episodes", "2",
+                                             "--out", str(models_dir() / "preset1")])
+    assert result.exit_code == 1
+    assert result.stderr.endswith("preset1.zip: exists; give --overwrite to replace it\n")
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(train_main, ["--preset", "1", "--episodes", "2"])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "runs" / "preset1.zip").is_file()  # the default: under runs/
+    assert {path.name: path.read_bytes() for path in models_dir().iterdir()
+            if path.is_file()} == shipped
+
+
+@pytest.mark.parametrize("command", ["rlpgo-init", "rlpgo-compare", "rlpgo-generate",
+                                     "rlpgo-train", "rlpgo-eval"])
+def test_every_command_answers_h_and_version(command):
+    short = _command(command, "-h", "--version")  # -h is eager: help, then exit
+    assert short.returncode == 0 and short.stdout.startswith(b"Usage: ")
+    assert b"--overwrite" in short.stdout and b"--version" in short.stdout
+    version = _command(command, "--version")
+    assert version.returncode == 0
+    assert version.stdout.decode().startswith(f"{command} (rlpgo-gtsam) ")

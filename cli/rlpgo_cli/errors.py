@@ -28,9 +28,45 @@ def _on_sigterm(_signum, _frame) -> None:
     raise _Terminated
 
 
+OVERWRITE = "rlpgo.overwrite"  # ctx.meta key: --overwrite was given
+
+
+def _version(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
+    if not value or ctx.resilient_parsing:
+        return
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        number = version("rlpgo-gtsam")
+    except PackageNotFoundError:
+        number = "unknown (not installed)"
+    click.echo(f"{ctx.info_name} (rlpgo-gtsam) {number}")
+    ctx.exit(0)
+
+
+def _overwrite(ctx: click.Context, _param: click.Parameter, value: bool) -> None:
+    ctx.meta[OVERWRITE] = bool(value)
+
+
 class RlpgoCommand(click.Command):
     """A click command that reports package errors and OS errors on one line, no traceback;
-    Ctrl-C and SIGTERM end it with one line and exit code 130, temporary files removed."""
+    Ctrl-C and SIGTERM end it with one line and exit code 130, temporary files removed.
+
+    Every command also takes ``-h``/``--help``, ``--version`` and ``--overwrite`` (without
+    it, no existing file is replaced: :class:`rlpgo_cli.output.RunFiles` refuses it).
+    """
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("context_settings", {}).setdefault("help_option_names",
+                                                             ["-h", "--help"])
+        super().__init__(*args, **kwargs)
+        self.params.append(click.Option(
+            ["--overwrite"], is_flag=True, expose_value=False, callback=_overwrite,
+            help="Replace output files that already exist (without it, an existing file is "
+                 "never replaced)."))
+        self.params.append(click.Option(
+            ["--version"], is_flag=True, expose_value=False, is_eager=True, callback=_version,
+            help="Show the version and exit."))
 
     def make_context(self, info_name, args, parent=None, **extra) -> click.Context:
         # parsing (and printing --help) runs before invoke: click would answer a Ctrl-C here

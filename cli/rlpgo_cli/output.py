@@ -46,10 +46,24 @@ def json_text(data: object) -> str:
 
 
 class RunFiles:
-    """The inputs of one command run, and the checks and writes of its outputs."""
+    """The inputs of one command run, and the checks and writes of its outputs.
 
-    def __init__(self, inputs: Iterable[str | os.PathLike[str]] = ()) -> None:
+    An output that already exists as a regular file is refused unless ``overwrite`` (by
+    default: whether the running command was given ``--overwrite``); devices and pipes
+    (``/dev/null``) are written through.
+    """
+
+    def __init__(self, inputs: Iterable[str | os.PathLike[str]] = (),
+                 overwrite: bool | None = None) -> None:
         self.inputs = [Path(path) for path in inputs]
+        if overwrite is None:
+            import click
+
+            from rlpgo_cli.errors import OVERWRITE
+
+            context = click.get_current_context(silent=True)
+            overwrite = bool(context is not None and context.meta.get(OVERWRITE, False))
+        self.overwrite = overwrite
 
     def add_input(self, path: str | os.PathLike[str]) -> None:
         self.inputs.append(Path(path))
@@ -76,6 +90,8 @@ class RunFiles:
                 raise OutputError(f"{path}: is an input of this run; refusing to overwrite it")
             if any(_same_place(path, other) for other in seen):
                 raise OutputError(f"{path}: given as two different outputs")
+            if not self.overwrite and path.is_file():
+                raise OutputError(f"{path}: exists; give --overwrite to replace it")
             seen.append(path)
 
     def write_g2o(self, path: Path, graph: gtsam.NonlinearFactorGraph,

@@ -56,8 +56,10 @@ class EnvSetting(click.ParamType):
 @click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seeds torch, the training graphs and the replay sampling.")
 @click.option("--out", type=OutputFile(), default=None,
-              help="Path stem of the outputs [default: models/presetP].")
-@click.option("--resume", is_flag=True, help="Continue from <out>.train.pt.")
+              help="Path stem of the outputs [default: runs/presetP]; existing outputs (a "
+                   "shipped model included) are refused unless --overwrite or --resume.")
+@click.option("--resume", is_flag=True,
+              help="Continue from <out>.train.pt, replacing that run's outputs.")
 @click.option("--hidden", type=click.IntRange(4, MAX_HIDDEN), default=SacConfig.hidden,
               show_default=True, help="Width of the layers and LSTMs (the paper: 512).")
 @click.option("--batch-size", type=click.IntRange(1, 4096), default=SacConfig.batch_size,
@@ -81,12 +83,12 @@ def main(preset, episodes, seed, out, resume, hidden, batch_size, gradient_steps
     """Train an agent; writes <out>.zip (the model), <out>.csv and <out>.png (the log)."""
     from rlpgo_gtsam.rl.train import TrainConfig, train
 
-    out = str(out or f"models/preset{preset}")
+    out = str(out or f"runs/preset{preset}")
     stem = Path(out)
     outputs = [stem.with_name(stem.name + suffix) for suffix in (".zip", ".csv", ".png",
                                                                  ".train.pt")]
     if stem.parent.exists():  # train() creates a missing folder; its files are checked here
-        RunFiles().check(*outputs)
+        RunFiles(overwrite=True if resume else None).check(*outputs)
     for path in outputs:
         check_name(path)
     env_overrides = {"noisy_measurements": True} if noisy_measurements else {}
