@@ -24,6 +24,7 @@ from rlpgo_gtsam import (
     GraphError,
     OutputError,
     PoseGraph2D,
+    RlpgoError,
     SolverError,
     make_initializer,
     read_g2o,
@@ -353,3 +354,12 @@ def test_every_command_answers_h_and_version(command):
     version = _command(command, "--version")
     assert version.returncode == 0
     assert version.stdout.decode().startswith(f"{command} (rlpgo-gtsam) ")
+
+
+def test_the_agent_s_rollouts_are_bounded():
+    from rlpgo_gtsam import RLInitializer
+
+    with pytest.raises(RlpgoError, match=r"episodes must lie in 1 \.\. 100, got 1000000000"):
+        RLInitializer(episodes=10**9)
+    with pytest.raises(RlpgoError, match=r"cycles must lie in 1 \.\. 10000, got 0"):
+        RLInitializer(cycles=0)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from pathlib import Path
@@ -15,7 +16,7 @@ from rlpgo_gtsam.errors import ModelError, RlpgoError
 from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text, g2o_text, read_g2o, read_g2o_lines
 from rlpgo_gtsam.graph import PoseGraph2D, chi2
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
-from rlpgo_gtsam.ranking import MethodResult, best_of, compare_methods
+from rlpgo_gtsam.ranking import TIE_RELATIVE, MethodResult, best_of, compare_methods
 from rlpgo_gtsam.rl.models import DEFAULT_MODEL, model_path
 from rlpgo_gtsam.robust import robust_initialize
 from rlpgo_gtsam.staged import DEFAULT_BUDGET_S, staged_initialize
@@ -57,6 +58,27 @@ def _method_list(method: str, start: str) -> list[str]:
     except RlpgoError as error:
         raise click.BadParameter(str(error), param_hint="--method") from None
     return [name]
+
+
+def _ranking(results: list[MethodResult]) -> list[tuple[str, MethodResult]]:
+    """Rows by refined chi2 with their rank; rows within a relative TIE_RELATIVE of each
+    other share a rank, shown as ``=k``, in the order they ran (the first is the one
+    written); failed rows last, unranked."""
+    usable = [r for r in results if r.failure is None and r.refined_chi2 is not None
+              and math.isfinite(r.refined_chi2)]
+    ordered = sorted(usable, key=lambda r: r.refined_chi2)
+    groups: list[list[MethodResult]] = []
+    for r in ordered:
+        lowest = groups[-1][0].refined_chi2 if groups else None
+        if lowest is not None and r.refined_chi2 <= lowest + TIE_RELATIVE * abs(lowest):
+            groups[-1].append(r)
+        else:
+            groups.append([r])
+    ranked: list[tuple[str, MethodResult]] = []
+    for group in groups:
+        label = f"={len(ranked) + 1}" if len(group) > 1 else str(len(ranked) + 1)
+        ranked.extend((label, r) for r in sorted(group, key=results.index))
+    return ranked + [("-", r) for r in results if r not in usable]
 
 
 def _check_robust_options(ctx: click.Context, robust: bool, method: str, refine: str,
@@ -141,22 +163,12 @@ def _print_stage(row: MethodResult, reason: str) -> None:
                        [*CLASSICAL, "fastsync", "certified"]) + ".")
 @click.option("--budget", type=FiniteFloat(0.0, 1e6), default=DEFAULT_BUDGET_S,
               show_default=True, help="--method auto: no search starts after this many seconds.")
-@click.option("--model", default=DEFAULT_MODEL, show_default=True,
-              help="Agent: a shipped model name or a model file.")
-@click.option("--cycles", type=click.IntRange(1, 10_000), default=None,
-              help="Passes over the edges [default: the model's test cycles].")
-@click.option("--episodes", type=ROLLOUTS, default=1, show_default=True,
-              help="Rollouts differing in their initial last action; lowest chi2 kept.")
-@click.option("--start", type=click.Choice(start_names()), default="odometry",
-              show_default=True, help="Orientations the agent starts from (with --method rl).")
 @click.option("--refine", type=click.Choice(["none", "gn", "lm"]), default="lm",
               show_default=True, help="GTSAM refinement of the guess that is written. "
               "--robust writes GNC-LM's guess, already refined on the edges it kept: with it "
               "only none may be given, and changes nothing.")
 @click.option("--iters", type=ITERATIONS, default=30, show_default=True,
               help="Iteration cap of the refinement.")
-@click.option("--seed", type=SEED, default=0, show_default=True,
-              help="Seed of the rollouts' initial last actions.")
 @click.option("--robust", is_flag=True,
               help="Reject wrong loop closures instead of running --method: a start from the "
                    "closures that agree with each other, finished by GTSAM's GNC-LM. The "
@@ -168,6 +180,19 @@ def _print_stage(row: MethodResult, reason: str) -> None:
               help="With --robust: a text file listing the rejected edges, one a line as "
                    f"'{EDGE_LIST_LINE}' (L: the edge's line in INPUT.g2o, from 1), after one "
                    "'#' line.")
+@click.option("--model", default=DEFAULT_MODEL, show_default=True,
+              help="[agent] A shipped model name or a model file (the rl stage of --method auto, "
+                   "--method rl).")
+@click.option("--cycles", type=click.IntRange(1, 10_000), default=None,
+              help="[agent] Passes over the edges [default: the model's test cycles].")
+@click.option("--episodes", type=ROLLOUTS, default=1, show_default=True,
+              help="[agent] Rollouts differing in their initial last action; lowest chi2 "
+                   "kept.")
+@click.option("--start", type=click.Choice(start_names()), default="odometry",
+              show_default=True,
+              help="[agent] Orientations the agent starts from (with --method rl).")
+@click.option("--seed", type=SEED, default=0, show_default=True,
+              help="[agent] Seed of the rollouts' initial last actions.")
 @click.pass_context
 def main(ctx, input_path, output, method, budget, model, cycles, episodes, start, refine,
          iters, seed, robust, trust_odometry, outliers_out):
@@ -223,8 +248,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
     seconds = time.perf_counter() - began
     if len(results) > 1 and method != "auto":
         click.echo(f"{'rank':<6}{'method':<14}{'guess chi2':>14}{'result chi2':>14}")
-        ranked = sorted(results, key=lambda r: (r.refined_chi2 is None, r.refined_chi2 or 0))
-        for rank, r in enumerate(ranked, start=1):
+        for rank, r in _ranking(results):
             tail = f"  FAILED: {r.failure}" if r.failure else ""
             guess = "-" if r.init_chi2 is None else f"{r.init_chi2:.6g}"
             result = "-" if r.refined_chi2 is None else f"{r.refined_chi2:.6g}"

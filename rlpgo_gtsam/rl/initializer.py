@@ -26,7 +26,12 @@ from rlpgo_gtsam.rl.episode import rollout
 from rlpgo_gtsam.rl.models import DEFAULT_MODEL, resolve_model
 from rlpgo_gtsam.translations import poses_with_orientations
 
-__all__ = ["RLInitializer"]
+__all__ = ["RLInitializer", "MAX_EPISODES", "MAX_CYCLES"]
+
+# Rollouts run batched: each holds the graph's state, so their number bounds the memory
+# (the commands' --episodes and --cycles take the same ranges).
+MAX_EPISODES = 100
+MAX_CYCLES = 10_000
 
 
 class RLInitializer(Initializer):
@@ -53,10 +58,10 @@ class RLInitializer(Initializer):
     ) -> None:
         if start not in start_names():
             raise RlpgoError(f"unknown start '{start}'; choose from {', '.join(start_names())}")
-        if episodes < 1:
-            raise RlpgoError(f"episodes must be >= 1, got {episodes}")
-        if cycles is not None and cycles < 1:
-            raise RlpgoError(f"cycles must be >= 1, got {cycles}")
+        if not 1 <= episodes <= MAX_EPISODES:
+            raise RlpgoError(f"episodes must lie in 1 .. {MAX_EPISODES}, got {episodes}")
+        if cycles is not None and not 1 <= cycles <= MAX_CYCLES:
+            raise RlpgoError(f"cycles must lie in 1 .. {MAX_CYCLES}, got {cycles}")
         self.model = resolve_model(model)
         self.cycles = cycles or int(self.model.metadata.get(
             "test_cycles", 2 * self.model.env_config.cycles))
