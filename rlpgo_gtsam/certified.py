@@ -64,7 +64,7 @@ from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator
 
 from rlpgo_gtsam.errors import GraphError, SolverError
 from rlpgo_gtsam.graph import PoseGraph2D, rotation_weights
-from rlpgo_gtsam.rotations import wrap
+from rlpgo_gtsam.se2 import wrap
 
 __all__ = ["Certificate", "synchronize", "certify", "relaxation_cost"]
 

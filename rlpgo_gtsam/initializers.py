@@ -35,7 +35,7 @@ import numpy as np
 from rlpgo_gtsam.errors import RlpgoError, SolverError, one_line
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, rotation_weights
 from rlpgo_gtsam.linear import solve_pairwise
-from rlpgo_gtsam.rotations import angle_residuals, chordal_edge_costs, rotation_matrices
+from rlpgo_gtsam.se2 import angle_residuals, chordal_edge_costs, rotation_matrices
 from rlpgo_gtsam.translations import poses_with_orientations
 
 __all__ = [

@@ -8,7 +8,7 @@ import numpy as np
 
 from rlpgo_gtsam.graph import PoseGraph2D, edge_chi2
 from rlpgo_gtsam.linear import solve_pairwise
-from rlpgo_gtsam.rotations import rotation_matrices, wrap
+from rlpgo_gtsam.se2 import rotation_matrices, wrap
 
 __all__ = ["solve_translations", "poses_with_orientations", "whitened_system", "SystemParts",
            "TranslationStep"]

@@ -11,7 +11,7 @@ from rlpgo_gtsam.rl.episode import (
     RandomPolicy,
     rollout,
 )
-from rlpgo_gtsam.rotations import orientation_cost, wrap
+from rlpgo_gtsam.se2 import orientation_cost, wrap
 from rlpgo_gtsam.synthetic import generate
 
 
@@ -113,7 +113,7 @@ def graph_60() -> PoseGraph2D:
 
 def _frozen_costs(graph: PoseGraph2D, theta: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """e^T Lambda e per edge with positions ``xy`` held, from nothing."""
-    from rlpgo_gtsam.rotations import rotation_matrices
+    from rlpgo_gtsam.se2 import rotation_matrices
 
     i, j = graph.edges[:, 0], graph.edges[:, 1]
     r_i_t = np.transpose(rotation_matrices(theta[i]), (0, 2, 1))
