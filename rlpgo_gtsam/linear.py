@@ -62,8 +62,9 @@ class PairwiseSystem:
         # the four blocks (i,i), (j,j), (i,j), (j,i) of each edge, kept where both are free
         self._block_keep = [(column[p] >= 0) & (column[q] >= 0) for p, q in
                             ((i, i), (j, j), (i, j), (j, i))]
-        self._pattern: tuple | None = None  # (slots, indices, indptr) with every edge kept
-        self._ordering: np.ndarray | None = None  # the fill-reducing ordering found for it
+        # with every edge kept: the normal equations' CSC structure in the fill-reducing
+        # ordering (slots, indices, indptr) and each column's position in it
+        self._pattern: tuple | None = None
 
     def solve(self, a_i: np.ndarray, a_j: np.ndarray, b: np.ndarray, held_values: np.ndarray,
               weights: np.ndarray | None = None) -> np.ndarray:
@@ -104,8 +105,8 @@ class PairwiseSystem:
             if kept is not None:
                 take &= kept
             part = np.einsum("eab,eb->ea", block_t[take], rhs_edge[take])
-            np.add.at(gradient, 2 * self._column[index][take], part[:, 0])
-            np.add.at(gradient, 2 * self._column[index][take] + 1, part[:, 1])
+            slot = (2 * self._column[index][take][:, None] + [0, 1]).ravel()
+            gradient += np.bincount(slot, weights=part.ravel(), minlength=self.unknowns)
         if kept is None:
             solution = self._solve_all(blocks, gradient)
         else:
@@ -135,24 +136,33 @@ class PairwiseSystem:
         return np.concatenate(parts)
 
     def _solve_all(self, blocks: list[np.ndarray], gradient: np.ndarray) -> np.ndarray:
-        """Every edge kept: the cached pattern, in the ordering the first solve found."""
+        """Every edge kept: the cached pattern, already permuted into the fill-reducing
+        ordering that the first solve found (SuperLU then factorizes in natural order)."""
         import scipy.sparse as sp
 
         size = self.unknowns
+        data = self._data(blocks, None)
         if self._pattern is None:
             rows, cols = self._entries(None)
-            # each entry's slot in the CSC data array (duplicates summed), and the structure
-            order = np.lexsort((rows, cols))
-            key = cols[order] * size + rows[order]
-            unique = np.unique(key)
-            slots = np.empty(len(rows), np.int64)
-            slots[order] = np.cumsum(np.diff(key, prepend=key[:1]) != 0)
-            self._pattern = (slots, (unique % size).astype(np.int32),
-                             np.searchsorted(unique // size, np.arange(size + 1)).astype(np.int32))
-        slots, indices, indptr = self._pattern
-        data = np.bincount(slots, weights=self._data(blocks, None), minlength=len(indices))
-        normal = sp.csc_matrix((data, indices, indptr), shape=(size, size))
-        return self._finish(normal, gradient, None)
+            slots, indices, indptr = _csc_pattern(rows, cols, size)
+            normal = sp.csc_matrix((np.bincount(slots, weights=data, minlength=len(indices)),
+                                    indices, indptr), shape=(size, size))
+            factor, vanishing = _factorize(normal, natural=False)
+            if factor is None or vanishing.any():
+                raise self._indeterminate(normal, None, vanishing)
+            position = factor.perm_c  # column k of the matrix is eliminated at position[k]
+            self._pattern = (*_csc_pattern(position[rows], position[cols], size), position)
+            return self._checked(factor.solve(gradient), normal, None)
+        slots, indices, indptr, position = self._pattern
+        permuted = sp.csc_matrix((np.bincount(slots, weights=data, minlength=len(indices)),
+                                  indices, indptr), shape=(size, size))
+        factor, vanishing = _factorize(permuted, natural=True)
+        if factor is not None and not vanishing.any():
+            solution = factor.solve(gradient[np.argsort(position)])[position]
+            if np.all(np.isfinite(solution)):
+                return solution
+        normal = permuted[position][:, position].tocsc()
+        raise self._indeterminate(normal, None, vanishing[position])
 
     def _solve_kept(self, blocks: list[np.ndarray], gradient: np.ndarray,
                     kept: np.ndarray) -> np.ndarray:
@@ -162,17 +172,14 @@ class PairwiseSystem:
         size = self.unknowns
         rows, cols = self._entries(kept)
         normal = sp.csc_matrix((self._data(blocks, kept), (rows, cols)), shape=(size, size))
-        return self._finish(normal, gradient, kept)
-
-    def _finish(self, normal, gradient: np.ndarray, kept: np.ndarray | None) -> np.ndarray:
-        factor, ordering, vanishing = _factorize(normal, self._ordering if kept is None else None)
-        if kept is None and factor is not None:
-            self._ordering = ordering
+        factor, vanishing = _factorize(normal, natural=False)
         if factor is None or vanishing.any():
             raise self._indeterminate(normal, kept, vanishing)
-        solution = factor.solve(gradient)
+        return self._checked(factor.solve(gradient), normal, kept)
+
+    def _checked(self, solution: np.ndarray, normal, kept: np.ndarray | None) -> np.ndarray:
         if not np.all(np.isfinite(solution)):
-            raise self._indeterminate(normal, kept, vanishing)
+            raise self._indeterminate(normal, kept, np.zeros(len(solution), bool))
         return solution
 
     def _indeterminate(self, normal, kept: np.ndarray | None,
@@ -190,7 +197,7 @@ class PairwiseSystem:
         if not loose.any() and not vanishing.any():
             # exactly singular although tied: find the pivots on a slightly shifted matrix
             shift = sp.diags(1e-3 * _PIVOT_FLOOR * np.abs(normal.diagonal()) + 1e-300)
-            vanishing = _factorize((normal + shift).tocsc(), None)[2]
+            vanishing = _factorize((normal + shift).tocsc(), natural=False)[1]
         loose[np.flatnonzero(self.free)[np.flatnonzero(vanishing) // 2]] = True
         if not loose.any():
             return SolverError("linear solve failed: the factorization is singular")
@@ -200,43 +207,33 @@ class PairwiseSystem:
                            "undetermined")
 
 
-def _factorize(normal, perm: np.ndarray | None) -> tuple:
-    """SuperLU of a symmetric positive definite matrix: (factor, its ordering (position ->
-    column), (size,) bool the columns whose pivot vanishes against their diagonal entry).
+def _csc_pattern(rows: np.ndarray, cols: np.ndarray, size: int) -> tuple:
+    """The CSC structure of entries at (rows, cols), duplicates summed: each entry's slot in
+    the data array, then the row indices and column pointers."""
+    order = np.lexsort((rows, cols))
+    key = cols[order] * size + rows[order]  # sorted
+    first = np.diff(key, prepend=-1) != 0
+    unique = key[first]
+    slots = np.empty(len(rows), np.int64)
+    slots[order] = np.cumsum(first) - 1
+    return (slots, (unique % size).astype(np.int32),
+            np.searchsorted(unique // size, np.arange(size + 1)).astype(np.int32))
 
-    With ``perm`` (an ordering) the matrix is permuted first and factorized in that order;
-    else SuperLU picks the ordering (minimum degree on A^T + A). The factor is None when
-    SuperLU finds the matrix exactly singular (no column is then marked).
-    """
+
+def _factorize(normal, natural: bool) -> tuple:
+    """SuperLU of a symmetric positive definite matrix in symmetric mode without pivoting,
+    in natural order or in the minimum-degree ordering of A^T + A: (the factor, (size,) bool
+    the columns whose pivot vanishes against their diagonal entry). The factor is None when
+    SuperLU finds the matrix exactly singular (no column is then marked)."""
     from scipy.sparse.linalg import splu
 
-    options = {"diag_pivot_thresh": 0.0, "options": {"SymmetricMode": True}}
-    size = normal.shape[0]
     try:
-        if perm is None:
-            lu = splu(normal, permc_spec="MMD_AT_PLUS_A", **options)
-            factor, order, pivots = lu, np.argsort(lu.perm_c), lu.U.diagonal()[lu.perm_c]
-        else:
-            lu = splu(normal[perm][:, perm].tocsc(), permc_spec="NATURAL", **options)
-            factor, order = _Permuted(lu, perm), perm
-            pivots = np.empty(size)
-            pivots[perm] = lu.U.diagonal()[lu.perm_c]
+        factor = splu(normal, permc_spec="NATURAL" if natural else "MMD_AT_PLUS_A",
+                      diag_pivot_thresh=0.0, options={"SymmetricMode": True})
     except RuntimeError:
-        return None, None, np.zeros(size, bool)
-    vanishing = np.abs(pivots) <= _PIVOT_FLOOR * np.abs(normal.diagonal())
-    return factor, order, vanishing
-
-
-class _Permuted:
-    """A factor of ``A[perm][:, perm]`` that solves with ``A``."""
-
-    def __init__(self, factor, perm: np.ndarray) -> None:
-        self.factor, self.perm = factor, perm
-
-    def solve(self, rhs: np.ndarray) -> np.ndarray:
-        out = np.empty_like(rhs)
-        out[self.perm] = self.factor.solve(rhs[self.perm])
-        return out
+        return None, np.zeros(normal.shape[0], bool)
+    pivots = factor.U.diagonal()[factor.perm_c]
+    return factor, np.abs(pivots) <= _PIVOT_FLOOR * np.abs(normal.diagonal())
 
 
 def solve_pairwise(num_poses: int, edges: np.ndarray, a_i: np.ndarray, a_j: np.ndarray,
