@@ -44,7 +44,7 @@ from rlpgo_gtsam import (  # noqa: E402
 )
 from rlpgo_gtsam.errors import RlpgoError  # noqa: E402
 from rlpgo_gtsam.rl.episode import BalancingPolicy, rollout  # noqa: E402
-from rlpgo_gtsam.rotations import wrap  # noqa: E402
+from rlpgo_gtsam.se2 import wrap  # noqa: E402
 
 # (poses, sigma_R, seed): noisy measurements, sigma_t 0.05, d 3, lc 0.5.
 CANDIDATES = [(n, sigma_r, seed) for n, sigma_r in

@@ -30,7 +30,7 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
-from rlpgo_gtsam.rotations import rotation_matrices, wrap
+from rlpgo_gtsam.se2 import rotation_matrices, wrap
 
 __all__ = ["TrajectoryErrors", "trajectory_errors", "align_positions"]
 

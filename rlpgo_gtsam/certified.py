@@ -77,9 +77,10 @@ from scipy.sparse.linalg import (
     splu,
 )
 
+from rlpgo_gtsam.chordal import chordal_orientations
 from rlpgo_gtsam.errors import GraphError, SolverError
 from rlpgo_gtsam.graph import PoseGraph2D, rotation_weights
-from rlpgo_gtsam.rotations import wrap
+from rlpgo_gtsam.se2 import wrap
 
 __all__ = ["Certificate", "Status", "synchronize", "certify", "relaxation_cost"]
 
@@ -248,7 +249,7 @@ def synchronize(
     problem = _Problem(pose_graph)
     eta = problem.tolerance(tolerance)
     if start_theta is None:
-        z = problem.chordal()
+        z = np.exp(1j * chordal_orientations(pose_graph))
     else:
         z = np.exp(1j * _angles(start_theta, problem.n))
     y = np.zeros((problem.n, initial_rank), complex)
@@ -383,22 +384,6 @@ class _Problem:
 
     def cost(self, y: np.ndarray) -> float:
         return float(np.real(np.vdot(y, self.apply(y))))
-
-    def chordal(self) -> np.ndarray:
-        """The chordal estimate: rotation terms only, anchor z = 1, projected to |z| = 1."""
-        n, k = self.n, self.anchor
-        keep = np.delete(np.arange(n), k)
-        rot = self.rot
-        try:
-            lu = splu(rot[keep][:, keep].tocsc(), permc_spec="MMD_AT_PLUS_A")
-            z_keep = lu.solve(-rot[keep][:, [k]].toarray()[:, 0])
-        except RuntimeError:
-            raise SolverError("the measurements do not determine the rotations (a pose "
-                              "without rotational information?)") from None
-        z = np.ones(n, complex)
-        z[keep] = z_keep
-        size = np.abs(z)
-        return np.where(size > 1e-12, z / np.maximum(size, 1e-300), 1.0)
 
     def factor(self, shift: np.ndarray) -> tuple[SuperLU, int]:
         """Pivot-free sparse LU of [[L, -B], [-B^H, D + diag(shift)]]: its Schur complement

@@ -33,6 +33,7 @@ import numpy as np
 from rlpgo_gtsam.errors import G2oFormatError, InputNotFoundError, OutputError
 from rlpgo_gtsam.files import write_text
 from rlpgo_gtsam.graph import disconnection, information_problem
+from rlpgo_gtsam.se2 import chain, compose, inverse, wrap
 
 __all__ = ["read_g2o", "read_g2o_lines", "write_g2o", "g2o_text", "g2o_text_lines",
            "edge_list_text", "EDGE_LIST_LINE"]
@@ -278,28 +279,49 @@ def _check_edges(path: Path, parsed: _Parsed) -> None:
 
 
 def _chain_odometry(edges: list[_Edge]) -> dict[int, tuple[float, float, float]]:
-    """Initial poses composed along i -> i+1 edges; vertices off the chain via any edge."""
-    by_pair: dict[tuple[int, int], gtsam.Pose2] = {}
-    neighbours: dict[int, list[tuple[int, gtsam.Pose2]]] = {}
-    for edge in edges:
-        between = gtsam.Pose2(*edge.measured)
-        by_pair.setdefault((edge.i, edge.j), between)
-        by_pair.setdefault((edge.j, edge.i), between.inverse())
-        neighbours.setdefault(edge.i, []).append((edge.j, between))
-        neighbours.setdefault(edge.j, []).append((edge.i, between.inverse()))
+    """Initial poses composed along i -> i+1 edges; vertices off the chain via any edge.
+
+    The chain runs from the smallest key through consecutive keys for as long as an edge
+    joins them (the first such edge in file order, inverted if it runs j -> i); the other
+    vertices are reached depth-first through any edge. Poses that overflow come back
+    non-finite (the caller names the first).
+    """
+    first: dict[tuple[int, int], tuple[int, bool]] = {}  # pair -> (edge index, inverted?)
+    neighbours: dict[int, list[tuple[int, int, bool]]] = {}
+    for index, edge in enumerate(edges):
+        first.setdefault((edge.i, edge.j), (index, False))
+        first.setdefault((edge.j, edge.i), (index, True))
+        neighbours.setdefault(edge.i, []).append((edge.j, index, False))
+        neighbours.setdefault(edge.j, []).append((edge.i, index, True))
     keys = sorted(neighbours)
-    poses = {keys[0]: gtsam.Pose2()}
-    for previous, key in zip(keys, keys[1:], strict=False):
-        if previous in poses and (previous, key) in by_pair:
-            poses[key] = poses[previous].compose(by_pair[(previous, key)])
-    frontier = list(poses)
-    while frontier:
-        key = frontier.pop()
-        for other, between in neighbours[key]:
-            if other not in poses:
-                poses[other] = poses[key].compose(between)
-                frontier.append(other)
-    return {key: (pose.x(), pose.y(), pose.theta()) for key, pose in poses.items()}
+    length = 1
+    while length < len(keys) and (keys[length - 1], keys[length]) in first:
+        length += 1
+    measured = np.array([edge.measured for edge in edges], dtype=float).reshape(-1, 3)
+    with np.errstate(over="ignore", invalid="ignore"):
+        steps = _steps(measured, [first[pair] for pair in zip(keys, keys[1:length], strict=False)])
+        chained = chain(steps)
+        poses = {key: chained[k] for k, key in enumerate(keys[:length])}
+        frontier = list(poses)
+        while frontier:
+            key = frontier.pop()
+            for other, index, inverted in neighbours[key]:
+                if other not in poses:
+                    step = _steps(measured, [(index, inverted)])
+                    poses[other] = compose(poses[key][None], step)[0]
+                    frontier.append(other)
+    return {key: (float(x), float(y), float(theta)) for key, (x, y, theta) in poses.items()}
+
+
+def _steps(measured: np.ndarray, chosen: list[tuple[int, bool]]) -> np.ndarray:
+    """(k, 3) the measurements of the chosen edges (angles wrapped, as a ``gtsam.Pose2``
+    holds them), inverted where marked."""
+    index = np.array([i for i, _ in chosen], dtype=np.int64)
+    inverted = np.array([flag for _, flag in chosen], dtype=bool)
+    steps = measured[index]
+    steps[:, 2] = wrap(steps[:, 2])
+    steps[inverted] = inverse(steps[inverted])
+    return steps
 
 
 def _check_connected(path: Path, parsed: _Parsed) -> None:

@@ -26,13 +26,12 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
-from rlpgo_gtsam.rotations import rotation_matrices, wrap
+from rlpgo_gtsam.se2 import between, logmap
 
 __all__ = [
     "PoseGraph2D",
     "chi2",
     "edge_chi2",
-    "logmap_translation",
     "rotation_weights",
     "odometry_edges",
     "information_problem",
@@ -266,30 +265,9 @@ def edge_chi2(pose_graph: PoseGraph2D, poses: np.ndarray) -> np.ndarray:
     """(m,) each edge's chi2 at ``poses`` (n, 3), as GTSAM's BetweenFactorPose2 charges it:
     ``e^T Lambda e`` with ``e = Logmap(measured^-1 (X_i^-1 X_j))``."""
     g = pose_graph
-    i, j = g.edges[:, 0], g.edges[:, 1]
-    # the relative pose X_i^-1 X_j, then measured^-1 times it
-    rel_t = np.einsum("eba,eb->ea", rotation_matrices(poses[i, 2]), poses[j, :2] - poses[i, :2])
-    err_t = np.einsum("eba,eb->ea", rotation_matrices(g.measured[:, 2]),
-                      rel_t - g.measured[:, :2])
-    err_theta = wrap(poses[j, 2] - poses[i, 2] - g.measured[:, 2])
-    error = np.column_stack([logmap_translation(err_t, err_theta), err_theta])
+    relative = between(poses[g.edges[:, 0]], poses[g.edges[:, 1]])
+    error = logmap(between(g.measured, relative))
     return np.einsum("ea,eab,eb->e", error, g.information, error)
-
-
-def logmap_translation(t: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """The translation part of Pose2's Logmap (GTSAM's formula), vectorized."""
-    result = t.copy()
-    big = np.abs(theta) >= 1e-10
-    c_1, s = np.cos(theta[big]) - 1.0, np.sin(theta[big])
-    det = c_1 * c_1 + s * s
-    tx, ty = t[big, 0], t[big, 1]
-    # R^T t - t, then rotated by +90 degrees, times theta / det
-    ux = c_1 * tx + s * ty
-    uy = -s * tx + c_1 * ty
-    scale = theta[big] / det
-    result[big, 0] = -uy * scale
-    result[big, 1] = ux * scale
-    return result
 
 
 def disconnection(keys: Iterable[int], pairs: Iterable[tuple[int, int]]) -> str | None:

@@ -32,11 +32,11 @@ from typing import Any
 import gtsam
 import numpy as np
 
+from rlpgo_gtsam.chordal import chordal_orientations
 from rlpgo_gtsam.errors import RlpgoError, SolverError, one_line
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, rotation_weights
-from rlpgo_gtsam.linear import solve_pairwise
 from rlpgo_gtsam.numerics import numeric_call
-from rlpgo_gtsam.rotations import angle_residuals, chordal_edge_costs, rotation_matrices
+from rlpgo_gtsam.se2 import angle_residuals, chordal_edge_costs
 from rlpgo_gtsam.translations import poses_with_orientations
 
 __all__ = [
@@ -56,7 +56,6 @@ __all__ = [
     "initializer_names",
     "start_names",
     "check_method",
-    "chordal_orientations",
 ]
 
 
@@ -194,30 +193,13 @@ class LagoInitializer(OrientationInitializer):
 
 
 class ChordalInitializer(OrientationInitializer):
-    """Chordal relaxation of the rotations, projected onto SO(2), then the translation step.
-
-    Each rotation is a complex number z (a 2-vector); the relaxation minimizes
-    ``sum_e w_e |z_j - z_i exp(i theta~_ij)|^2`` with ``w_e`` the edge's rotation weight and
-    the held poses' z fixed, one sparse linear solve in GTSAM. Each z is then projected
-    onto the unit circle.
-    """
+    """Chordal relaxation of the rotations, projected onto SO(2)
+    (:func:`~rlpgo_gtsam.chordal.chordal_orientations`), then the translation step."""
 
     name = "chordal"
 
     def orientations(self, pose_graph: PoseGraph2D, start_theta: np.ndarray | None) -> np.ndarray:
         return chordal_orientations(pose_graph)
-
-
-def chordal_orientations(pose_graph: PoseGraph2D) -> np.ndarray:
-    """Orientations (n,) from the chordal relaxation; held poses keep their angles."""
-    g = pose_graph
-    root_w = np.sqrt(rotation_weights(g))[:, None, None]
-    a_i = -root_w * rotation_matrices(g.measured[:, 2])
-    a_j = root_w * np.broadcast_to(np.eye(2), a_i.shape)
-    held, held_poses = g.held
-    held_z = np.column_stack([np.cos(held_poses[:, 2]), np.sin(held_poses[:, 2])])
-    z = solve_pairwise(g.num_poses, g.edges, a_i, a_j, np.zeros((g.num_edges, 2)), held, held_z)
-    return np.arctan2(z[:, 1], z[:, 0])
 
 
 class ShonanInitializer(OrientationInitializer):

@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from rlpgo_gtsam.graph import PoseGraph2D, edge_chi2
-from rlpgo_gtsam.linear import solve_pairwise
-from rlpgo_gtsam.rotations import rotation_matrices, wrap
+from rlpgo_gtsam.linear import PairwiseSystem
+from rlpgo_gtsam.se2 import rotation_matrices, wrap
 
 __all__ = ["solve_translations", "poses_with_orientations", "whitened_system", "SystemParts",
            "TranslationStep"]
@@ -39,10 +39,7 @@ def solve_translations(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray
     so xy and x/y-theta correlations are both kept. Held poses (the anchor, FIXed poses)
     keep their positions; soft priors are not used (refinement honours them).
     """
-    a_j, b, _ = whitened_system(pose_graph, theta)
-    held, held_poses = pose_graph.held
-    return solve_pairwise(pose_graph.num_poses, pose_graph.edges, -a_j, a_j, b, held,
-                          held_poses[:, :2])
+    return TranslationStep(pose_graph).positions(np.asarray(theta, dtype=float), gauge=False)
 
 
 @dataclass(frozen=True)
@@ -92,43 +89,29 @@ def whitened_system(pose_graph: PoseGraph2D, theta: np.ndarray,
 class TranslationStep:
     """The translation step for many orientations of one graph: positions and their chi2.
 
-    :func:`poses_with_orientations` solves through GTSAM, which costs milliseconds a call;
-    a training reward on the real cost calls it at every step. This class keeps what does
-    not depend on the orientations (whitening factors, the sparsity pattern of the normal
-    equations) and solves them with scipy. :meth:`chi2` is the chi2 of the graph's edges at
-    the solved positions, which is GTSAM's chi2 of ``poses_with_orientations(theta)`` on a
-    graph without soft priors (a soft prior on the anchor adds nothing either: the anchor
-    sits at its value), summed by :func:`~rlpgo_gtsam.graph.edge_chi2`.
+    A training reward on the real cost solves it at every step: this class keeps what does
+    not depend on the orientations (whitening factors, the
+    :class:`~rlpgo_gtsam.linear.PairwiseSystem` with its sparsity pattern and ordering).
+    :meth:`chi2` is the chi2 of the graph's edges at the solved positions, which is GTSAM's
+    chi2 of ``poses_with_orientations(theta)`` on a graph without soft priors (a soft prior
+    on the anchor adds nothing either: the anchor sits at its value), summed by
+    :func:`~rlpgo_gtsam.graph.edge_chi2`.
     """
 
     def __init__(self, pose_graph: PoseGraph2D) -> None:
-        from scipy import sparse
-
-        g = self.pose_graph = pose_graph
-        self.parts = SystemParts.of(g)
-        held, held_poses = g.held
+        self.pose_graph = pose_graph
+        self.parts = SystemParts.of(pose_graph)
+        held, held_poses = pose_graph.held
         self.held, self.held_xy = held, held_poses[:, :2]
-        free = np.ones(g.num_poses, bool)
-        free[held] = False
-        self.column = np.full(g.num_poses, -1)
-        self.column[free] = np.arange(int(free.sum()))
-        self.unknowns = 2 * int(free.sum())
-        i, j = g.edges[:, 0], g.edges[:, 1]
-        # Normal-equation blocks: (i,i) and (j,j) get +A^T A, (i,j) and (j,i) get -A^T A.
-        rows, cols, self._slots = [], [], []
-        for a, b, sign in ((i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)):
-            keep = (self.column[a] >= 0) & (self.column[b] >= 0)
-            for r in range(2):
-                for c in range(2):
-                    rows.append(2 * self.column[a][keep] + r)
-                    cols.append(2 * self.column[b][keep] + c)
-                    self._slots.append((keep, r, c, sign))
-        self._rows, self._cols = np.concatenate(rows), np.concatenate(cols)
-        self._sparse = sparse
+        self.system = PairwiseSystem(pose_graph.num_poses, pose_graph.edges, held)
 
-    def positions(self, theta: np.ndarray) -> np.ndarray:
-        """(n, 2) positions of least cost for the orientations ``theta``."""
-        return self.solve(theta)[0]
+    def positions(self, theta: np.ndarray, gauge: bool = True) -> np.ndarray:
+        """(n, 2) positions of least cost for the orientations ``theta``; ``gauge``: rotate
+        ``theta`` as a whole so that the anchor gets its angle first (as :meth:`solve`)."""
+        if gauge:
+            theta = self._in_gauge(theta)
+        a, b, _ = whitened_system(self.pose_graph, theta, self.parts)
+        return self.system.solve(-a, a, b, self.held_xy)
 
     def chi2(self, theta: np.ndarray) -> float:
         """The edges' chi2 at the positions of least cost for ``theta``."""
@@ -136,28 +119,10 @@ class TranslationStep:
 
     def solve(self, theta: np.ndarray) -> tuple[np.ndarray, float]:
         """Both at once: (n, 2) positions of least cost and the edges' chi2 there."""
-        from scipy.sparse.linalg import spsolve
+        theta = self._in_gauge(theta)
+        xy = self.positions(theta, gauge=False)
+        return xy, float(edge_chi2(self.pose_graph, np.column_stack([xy, theta])).sum())
 
-        g = self.pose_graph
+    def _in_gauge(self, theta: np.ndarray) -> np.ndarray:
         theta = np.asarray(theta, dtype=float)
-        theta = theta - theta[self.held[0]] + g.held[1][0, 2]  # the anchor's angle
-        a, b, _ = whitened_system(g, theta, self.parts)
-        ata = np.einsum("eka,ekb->eab", a, a)
-        data = np.concatenate([sign * ata[keep, r, c] for keep, r, c, sign in self._slots])
-        normal = self._sparse.csc_matrix((data, (self._rows, self._cols)),
-                                         shape=(self.unknowns, self.unknowns))
-        # Residual A (x_j - x_i) - b with held positions moved to the right-hand side.
-        xy = np.zeros((g.num_poses, 2))
-        xy[self.held] = self.held_xy
-        i, j = g.edges[:, 0], g.edges[:, 1]
-        rhs_edge = b - np.einsum("eab,eb->ea", a, xy[j] - xy[i])  # zero for free poses
-        atb = np.einsum("eka,ek->ea", a, rhs_edge)
-        rhs = np.zeros(self.unknowns)
-        for index, sign in ((j, 1.0), (i, -1.0)):
-            free = self.column[index] >= 0
-            np.add.at(rhs, 2 * self.column[index][free], sign * atb[free, 0])
-            np.add.at(rhs, 2 * self.column[index][free] + 1, sign * atb[free, 1])
-        solution = spsolve(normal, rhs) if self.unknowns else np.zeros(0)
-        free = self.column >= 0
-        xy[free] = solution.reshape(-1, 2)
-        return xy, float(edge_chi2(g, np.column_stack([xy, theta])).sum())
+        return theta - theta[self.held[0]] + self.pose_graph.held[1][0, 2]  # the anchor's angle

@@ -7,7 +7,7 @@ import pytest
 
 from rlpgo_gtsam import GraphError, PoseGraph2D, generate, make_initializer, refine
 from rlpgo_gtsam.certified import certify, relaxation_cost, synchronize
-from rlpgo_gtsam.rotations import wrap
+from rlpgo_gtsam.se2 import wrap
 
 
 def _graph(sample) -> PoseGraph2D:

@@ -11,7 +11,7 @@ from rlpgo_gtsam.rl.episode import (
     RandomPolicy,
     rollout,
 )
-from rlpgo_gtsam.rotations import orientation_cost, wrap
+from rlpgo_gtsam.se2 import orientation_cost, wrap
 from rlpgo_gtsam.synthetic import generate
 
 

@@ -15,8 +15,8 @@ PACKAGE = Path(rlpgo_gtsam.__file__).parent
 # Lowest first. A module may import only modules listed before it (at top level, inside a
 # function, or under TYPE_CHECKING alike). The package root (__init__) is the facade above all.
 LAYERS = [
-    "errors", "numerics", "rotations", "graph", "linear", "files", "g2o", "accuracy", "synthetic",
-    "translations",
+    "errors", "numerics", "se2", "graph", "linear", "files", "g2o", "accuracy", "synthetic",
+    "translations", "chordal",
     "certified", "solvers", "initializers", "ranking", "residuals", "staged",
     "robust.consistency", "robust.gnc", "robust.pipeline", "robust", "rl.episode",
     "rl.agent", "rl.agent.config", "rl.agent.networks", "rl.agent.buffer", "rl.agent.inference",

@@ -15,7 +15,7 @@ from rlpgo_gtsam import (
     register,
 )
 from rlpgo_gtsam.initializers import OdometryInitializer
-from rlpgo_gtsam.rotations import wrap
+from rlpgo_gtsam.se2 import wrap
 from tests.conftest import dataset
 
 LOWEST_KNOWN = {"M3500A.g2o": 912.2, "M3500B.g2o": 2055.4, "Intel.g2o": 212.7, "MIT.g2o": 41.21}

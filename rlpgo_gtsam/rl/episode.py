@@ -19,7 +19,7 @@ import numpy as np
 
 from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import PoseGraph2D
-from rlpgo_gtsam.rotations import angle_residuals, wrap
+from rlpgo_gtsam.se2 import CHORDAL_ROOT, CHORDAL_SCALE, angle_residuals, wrap
 
 __all__ = [
     "EnvConfig",
@@ -119,8 +119,8 @@ class OrientationState:
         residual = angle_residuals(theta, edges, np.array(self.measured))
         half_sin = np.abs(np.sin(0.5 * residual))
         self.residual = residual.tolist()
-        self.message = (math.sqrt(8.0) * half_sin).tolist()
-        self.cost = (8.0 * half_sin**2).tolist()
+        self.message = (CHORDAL_ROOT * half_sin).tolist()
+        self.cost = (CHORDAL_SCALE * half_sin**2).tolist()
         self.cost_sq = math.fsum(self.cost)
         self.message_sum = math.fsum(self.message)
 
@@ -144,11 +144,12 @@ class OrientationState:
         self._undo.append((pose, old))
         self.theta[pose] = (old + angle + math.pi) % (2.0 * math.pi) - math.pi
         theta, residual, cost, message = self.theta, self.residual, self.cost, self.message
+        root, scale = CHORDAL_ROOT, CHORDAL_SCALE  # locals: the loop runs per incident edge
         for e in self.incident[pose]:
             r = theta[self.target[e]] - theta[self.source[e]] - self.measured[e]
             r = (r + math.pi) % (2.0 * math.pi) - math.pi
             s = abs(math.sin(0.5 * r))
-            new_message, new_cost = 2.8284271247461903 * s, 8.0 * s * s
+            new_message, new_cost = root * s, scale * s * s
             self.cost_sq += new_cost - cost[e]
             self.message_sum += new_message - message[e]
             residual[e], cost[e], message[e] = r, new_cost, new_message

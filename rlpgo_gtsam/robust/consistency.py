@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from rlpgo_gtsam.graph import PoseGraph2D, logmap_translation
-from rlpgo_gtsam.rotations import wrap
+from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.se2 import adjoint, chain, compose, inverse, logmap
+from rlpgo_gtsam.se2 import between as relative_pose
 
 __all__ = ["consistent_closures", "WINDOW", "LOOSE_SUPPORT"]
 
@@ -67,8 +68,8 @@ def consistent_closures(g: PoseGraph2D, chain_mask: np.ndarray,
                                               g.edges[used, 1] < g.edges[used, 0])
     linked[lower] = True
     segment = np.concatenate([[0], np.cumsum(~linked)])
-    chain = _chain(steps)
-    chain_adjoint = _adjoint(chain)
+    chained = chain(steps)
+    chain_adjoint = adjoint(chained)
     chain_adjoint_inverse = np.linalg.inv(chain_adjoint)
     # prefix[m]: the covariance of steps 0..m-1 moved into the origin frame, summed
     prefix = np.zeros((n, 3, 3))
@@ -77,7 +78,7 @@ def consistent_closures(g: PoseGraph2D, chain_mask: np.ndarray,
     def between(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """D(a, b) for index arrays, and its covariance in its right frame."""
         lower, upper = np.minimum(a, b), np.maximum(a, b)
-        forward = _compose(_inverse(chain[lower]), chain[upper])
+        forward = relative_pose(chained[lower], chained[upper])
         covariance = _sandwich(chain_adjoint_inverse[upper], prefix[upper] - prefix[lower])
         return _oriented(forward, covariance, a > b)
 
@@ -108,14 +109,14 @@ def consistent_closures(g: PoseGraph2D, chain_mask: np.ndarray,
     after = factors[-1][0]
     total = factors[-1][1].copy()
     for pose, covariance in factors[-2::-1]:
-        total += _sandwich(_adjoint(_inverse(after)), covariance)
-        after = _compose(pose, after)
-    error = np.column_stack([logmap_translation(after[:, :2], after[:, 2]), after[:, 2]])
+        total += _sandwich(adjoint(inverse(after)), covariance)
+        after = compose(pose, after)
+    error = logmap(after)
     score = np.einsum("ea,ea->e", error, np.linalg.solve(total, error[..., None])[..., 0])
     bar = min(threshold, _DATA_SCALE * float(np.median(score)))
     # the chance that a wrong closure agrees anyway: the agreement ellipsoid's volume over
     # that of the wrong closures' distribution (a square of the chain's extent, 2 pi)
-    side = max(float(np.ptp(chain[:, 0])), float(np.ptp(chain[:, 1])), 1e-9)
+    side = max(float(np.ptp(chained[:, 0])), float(np.ptp(chained[:, 1])), 1e-9)
     volume = 4.0 / 3.0 * np.pi * bar ** 1.5 * np.sqrt(np.maximum(np.linalg.det(total), 0.0))
     chance = volume / (4.0 * side ** 2 * 2.0 * np.pi)
     agree = score < bar
@@ -125,15 +126,6 @@ def consistent_closures(g: PoseGraph2D, chain_mask: np.ndarray,
         _MIN_SUPPORT
     loose[closures] = np.bincount(a_idx[agree], minlength=len(closures)) >= LOOSE_SUPPORT
     return consistent, loose, int(len(a_idx))
-
-def _adjoint(poses: np.ndarray) -> np.ndarray:
-    """(k, 3, 3) GTSAM's Pose2 adjoint maps of (k, 3) poses (tangent order x, y, theta)."""
-    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-    adjoint = np.zeros((len(poses), 3, 3))
-    adjoint[:, 0, 0], adjoint[:, 0, 1], adjoint[:, 0, 2] = c, -s, poses[:, 1]
-    adjoint[:, 1, 0], adjoint[:, 1, 1], adjoint[:, 1, 2] = s, c, -poses[:, 0]
-    adjoint[:, 2, 2] = 1.0
-    return adjoint
 
 def _sandwich(a: np.ndarray, covariance: np.ndarray) -> np.ndarray:
     """Row-wise a C a^T."""
@@ -145,24 +137,6 @@ def _oriented(poses: np.ndarray, covariance: np.ndarray,
     ``(T Exp(d))^-1 = T^-1 Exp(-Ad(T) d)``."""
     reverse = np.broadcast_to(np.asarray(reverse, bool), (len(poses),))
     poses, covariance = poses.copy(), covariance.copy()
-    covariance[reverse] = _sandwich(_adjoint(poses[reverse]), covariance[reverse])
-    poses[reverse] = _inverse(poses[reverse])
+    covariance[reverse] = _sandwich(adjoint(poses[reverse]), covariance[reverse])
+    poses[reverse] = inverse(poses[reverse])
     return poses, covariance
-
-def _chain(steps: np.ndarray) -> np.ndarray:
-    """(n, 3) poses of a chain of relative steps (n - 1, 3), starting at the origin."""
-    theta = np.concatenate([[0.0], np.cumsum(steps[:, 2])])
-    c, s = np.cos(theta[:-1]), np.sin(theta[:-1])
-    moves = np.column_stack([c * steps[:, 0] - s * steps[:, 1], s * steps[:, 0] + c * steps[:, 1]])
-    return np.column_stack([np.vstack([[0.0, 0.0], np.cumsum(moves, axis=0)]), wrap(theta)])
-
-def _compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise a * b of (k, 3) poses."""
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    return np.column_stack([a[:, 0] + c * b[:, 0] - s * b[:, 1],
-                            a[:, 1] + s * b[:, 0] + c * b[:, 1], wrap(a[:, 2] + b[:, 2])])
-
-def _inverse(a: np.ndarray) -> np.ndarray:
-    """Row-wise inverse of (k, 3) poses."""
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    return np.column_stack([-c * a[:, 0] - s * a[:, 1], s * a[:, 0] - c * a[:, 1], -a[:, 2]])

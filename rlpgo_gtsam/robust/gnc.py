@@ -3,7 +3,7 @@ least-squares problem, and its use on the translation step.
 
 :func:`gnc_tls` takes any weighted solve and residual function; :func:`robust_positions`
 runs it on the translation step with fixed orientations, through the one pairwise
-least-squares system (:func:`~rlpgo_gtsam.linear.solve_pairwise_weighted`).
+least-squares system (:class:`~rlpgo_gtsam.linear.PairwiseSystem`).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from rlpgo_gtsam.graph import PoseGraph2D
-from rlpgo_gtsam.linear import solve_pairwise_weighted
+from rlpgo_gtsam.linear import PairwiseSystem
 from rlpgo_gtsam.translations import whitened_system
 
 __all__ = ["gnc_tls", "tls_weights", "robust_positions"]
@@ -34,10 +34,10 @@ def robust_positions(g: PoseGraph2D, theta: np.ndarray, known: np.ndarray,
     i, j = g.edges[:, 0], g.edges[:, 1]
     a_j, b, _ = whitened_system(g, theta)
     held, held_poses = g.held
+    system = PairwiseSystem(g.num_poses, g.edges, held)
 
     def solve(w: np.ndarray) -> np.ndarray:
-        return solve_pairwise_weighted(g.num_poses, g.edges, -a_j, a_j, b, w, held,
-                                       held_poses[:, :2])
+        return system.solve(-a_j, a_j, b, held_poses[:, :2], w)
 
     def residuals(t: np.ndarray) -> np.ndarray:
         r = np.einsum("eab,eb->ea", a_j, t[j] - t[i]) - b

@@ -1,0 +1,35 @@
+"""The chordal estimate of the orientations: the rotation terms alone, relaxed and projected.
+
+Each rotation is a complex number z (a 2-vector); the relaxation minimizes
+``sum_e w_e |z_j - z_i exp(i theta~_ij)|^2`` with ``w_e`` the edge's rotation weight
+(:func:`~rlpgo_gtsam.graph.rotation_weights`) and the held poses' z fixed, one sparse linear
+solve (:class:`~rlpgo_gtsam.linear.PairwiseSystem`). Each z is then projected onto the unit
+circle. It starts the certified relaxation and is the ``chordal`` initializer's orientation
+step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rlpgo_gtsam.graph import PoseGraph2D, rotation_weights
+from rlpgo_gtsam.linear import solve_pairwise
+from rlpgo_gtsam.se2 import rotation_matrices
+
+__all__ = ["chordal_orientations"]
+
+
+def chordal_orientations(pose_graph: PoseGraph2D) -> np.ndarray:
+    """Orientations (n,) from the chordal relaxation; held poses keep their angles.
+
+    Raises:
+        SolverError: the rotation terms leave a pose undetermined (it is named).
+    """
+    g = pose_graph
+    root_w = np.sqrt(rotation_weights(g))[:, None, None]
+    a_i = -root_w * rotation_matrices(g.measured[:, 2])
+    a_j = root_w * np.broadcast_to(np.eye(2), a_i.shape)
+    held, held_poses = g.held
+    held_z = np.column_stack([np.cos(held_poses[:, 2]), np.sin(held_poses[:, 2])])
+    z = solve_pairwise(g.num_poses, g.edges, a_i, a_j, np.zeros((g.num_edges, 2)), held, held_z)
+    return np.arctan2(z[:, 1], z[:, 0])
