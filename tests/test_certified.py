@@ -14,8 +14,8 @@ from rlpgo_cli.init import main as init_main
 import rlpgo_gtsam.certified as certified
 from rlpgo_gtsam import PoseGraph2D, generate, write_g2o
 from rlpgo_gtsam.certified import Status, certify, synchronize
-from rlpgo_gtsam.initializers import chordal_orientations
-from rlpgo_gtsam.rotations import wrap
+from rlpgo_gtsam.chordal import chordal_orientations
+from rlpgo_gtsam.se2 import wrap
 
 
 def _graph(n, sigma_r, seed, noisy=True) -> PoseGraph2D:
@@ -126,7 +126,8 @@ def test_sparse_and_dense_verification_agree(monkeypatch, sigma_r, seed, point):
     if point == "odometry":  # many negative eigenvalues
         y = np.exp(1j * graph.poses[:, 2])[:, None]
     else:  # a critical point at rank 1: the optimum, or a saddle with a few negative ones
-        y, _ = certified._trust_region(problem, problem.chordal()[:, None], 300,
+        start = np.exp(1j * chordal_orientations(graph))[:, None]
+        y, _ = certified._trust_region(problem, start, 300,
                                        1e-9 * np.sqrt(problem.n) * problem.scale)
     assert problem.n < certified._DENSE_BELOW
     dense = certified._verify(problem, y, eta)
