@@ -2,6 +2,7 @@
 light entry points load neither torch nor gymnasium."""
 
 import ast
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -12,17 +13,19 @@ import rlpgo_gtsam
 
 PACKAGE = Path(rlpgo_gtsam.__file__).parent
 
-# Lowest first. A module may import only modules listed before it (at top level, inside a
-# function, or under TYPE_CHECKING alike). The package root (__init__) is the facade above all.
-LAYERS = [
-    "errors", "numerics", "se2", "graph", "linear", "files", "g2o", "accuracy", "synthetic",
-    "translations", "chordal",
-    "certified", "solvers", "initializers", "ranking", "residuals", "staged",
-    "robust.consistency", "robust.gnc", "robust.pipeline", "robust", "rl.episode",
-    "rl.agent", "rl.agent.config", "rl.agent.networks", "rl.agent.buffer", "rl.agent.inference",
-    "rl.agent.checkpoint", "rl.models", "rl.env", "rl.agent.sac", "rl.initializer",
-    "rl.evaluation", "plotting", "rl.train", "rl",
-]
+README = PACKAGE.parent / "README.md"
+
+
+def _layers() -> list[str]:
+    """The module order of the README's layout table (one place for it), lowest first. A
+    module may import only modules listed before it (at top level, inside a function, or
+    under TYPE_CHECKING alike). The package root (__init__) is the facade above all."""
+    rows = re.findall(r"^\| (\d+) \| `([\w.]+)` \|", README.read_text(), flags=re.MULTILINE)
+    assert [int(k) for k, _ in rows] == list(range(1, len(rows) + 1)), "layers numbered 1..N"
+    return [name for _, name in rows]
+
+
+LAYERS = _layers()
 
 
 def _modules() -> dict[str, Path]:

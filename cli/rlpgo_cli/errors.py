@@ -12,7 +12,7 @@ from rlpgo_gtsam.errors import RlpgoError
 _LONGEST_MESSAGE = 1000
 
 
-def one_line(text: str) -> str:
+def printable_line(text: str) -> str:
     """``text`` as one printable line: control characters (a newline in a file name)
     escaped, and cut to 1000 characters."""
     escaped = "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii")
@@ -87,10 +87,10 @@ class RlpgoCommand(click.Command):
             with np.errstate(all="ignore"):
                 return super().invoke(ctx)
         except RlpgoError as error:
-            raise click.ClickException(one_line(str(error))) from None
+            raise click.ClickException(printable_line(str(error))) from None
         except OSError as error:
             where = f"{error.filename}: " if error.filename else ""
-            raise click.ClickException(one_line(f"{where}{error.strerror or error}")) from None
+            raise click.ClickException(printable_line(f"{where}{error.strerror or error}")) from None
         except (KeyboardInterrupt, _Terminated):
             click.echo("Error: interrupted", err=True)
             ctx.exit(INTERRUPTED_EXIT)

@@ -29,16 +29,23 @@ class SacConfig:
         warmup_episodes: episodes of uniformly random actions before learning starts.
     """
 
+    # networks and their optimizer
     hidden: int = 64
     learning_rate: float = 3e-4
+
+    # updates: how many, on what
     batch_size: int = 64
     gradient_steps: int = 16
     window: int = 40
     burn_in: int = 10
+
+    # soft actor-critic targets and temperature
     gamma: float = 0.99
     tau: float = 0.01
     reward_scale: float = 0.01
     target_entropy: float = -float(ACTION_SIZE)
     initial_alpha: float = 0.1
+
+    # replay
     replay_episodes: int = 2000
     warmup_episodes: int = 10
