@@ -1,6 +1,7 @@
 """Every ``bash`` and ``python`` block of the README and docs/ runs as pasted from the
-repository root, ``../shared`` beside it (blocks marked ``<!-- slow -->`` on the line before
-their fence run under ``-m slow``). Paths under /tmp/ are moved into the test's own folder so
+repository root, ``../shared`` beside it: ``python -m pytest -m docs`` (blocks marked
+``<!-- slow -->`` on the line before their fence, the set-up and training, also carry the
+``slow`` mark: ``-m "docs and slow"``). Paths under /tmp/ are moved into the test's own folder so
 that runs never meet each other's outputs; nothing may be left in the checkout."""
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ def _blocks() -> list:
             language = opened.group(1)
             if language in ("bash", "python"):
                 slow = k > 0 and lines[k - 1].strip() == "<!-- slow -->"
-                marks = [pytest.mark.slow] if slow else []
+                marks = [pytest.mark.docs] + ([pytest.mark.slow] if slow else [])
                 found.append(pytest.param(language, "\n".join(lines[k + 1:end]) + "\n",
                                           id=f"{page.relative_to(ROOT)}:{k + 1}", marks=marks))
             k = end + 1
