@@ -110,23 +110,34 @@ def _drawable(xy: np.ndarray) -> bool:
 
 
 def plot_training_curve(rows: list[dict], title: str = "") -> bytes:
-    """Episode reward (and its 20-episode mean) and best/initial OC against episodes."""
+    """Training progress: each episode's reward (and its moving mean), and how far each
+    episode brought the orientation cost down, against episodes.
+
+    OC, the orientation cost of the RL-PGO paper, is the square root of the summed chordal
+    rotation errors over all edges, ``sqrt(sum ||R_i R~_ij - R_j||_F^2)``; the right panel
+    shows the lowest OC an episode reached over its starting OC (lower is better, 1: no
+    gain), which the figure says in words under its panels.
+    """
     episodes = np.array([int(r["episode"]) for r in rows])
     rewards = np.array([float(r["reward"]) for r in rows])
     ratio = np.array([float(r["best_oc"]) / max(float(r["initial_oc"]), 1e-12) for r in rows])
     window = min(20, len(rows))
-    smooth = np.convolve(rewards, np.ones(window) / window, mode="valid")
-    figure = Figure(figsize=(9, 3.5))
+    figure = Figure(figsize=(10, 4.2))
     left, right = figure.subplots(1, 2)
-    left.plot(episodes, rewards, color="0.7", linewidth=0.6)
-    left.plot(episodes[window - 1:], smooth, linewidth=1.2)
-    left.set_xlabel("episode")
-    left.set_ylabel("episode reward")
-    right.plot(episodes, ratio, color="0.7", linewidth=0.6)
-    right.plot(episodes[window - 1:], np.convolve(ratio, np.ones(window) / window, "valid"))
-    right.set_xlabel("episode")
-    right.set_ylabel("best OC / initial OC")
+    for axis, values, label in ((left, rewards, "episode reward (paper's OC-based reward)"),
+                                (right, ratio, "best OC / starting OC (lower is better)")):
+        axis.plot(episodes, values, color="0.7", linewidth=0.6, label="each episode")
+        axis.plot(episodes[window - 1:], np.convolve(values, np.ones(window) / window, "valid"),
+                  linewidth=1.4, label=f"mean of the last {window}")
+        axis.set_xlabel("episode")
+        axis.set_ylabel(label)
+        axis.grid(True, linewidth=0.3, alpha=0.5)
+        axis.legend(fontsize=8)
+    right.axhline(1.0, color="0.4", linewidth=0.6, linestyle="--")
+    figure.text(0.5, 0.01, "OC: orientation cost, the square root of the summed chordal "
+                "rotation errors over all edges (the RL-PGO paper's measure).",
+                ha="center", fontsize=8)
     if title:
         figure.suptitle(title)
-    figure.tight_layout()
+    figure.tight_layout(rect=(0.0, 0.05, 1.0, 1.0))
     return _png(figure, 110)
