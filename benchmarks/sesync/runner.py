@@ -1,5 +1,5 @@
-"""Run the SE-Sync driver (``sesync_rounded``, built by ``benchmarks/sesync/build.sh``) on a
-planar g2o file and read its result back.
+"""Run the SE-Sync driver (``sesync_rounded``: ``benchmarks/sesync/sesync_rounded.cpp`` built
+with SE-Sync) on a planar g2o file and read its result back.
 
 SE-Sync (Rosen, Carlone, Bandeira, Leonard, IJRR 2019) is the project's certified anchor:
 when it certifies, its rounded estimate is the global optimum of *its* cost (isotropic
