@@ -18,11 +18,13 @@ from rlpgo_gtsam.accuracy import TrajectoryErrors, trajectory_errors
 from rlpgo_gtsam.errors import (
     G2oFormatError,
     GraphError,
+    InputNotFoundError,
     ModelError,
     OutputError,
     RlpgoError,
     SolverError,
 )
+from rlpgo_gtsam.certified import Certificate, Status
 from rlpgo_gtsam.g2o import read_g2o, read_g2o_lines, write_g2o
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, rotation_weights
 from rlpgo_gtsam.initializers import (
@@ -73,6 +75,7 @@ __all__ = [
     "RobustResult",
     "ENV_ID",
     "PRESETS",
+    "Certificate",
     "CertifiedInitializer",
     "ChordalInitializer",
     "EnvConfig",
@@ -80,6 +83,7 @@ __all__ = [
     "G2oFormatError",
     "GraphError",
     "InitResult",
+    "InputNotFoundError",
     "Initializer",
     "LagoInitializer",
     "MethodResult",
@@ -94,6 +98,7 @@ __all__ = [
     "RlpgoError",
     "ShonanInitializer",
     "SolverError",
+    "Status",
     "SyntheticGraph",
     "TrajectoryErrors",
     "add_outliers",
