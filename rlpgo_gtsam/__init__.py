@@ -15,6 +15,7 @@ import importlib
 from typing import Any
 
 from rlpgo_gtsam.accuracy import TrajectoryErrors, trajectory_errors
+from rlpgo_gtsam.certified import Certificate, Status
 from rlpgo_gtsam.errors import (
     G2oFormatError,
     GraphError,
@@ -24,7 +25,6 @@ from rlpgo_gtsam.errors import (
     RlpgoError,
     SolverError,
 )
-from rlpgo_gtsam.certified import Certificate, Status
 from rlpgo_gtsam.g2o import read_g2o, read_g2o_lines, write_g2o
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, rotation_weights
 from rlpgo_gtsam.initializers import (
