@@ -178,9 +178,39 @@ def rotation_weights(pose_graph: PoseGraph2D) -> np.ndarray:
 
 
 def odometry_edges(pose_graph: PoseGraph2D) -> np.ndarray:
-    """(m,) bool: the edges that join consecutive keys (k, k+1), in either direction."""
-    keys = pose_graph.keys.astype(np.int64)[pose_graph.edges]
-    return np.abs(keys[:, 1] - keys[:, 0]) == 1
+    """(m,) bool: the odometry chain, a spanning tree of the graph found from the graph itself.
+
+    The one definition of "odometry edge". Edges are taken greedily (Kruskal, union-find),
+    each kept when it joins two poses not yet connected by the edges kept so far, in this
+    order of preference:
+
+    1. edges between poses adjacent in sorted-key order (index ``k`` and ``k + 1``: keys
+       k, k + 1, or 0, 10, 20 with gaps), in graph (file) order: a robot's odometry;
+    2. then every other edge in graph (file) order: the edge that first joins a new pose,
+       as a front end writes them (shuffled ids, a star, a graph built in any order).
+
+    The result spans the (connected) graph with ``n - 1`` edges; a second edge between the
+    same two poses is not part of it. On a graph whose keys run 0..n-1 along the robot's
+    path this is the edges (k, k + 1), the first of each pair.
+    """
+    g = pose_graph
+    parent = list(range(g.num_poses))
+
+    def root(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    adjacent = np.abs(g.edges[:, 1] - g.edges[:, 0]) == 1
+    order = np.concatenate([np.flatnonzero(adjacent), np.flatnonzero(~adjacent)])
+    chain = np.zeros(g.num_edges, bool)
+    for e, (i, j) in zip(order.tolist(), g.edges[order].tolist(), strict=True):
+        a, b = root(i), root(j)
+        if a != b:
+            parent[a] = b
+            chain[e] = True
+    return chain
 
 
 # The information matrices every method can use, measured on generated graphs whose edges

@@ -57,7 +57,7 @@ from rlpgo_gtsam.errors import GraphError, SolverError, one_line
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, edge_chi2, odometry_edges
 from rlpgo_gtsam.initializers import make_initializer
 from rlpgo_gtsam.numerics import numeric_call
-from rlpgo_gtsam.robust.consistency import consistent_closures
+from rlpgo_gtsam.robust.consistency import pairwise_consistency
 from rlpgo_gtsam.robust.gnc import robust_positions
 from rlpgo_gtsam.solvers import refine, solver_params
 
@@ -97,6 +97,12 @@ class RobustResult:
         steps: what each step did, in order (JSON-ready dicts: step, seconds, iterations,
             kept / rejected counts, ...).
         trusted: factor indices of the edges treated as known inliers.
+        ambiguous: what the consistency step could not tell apart: per group of conflicting
+            closures, the factor indices kept there and those of a rejected alternative that
+            is (nearly) as well supported (at least ``AMBIGUOUS_RATIO`` of its size) and
+            consistent in itself. The later steps decided by the map's fit; empty when
+            nothing was ambiguous.
+        stopped: why the run ended where it did, in words.
     """
 
     values: gtsam.Values
@@ -106,11 +112,14 @@ class RobustResult:
     seconds: float
     steps: list[dict[str, Any]] = field(default_factory=list)
     trusted: list[int] = field(default_factory=list)
+    ambiguous: list[tuple[list[int], list[int]]] = field(default_factory=list)
+    stopped: str = ""
 
     def record(self) -> dict[str, Any]:
         """JSON-ready summary: rejected indices, chi2, seconds, steps."""
         return {"rejected": self.rejected, "chi2": self.chi2, "seconds": self.seconds,
-                "steps": self.steps, "trusted": len(self.trusted)}
+                "steps": self.steps, "trusted": len(self.trusted),
+                "ambiguous": self.ambiguous, "stopped": self.stopped}
 
 @numeric_call
 def robust_initialize(
@@ -153,9 +162,24 @@ def robust_initialize(
     steps: list[dict[str, Any]] = []
 
     step_began = time.perf_counter()
-    kept, loose, pairs = consistent_closures(g, chain, thresholds[3])
-    kept |= loose | chain
-    steps.append(_step("consistency", step_began, None, kept, known) | {"pairs": pairs})
+    clean = _all_edges(graph, g, thresholds[3])
+    steps.append({"step": "all edges", "seconds": time.perf_counter() - step_began,
+                  "certified": clean.certified, "worst_edge_chi2": clean.worst,
+                  "passed": clean.passed})
+    if clean.passed:  # no evidence against any edge: keep them all
+        return _result(graph, factor_of_edge, clean.values, np.ones(g.num_edges, bool),
+                       np.ones(g.num_edges), known, began, steps, [],
+                       "every edge fits: the relaxation of all edges is certified and every "
+                       "residual lies within the inlier bound after refinement")
+
+    step_began = time.perf_counter()
+    consistency = pairwise_consistency(g, chain, thresholds[3])
+    kept, loose = consistency.seed | chain, consistency.supported
+    steps.append(_step("consistency", step_began, None, kept, known) |
+                 {"pairs": consistency.pairs, "conflicts": consistency.conflicts,
+                  "ambiguous": len(consistency.ambiguous)})
+    ambiguous = [(sorted(factor_of_edge[k].tolist()), sorted(factor_of_edge[r].tolist()))
+                 for k, r in consistency.ambiguous]
 
     step_began = time.perf_counter()
     seed = replace(g, edges=g.edges[kept], measured=g.measured[kept],
@@ -179,22 +203,58 @@ def robust_initialize(
     kept &= gnc_weights >= REJECTED_BELOW
     steps.append(_step("gnc", step_began, None, kept, known))
 
+    return _result(graph, factor_of_edge, result, kept, gnc_weights, known, began, steps,
+                   ambiguous, "GNC-LM from the consistent set's verified optimum")
+
+
+def _result(graph, factor_of_edge: np.ndarray, values: gtsam.Values, kept: np.ndarray,
+            edge_weights: np.ndarray, known: np.ndarray, began: float,
+            steps: list[dict[str, Any]], ambiguous: list[tuple[list[int], list[int]]],
+            stopped: str) -> RobustResult:
     weights = np.full(graph.size(), np.nan)
     for k in range(graph.size()):
         if graph.at(k) is not None:
             weights[k] = 1.0
-    weights[factor_of_edge] = np.where(kept, np.maximum(gnc_weights, 0.0), 0.0)
+    weights[factor_of_edge] = np.where(kept, np.maximum(edge_weights, 0.0), 0.0)
     weights[factor_of_edge[known]] = 1.0
     rejected = sorted(factor_of_edge[~kept].tolist())
     return RobustResult(
-        values=result,
+        values=values,
         rejected=rejected,
         weights=weights,
-        chi2=chi2(_without(graph, rejected), result),
+        chi2=chi2(_without(graph, rejected), values),
         seconds=time.perf_counter() - began,
         steps=steps,
         trusted=sorted(factor_of_edge[known].tolist()),
+        ambiguous=ambiguous,
+        stopped=stopped,
     )
+
+
+@dataclass
+class _AllEdges:
+    values: gtsam.Values
+    certified: bool
+    worst: float
+    passed: bool
+
+
+def _all_edges(graph, g: PoseGraph2D, threshold: float) -> _AllEdges:
+    """The clean default on every edge: the certified relaxation, then LM to convergence
+    (only when certified); it passes when certified and every edge's chi2 (3 dof, whitened)
+    lies below ``threshold``. Wrong closures break one or the other."""
+    init = make_initializer("certified").run(g)
+    certified = bool(init.certificate is not None and init.certificate.certified)
+    if not certified:
+        return _AllEdges(init.values, False, float("nan"), False)
+    params = solver_params("lm", _LM_ITERS)
+    params.setRelativeErrorTol(_TOLERANCE)
+    refined = refine(graph, init.values, params, pose_graph=g)
+    if refined.failure is not None:
+        return _AllEdges(init.values, True, float("nan"), False)
+    worst = float(edge_chi2(g, g.poses_of(refined.values)).max())
+    return _AllEdges(refined.values, True, worst, worst < threshold)
+
 
 def _verify(graph, g: PoseGraph2D, factor_of_edge: np.ndarray, poses: np.ndarray,
             kept: np.ndarray, known: np.ndarray, supported: np.ndarray,
