@@ -55,9 +55,13 @@ FAR = 16
 LOOSE_SUPPORT = 3
 # A rejected alternative at least this fraction of the kept side's size is ambiguous.
 AMBIGUOUS_RATIO = 0.8
-# The bar is at most the chi-square threshold, lower where the scores' lower quartile
-# shows the nominal covariances overstate the noise (real data): this many times it.
+# A pair agrees (support, for the seed) below the chi-square threshold or, where the
+# scores' lower quartile shows the nominal covariances overstate
+# the noise (real data), below this many times that quartile.
 _DATA_SCALE = 40.0
+# A pair conflicts above the threshold or this many times the lower quartile, if lower: an
+# honest chi-square of 1 to 3 dof passes it but for 6e-6 of true pairs.
+_CONFLICT_SCALE = 200.0
 _CHUNK = 50_000  # pairs scored at once
 _MIN_SUPPORT = 2  # informative agreements for the seed
 _CHANCE = 1e-2  # a test is informative where a wrong closure passes it less often
@@ -76,7 +80,7 @@ class Consistency:
             chooses where the estimate starts; only evidence rejects.)
         pairs: pairs scored.
         conflicts: pairs in conflict.
-        bar: the score above which a pair conflicts.
+        bar: the score below which a pair agrees (support).
         ambiguous: per connected group of conflicts that could have gone either way, the
             edge indices kept there and those of the rejected, consistent alternative.
     """
@@ -225,15 +229,18 @@ def pairwise_consistency(g: PoseGraph2D, chain_mask: np.ndarray, threshold: floa
         scores[start:start + _CHUNK] = np.einsum(
             "ea,ea->e", error, np.linalg.solve(total, error[..., None])[..., 0])
         volume[start:start + _CHUNK] = np.sqrt(np.maximum(np.linalg.det(total), 0.0))
-    bar = min(threshold, _DATA_SCALE * float(np.quantile(scores, 0.25)))
-    conflict = scores > bar
-    agree = np.bincount(np.concatenate([a_idx[~conflict], b_idx[~conflict]]),
+    # the scores' lower quartile sets the scale where nominal covariances overstate the
+    # noise (real data); evidence against asks for a far larger multiple than support
+    quartile = float(np.quantile(scores, 0.25))
+    conflict = scores > min(threshold, _CONFLICT_SCALE * quartile)
+    bar = min(threshold, _DATA_SCALE * quartile)
+    agree = np.bincount(np.concatenate([a_idx[scores <= bar], b_idx[scores <= bar]]),
                         minlength=len(closures))
     # the chance that a wrong closure agrees anyway: the agreement ellipsoid's volume over
     # that of the wrong closures' distribution (a square of the chain's extent, 2 pi)
     side = max(float(np.ptp(tree.poses[:, 0])), float(np.ptp(tree.poses[:, 1])), 1e-9)
     chance = 4.0 / 3.0 * np.pi * bar ** 1.5 * volume / (4.0 * side ** 2 * 2.0 * np.pi)
-    sharp = ~conflict & (chance < _CHANCE)
+    sharp = (scores <= bar) & (chance < _CHANCE)
     informed = np.bincount(np.concatenate([a_idx[sharp], b_idx[sharp]]),
                            minlength=len(closures))
     ca, cb = a_idx[conflict], b_idx[conflict]
