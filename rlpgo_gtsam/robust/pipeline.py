@@ -5,13 +5,18 @@ leads LM to a wrong map; GTSAM's graduated non-convexity (``GncLMOptimizer``) re
 closures but needs a start near the right map. :func:`robust_initialize` builds that start
 and lets GTSAM's GNC-LM (truncated least squares) finish from it:
 
-1. ``consistency``: every pair of loop closures whose ends lie within ``WINDOW`` steps of
-   each other along the odometry chain closes a short cycle through it, whose covariance
-   is propagated to first order from its measurements; a closure that agrees with at least
-   two neighbours in tests that a wrong closure would pass by chance less than 1% of the
-   time, or with at least three in any test, joins the seed (see
-   :func:`~rlpgo_gtsam.robust.consistency.consistent_closures`). Wrong closures join random
-   poses and agree with nothing.
+0. ``all edges``: the clean default on every edge (the certified relaxation, then LM to
+   convergence). When the relaxation is certified and every edge's chi2 lies within the
+   inlier bound, nothing speaks against any closure: the run stops there, rejects nothing
+   and hands over that optimum (the clean default's). A closure is rejected only on
+   evidence against it, never for lack of support.
+1. ``consistency``: pairwise consistency maximization with bounded tests
+   (:func:`~rlpgo_gtsam.robust.consistency.pairwise_consistency`): closures whose cycle
+   through the odometry conflicts go, the one with most conflicts first, until none is
+   left; groups of wrong closures that agree with each other conflict with the many true
+   closures they contradict. The seed is the closures left that have positive support
+   (agreeing tests); the others are judged later by the map's fit. Sets that conflict and
+   are nearly equally supported are reported in :attr:`RobustResult.ambiguous`.
 2. ``start``: the certified relaxation (:mod:`rlpgo_gtsam.certified`) of the seed (the
    odometry edges and the seed closures) gives the orientations; then GNC-TLS on the
    translation step at those orientations (odometry at weight 1, seed closures judged, the
@@ -33,9 +38,11 @@ and lets GTSAM's GNC-LM (truncated least squares) finish from it:
    set GNC's first control parameter near zero, and it then spends dozens of outer
    iterations re-deriving what the steps above found.)
 
-Trusted edges: with ``trust_odometry=True`` (the default) every edge between consecutive keys
-(k, k+1) is a known inlier in every step; without it those edges are judged like closures in
-steps 2-4 (step 1 still uses the chain). The anchor (and any FIXed pose) keeps its pose.
+Trusted edges: with ``trust_odometry=True`` (the default) the odometry chain (the spanning
+tree :func:`~rlpgo_gtsam.graph.odometry_edges` finds: edges between ids adjacent in sorted
+order, completed in file order; any ids, a star) is known inliers in every step; without it
+those edges are judged like closures in steps 2-4 (step 1 still uses the chain).
+The anchor (and any FIXed pose) keeps its pose.
 
 Thresholds are chi-square quantiles at ``inlier_probability`` (2 dof in step 2, 3 dof after).
 
