@@ -178,20 +178,21 @@ def rotation_weights(pose_graph: PoseGraph2D) -> np.ndarray:
 
 
 def odometry_edges(pose_graph: PoseGraph2D) -> np.ndarray:
-    """(m,) bool: the odometry chain, a spanning tree of the graph found from the graph itself.
+    """(m,) bool: the odometry chain, found from the graph itself: every edge between poses
+    adjacent in sorted-key order, completed to span the graph.
 
-    The one definition of "odometry edge". Edges are taken greedily (Kruskal, union-find),
-    each kept when it joins two poses not yet connected by the edges kept so far, in this
-    order of preference:
+    The one definition of "odometry edge":
 
-    1. edges between poses adjacent in sorted-key order (index ``k`` and ``k + 1``: keys
-       k, k + 1, or 0, 10, 20 with gaps), in graph (file) order: a robot's odometry;
-    2. then every other edge in graph (file) order: the edge that first joins a new pose,
-       as a front end writes them (shuffled ids, a star, a graph built in any order).
+    1. every edge between poses adjacent in sorted-key order (index ``k`` and ``k + 1``:
+       keys k, k + 1, or 0, 10, 20 with gaps), a second edge between the same two poses
+       included (the generator's lawn mower closes a loop between the two poses of each
+       turn): a robot's odometry;
+    2. where those leave the graph in pieces, the other edges in graph (file) order, each
+       kept when it joins two pieces not yet connected (Kruskal, union-find): the edge that
+       first joins a new pose, as a front end writes them (shuffled ids, a star, a graph
+       built in any order).
 
-    The result spans the (connected) graph with ``n - 1`` edges; a second edge between the
-    same two poses is not part of it. On a graph whose keys run 0..n-1 along the robot's
-    path this is the edges (k, k + 1), the first of each pair.
+    On a graph whose keys run 0..n-1 along the robot's path this is the edges (k, k + 1).
     """
     g = pose_graph
     parent = list(range(g.num_poses))
@@ -207,7 +208,7 @@ def odometry_edges(pose_graph: PoseGraph2D) -> np.ndarray:
     chain = np.zeros(g.num_edges, bool)
     for e, (i, j) in zip(order.tolist(), g.edges[order].tolist(), strict=True):
         a, b = root(i), root(j)
-        if a != b:
+        if a != b or adjacent[e]:
             parent[a] = b
             chain[e] = True
     return chain
