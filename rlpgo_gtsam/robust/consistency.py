@@ -228,6 +228,7 @@ def pairwise_consistency(g: PoseGraph2D, chain_mask: np.ndarray, threshold: floa
     scores = np.empty(len(a_idx))
     volume = np.empty(len(a_idx))
     short = np.empty(len(a_idx), bool)
+    parallel = np.empty(len(a_idx), bool)
     for start in range(0, len(a_idx), _CHUNK):
         a, b = a_idx[start:start + _CHUNK], b_idx[start:start + _CHUNK]
         # the cycle Z_e^-1 D(i, k) Z_f D(l, j); a factor's error reaches the cycle's end
@@ -245,6 +246,10 @@ def pairwise_consistency(g: PoseGraph2D, chain_mask: np.ndarray, threshold: floa
         volume[start:start + _CHUNK] = np.sqrt(np.maximum(np.linalg.det(total), 0.0))
         short[start:start + _CHUNK] = ((tree.distance(i[a], i[b]) <= WINDOW) &
                                        (tree.distance(j[a], j[b]) <= WINDOW))
+        shift_i = tree.position[i[b]] - tree.position[i[a]]
+        shift_j = tree.position[j[b]] - tree.position[j[a]]
+        parallel[start:start + _CHUNK] = ((np.abs(shift_i - shift_j) <= 1) &
+                                          (np.abs(shift_i) <= WINDOW))
     # the scores' lower quartile sets the scale where nominal covariances overstate the
     # noise (real data); evidence against asks for a far larger multiple than support
     quartile = float(np.quantile(scores, 0.25))
@@ -262,13 +267,16 @@ def pairwise_consistency(g: PoseGraph2D, chain_mask: np.ndarray, threshold: floa
     removed = _greedy_removal(len(closures), ca, cb, agree)
     kept[closures[removed]] = False
     result.kept = kept
-    # support counts agreements with closures the conflicts left: a group of wrong closures
+    # support counts agreements with closures the conflicts left, and not with closures
+    # parallel to it a few steps along (i + k, j + k): a run of wrong closures from one
+    # aliased place (Vertigo's groups) agrees with itself, so a run must find its support
+    # outside itself; a group of wrong closures
     # that agree with each other supports nobody once it is out; a true closure that the
     # greedy removal took for a few conflicts with true ones (linearized cycles under heavy
     # rotation noise: 26 of 10496 true pairs on the 0.2 rad graph) keeps its support from
     # the rest and joins the seed when that outweighs its conflicts with them
-    near_agree = _count(len(closures), a_idx, b_idx, agreed & short, ~removed)
-    informed = _count(len(closures), a_idx, b_idx, sharp, ~removed)
+    near_agree = _count(len(closures), a_idx, b_idx, agreed & short & ~parallel, ~removed)
+    informed = _count(len(closures), a_idx, b_idx, sharp & ~parallel, ~removed)
     against = _count(len(closures), a_idx, b_idx, conflict, ~removed)
     support = (informed >= _MIN_SUPPORT) | (near_agree >= LOOSE_SUPPORT)
     result.supported[closures] = ~removed & (near_agree >= LOOSE_SUPPORT)
