@@ -1,251 +1,236 @@
-"""Wrong loop closures: the robust initializer against the clean default and GTSAM GNC-LM.
+"""Wrong loop closures by Vertigo's four policies: the robust path against two GTSAM anchors.
 
-    python benchmarks/robust.py [--cases gen0.1,gen0.2,Intel,M3500,City10K]
-        [--fractions 0.05,0.1,0.2,0.3] [--mode random|plausible] [--repeat 3]
-        [--anchor-timeout 60] [--anchor-fractions 0.05,0.1] [--name robust]
+    python benchmarks/robust.py [--cases gen,MIT,Intel,M3500,City10K,FR079]
+        [--modes random,local,group,localgroup] [--fractions 0.05,0.1,0.2,0.3]
+        [--clean all|none] [--anchor-timeout 60] [--robust-timeout 300]
+        [--name robust_policies]
 
-Per case (a shared benchmark file, or a 1000-pose graph of the project's generator with
-noisy measurements, sigma_R 0.1 or 0.2, sigma_t 0.05 m, d 1 m, lc 0.5) and per fraction of
-wrong closures (``int(fraction x edges)`` of them, :func:`add_outliers` /
-``generate(outliers=...)``, seed 1; random by default, ``--mode plausible`` for far-apart
-poses measured like a true closure):
+Per case (a shared file, or ``gen``: the generator's 1000-pose lawn mower with noisy
+measurements, sigma_R 0.01 rad, sigma_t 0.05 m, d 1 m, lc 0.5, seed 7) and per policy and
+fraction (``int(fraction x edges)`` wrong closures, groups of 5, seed 1; on shared files
+:func:`add_outliers` around the clean optimum):
 
-- ``robust_initialize`` on the corrupted graph: precision and recall of its rejections,
-  the chi2 of its values on the outlier-free graph against that graph's lowest known chi2
-  (the shared files' README; for generated graphs LM from the ground truth on the clean
-  graph), the RMS position error against the outlier-free solution (LM from chordal on the
-  clean graph) and its seconds;
-- the clean default (``staged_initialize`` on the outlier-free graph) as the time
-  reference: "x clean" is robust seconds / clean-default seconds, each the median of
-  ``--repeat`` runs in the same process;
-- GTSAM's ``GncLMOptimizer`` (TLS, odometry edges known inliers) from the odometry guess as
-  the anchor, in a subprocess with a time limit; where the project's REFERENCE measured it
-  not finishing in 10 minutes (M3500 at 20%, Intel at 10%) or a lower fraction already ran
-  out of time it is not run again.
+- ``robust_initialize``: precision and recall of its rejections; "chi2 ratio": the chi2 of
+  its values refined by LM (100 iterations) on the outlier-free graph over that graph's
+  optimum (certified + LM on it); seconds, and "x clean": its seconds over the clean
+  default's (certified + LM30 on the outlier-free graph, same process);
+- anchors from the certified estimate of all edges (the same start for both), each in a
+  forked process capped at ``--anchor-timeout`` seconds: GTSAM ``GncLMOptimizer`` (TLS,
+  the chain known inliers) and GTSAM LM with every closure's noise model wrapped in
+  ``noiseModel.mEstimator.DCS``; for each the same ratio (its result + LM on the clean graph)
+  and, for GNC, precision and recall (weight < 0.5 is a rejection).
 
-Rows are checkpointed to ``benchmarks/results/<name>.json`` as they finish; the markdown
-table goes to ``benchmarks/results/<name>.md``.
+``--clean all`` first runs every shared file and the clean generated graph without wrong
+closures: the robust path must reject nothing. Rows are checkpointed to
+``benchmarks/results/<name>.json`` as they finish; the table goes to ``<name>.md``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import subprocess
+import multiprocessing
 import sys
-import tempfile
 import time
 from pathlib import Path
 
+import gtsam
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.common import DATASETS, RESULTS, write_result  # noqa: E402
-from rlpgo_gtsam import (  # noqa: E402
-    PoseGraph2D,
-    chi2,
-    generate,
-    make_initializer,
-    read_g2o,
-    refine,
-    write_g2o,
-)
+from benchmarks.common import DATASETS, RESULTS  # noqa: E402
+from rlpgo_gtsam import PoseGraph2D, generate, make_initializer, read_g2o, refine  # noqa: E402
 from rlpgo_gtsam.graph import odometry_edges  # noqa: E402
 from rlpgo_gtsam.robust import robust_initialize  # noqa: E402
-from rlpgo_gtsam.staged import staged_initialize  # noqa: E402
+from rlpgo_gtsam.solvers import solver_params  # noqa: E402
 from rlpgo_gtsam.synthetic import add_outliers  # noqa: E402
 
-LOWEST_KNOWN = {"M3500": 137.9, "Intel": 212.7, "City10K": 512.0}  # datasets/README.md
-# (case, first fraction) where REFERENCE.md measured GNC-LM from odometry not finishing
-# within 10 minutes (random wrong closures).
-ANCHOR_DID_NOT_FINISH = {"M3500": 0.2, "Intel": 0.1}
+FILES = ["M3500", "M3500A", "M3500B", "M3500C", "Intel", "MIT", "City10K", "FR079"]
+GEN = (1000, 0.01, 0.05, 1.0, 0.5)
 SEED = 1
 
 
 def clean_case(name: str):
-    """(graph, values, lowest known chi2, outlier-free solution) of a case."""
-    if name.startswith("gen"):
-        sample = generate(1000, float(name[3:]), 0.05, 1.0, 0.5, np.random.default_rng(7),
-                          noisy_measurements=True)
+    """(graph, values, optimum values, optimum chi2) of an outlier-free case."""
+    if name == "gen":
+        sample = generate(*GEN, np.random.default_rng(7), noisy_measurements=True)
         graph, values = sample.graph, sample.initial
-        lowest = refine(graph, sample.ground_truth, "lm", 1000).chi2
     else:
         graph, values = read_g2o(DATASETS / f"{name}.g2o")
-        lowest = LOWEST_KNOWN[name]
     g = PoseGraph2D.from_gtsam(graph, values)
-    solution = refine(graph, make_initializer("chordal").run(g).values, "lm", 1000,
-                      pose_graph=g).values
-    return graph, values, lowest, solution
+    best = refine(graph, make_initializer("certified").run(g).values, "lm", 100, pose_graph=g)
+    return graph, values, best.values, best.chi2
 
 
-def corrupted(name: str, graph, values, solution, fraction: float, mode: str = "random"):
-    """(graph with wrong closures, their factor indices)."""
-    if name.startswith("gen"):
-        sample = generate(1000, float(name[3:]), 0.05, 1.0, 0.5, np.random.default_rng(7),
-                          noisy_measurements=True, outliers=fraction, outlier_mode=mode)
+def corrupted(name, graph, optimum, fraction, mode):
+    if name == "gen":
+        sample = generate(*GEN, np.random.default_rng(7), noisy_measurements=True,
+                          outliers=fraction, outlier_mode=mode)
         return sample.graph, sample.outlier_edges
-    return add_outliers(graph, solution, fraction, np.random.default_rng(SEED), mode)
+    return add_outliers(graph, optimum, fraction, np.random.default_rng(SEED), mode)
 
 
-def timed(repeat: int, call, *args, **kwargs):
-    """The last result of ``call(*args, **kwargs)`` run ``repeat`` times, and the median of
-    its seconds."""
-    seconds, result = [], None
-    for _ in range(repeat):
-        began = time.perf_counter()
-        result = call(*args, **kwargs)
-        seconds.append(time.perf_counter() - began)
-    return result, float(np.median(seconds))
-
-
-def rms(g: PoseGraph2D, values, reference) -> float:
-    difference = g.poses_of(values)[:, :2] - g.poses_of(reference)[:, :2]
-    return float(np.sqrt(np.mean(np.sum(difference ** 2, axis=1))))
-
-
-def scores(rejected: set[int], outliers: set[int]) -> tuple[float, float]:
-    hits = len(rejected & outliers)
-    return (hits / len(rejected) if rejected else 1.0, hits / len(outliers) if outliers else 1.0)
-
-
-def run_anchor(graph, values, timeout_s: float) -> dict | None:
-    """GTSAM GNC-LM from ``values`` in a subprocess; None if it ran out of time."""
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "graph.g2o"
-        out = Path(folder) / "result.json"
-        write_g2o(path, graph, values)
-        began = time.perf_counter()
-        try:
-            subprocess.run([sys.executable, __file__, "--anchor-child", str(path), str(out)],
-                           check=True, timeout=timeout_s, capture_output=True)
-        except subprocess.TimeoutExpired:
-            return None
-        seconds = time.perf_counter() - began
-        result = json.loads(out.read_text())
-        result["wall_seconds"] = seconds
-        return result
-
-
-def anchor_child(path: str, out: str) -> None:
-    """Run GNC-LM (TLS, odometry known inliers, anchor prior) and write poses + weights."""
-    import gtsam
-
-    from rlpgo_gtsam.solvers import solver_params
-
-    graph, values = read_g2o(path)
-    g = PoseGraph2D.from_gtsam(graph, values)
-    edge_factors = [k for k in range(graph.size())
-                    if isinstance(graph.at(k), gtsam.BetweenFactorPose2)]
-    inliers = [edge_factors[e] for e in np.flatnonzero(odometry_edges(g)).tolist()]
-    key = int(g.keys[g.anchor])
-    optimized = gtsam.NonlinearFactorGraph(graph)
-    optimized.add(gtsam.PriorFactorPose2(key, values.atPose2(key),
-                                         gtsam.noiseModel.Isotropic.Sigma(3, 1e-8)))
-    params = gtsam.GncLMParams(solver_params("lm", 100))
-    params.setLossType(gtsam.GncLossType.TLS)
-    params.setKnownInliers(inliers + [optimized.size() - 1])
+def clean_default_seconds(graph, values) -> float:
     began = time.perf_counter()
-    optimizer = gtsam.GncLMOptimizer(optimized, values, params)
-    result = optimizer.optimize()
-    seconds = time.perf_counter() - began
-    weights = np.asarray(optimizer.getWeights()).ravel()
-    rejected = [k for k in edge_factors if weights[k] < 0.5]
-    Path(out).write_text(json.dumps({"seconds": seconds, "rejected": rejected,
-                                     "poses": g.poses_of(result).tolist()}))
+    g = PoseGraph2D.from_gtsam(graph, values)
+    refine(graph, make_initializer("certified").run(g).values, "lm", 30, pose_graph=g)
+    return time.perf_counter() - began
+
+
+def scores(rejected, wrong) -> tuple[float, float]:
+    rejected, wrong = set(rejected), set(wrong)
+    hit = len(rejected & wrong)
+    return (hit / len(rejected) if rejected else 1.0), (hit / len(wrong) if wrong else 1.0)
+
+
+def _anchor(kind, graph, values, queue):
+    if kind == "robust":
+        result = robust_initialize(graph, values)
+        queue.put((result.values, (result.rejected, len(result.ambiguous), result.seconds)))
+        return
+    g = PoseGraph2D.from_gtsam(graph, values)
+    start = make_initializer("certified").run(g).values
+    chain = odometry_edges(g)
+    factors = [k for k in range(graph.size()) if isinstance(graph.at(k), gtsam.BetweenFactorPose2)]
+    if kind == "gnc":
+        params = gtsam.GncLMParams(solver_params("lm", 100))
+        params.setLossType(gtsam.GncLossType.TLS)
+        params.setKnownInliers([factors[e] for e in np.flatnonzero(chain).tolist()])
+        optimizer = gtsam.GncLMOptimizer(graph, start, params)
+        optimizer.setInlierCostThresholdsAtProbability(0.9999)
+        result = optimizer.optimize()
+        weights = np.asarray(optimizer.getWeights(), float).ravel()
+        queue.put((result, [k for k in factors if weights[k] < 0.5]))
+    else:
+        robust = gtsam.NonlinearFactorGraph()
+        for e, k in enumerate(factors):
+            factor = graph.at(k)
+            model = factor.noiseModel()
+            if not chain[e]:
+                model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.DCS(1.0),
+                                                       model)
+            i, j = factor.keys()
+            robust.add(gtsam.BetweenFactorPose2(i, j, factor.measured(), model))
+        robust.add(gtsam.PriorFactorPose2(int(g.keys[g.anchor]), start.atPose2(
+            int(g.keys[g.anchor])), gtsam.noiseModel.Isotropic.Sigma(3, 1e-8)))
+        result = gtsam.LevenbergMarquardtOptimizer(robust, start,
+                                                   solver_params("lm", 100)).optimize()
+        queue.put((result, None))
+
+
+def run_anchor(kind, graph, values, timeout):
+    """(values or None, rejected or None, seconds, status) of an anchor in a forked process."""
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    began = time.perf_counter()
+    process = context.Process(target=_anchor, args=(kind, graph, values, queue))
+    process.start()
+    try:
+        result, rejected = queue.get(timeout=timeout)
+        status = "ok"
+    except Exception:  # noqa: BLE001 - a timeout or a crash of the child
+        result, rejected, status = None, None, f"no result in {timeout:g} s"
+    process.join(1)
+    if process.is_alive():
+        process.kill()
+    return result, rejected, time.perf_counter() - began, status
+
+
+def ratio(clean_graph, values, optimum_chi2):
+    if values is None:
+        return None
+    return refine(clean_graph, values, "lm", 100).chi2 / optimum_chi2
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--cases", default="gen0.1,gen0.2,Intel,M3500,City10K")
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--cases", default="gen,MIT,Intel,FR079,M3500,City10K")
+    parser.add_argument("--modes", default="random,local,group,localgroup")
     parser.add_argument("--fractions", default="0.05,0.1,0.2,0.3")
-    parser.add_argument("--mode", default="random", choices=["random", "plausible"])
-    parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--name", default="robust")
-    parser.add_argument("--anchor-fractions", default="0.05,0.1")
+    parser.add_argument("--clean", default="all", choices=["all", "none"])
     parser.add_argument("--anchor-timeout", type=float, default=60.0)
-    parser.add_argument("--anchor-child", nargs=2, help=argparse.SUPPRESS)
+    parser.add_argument("--robust-timeout", type=float, default=300.0)
+    parser.add_argument("--name", default="robust_policies")
     args = parser.parse_args()
-    if args.anchor_child:
-        anchor_child(*args.anchor_child)
-        return
-    fractions = [float(f) for f in args.fractions.split(",")]
-    anchor_fractions = {float(f) for f in args.anchor_fractions.split(",") if f}
-    command = "python benchmarks/robust.py " + " ".join(sys.argv[1:])
+    out = RESULTS / f"{args.name}.json"
     rows: list[dict] = []
-    # warm-up: first calls pay for imports (scipy.stats, scipy.sparse) that later ones do not
-    warm = generate(100, 0.1, 0.05, 1.0, 0.5, np.random.default_rng(0), noisy_measurements=True,
-                    outliers=0.1)
-    robust_initialize(warm.graph, warm.initial)
-    staged_initialize(warm.graph, warm.initial)
-    header = ("| case | poses | wrong closures | rejected | precision | recall | chi2 on clean "
-              "| lowest known | gap | RMS m | robust s | clean default s | x clean "
-              "| GNC-LM from odometry |")
-    print(header + "\n|" + "---|" * 14, flush=True)
-    for name in args.cases.split(","):
-        graph, values, lowest, solution = clean_case(name)
-        g = PoseGraph2D.from_gtsam(graph, values)
-        default, default_seconds = timed(args.repeat, staged_initialize, graph, values,
-                                         pose_graph=g)
-        anchor_out_of_time = False
-        for fraction in fractions:
-            bad, outliers = corrupted(name, graph, values, solution, fraction, args.mode)
-            result, robust_seconds = timed(args.repeat, robust_initialize, bad, values)
-            precision, recall = scores(set(result.rejected), set(outliers))
-            clean_chi2 = chi2(graph, result.values)
-            row = {
-                "case": name, "mode": args.mode, "poses": g.num_poses, "edges": g.num_edges,
-                "fraction": fraction,
-                "wrong_closures": len(outliers), "rejected": len(result.rejected),
-                "precision": precision, "recall": recall, "chi2_on_clean": clean_chi2,
-                "lowest_known": lowest, "gap": clean_chi2 / lowest - 1.0,
-                "rms_m": rms(g, result.values, solution), "robust_seconds": robust_seconds,
-                "clean_default_seconds": default_seconds,
-                "clean_default_chi2": default.best.refined_chi2,
-                "x_clean": robust_seconds / default_seconds, "steps": result.steps,
-            }
-            first_dnf = ANCHOR_DID_NOT_FINISH.get(name)
-            if first_dnf is not None and fraction >= first_dnf and args.mode == "random":
-                row["anchor"] = "did not finish within 600 s (REFERENCE.md)"
-            elif anchor_out_of_time:
-                row["anchor"] = (f"not run: did not finish within {args.anchor_timeout:g} s "
-                                 "at a lower fraction")
-            elif fraction not in anchor_fractions:
-                row["anchor"] = "not run"
-            else:
-                anchor = run_anchor(bad, values, args.anchor_timeout)
-                if anchor is None:
-                    anchor_out_of_time = True
-                    row["anchor"] = f"did not finish within {args.anchor_timeout:g} s"
-                else:
-                    a_precision, a_recall = scores(set(anchor["rejected"]), set(outliers))
-                    poses = np.array(anchor["poses"])
-                    a_values = g.to_values(poses)
-                    row["anchor"] = {
-                        "seconds": anchor["seconds"], "precision": a_precision,
-                        "recall": a_recall, "chi2_on_clean": chi2(graph, a_values),
-                        "rms_m": rms(g, a_values, solution)}
+
+    def save():
+        out.write_text(json.dumps({"rows": rows, "args": vars(args)}, indent=1))
+        (RESULTS / f"{args.name}.md").write_text(table(rows))
+
+    if args.clean == "all":
+        for name in [*FILES, "gen"]:
+            graph, values, _, best = clean_case(name)
+            result = robust_initialize(graph, values)
+            row = {"case": name, "mode": "clean", "fraction": 0.0, "wrong": 0,
+                   "rejected": len(result.rejected), "robust_chi2": result.chi2,
+                   "optimum_chi2": best, "seconds": result.seconds,
+                   "clean_default_s": clean_default_seconds(graph, values)}
             rows.append(row)
-            write_result(args.name, {"command": command, "rows": rows})
-            print(markdown_row(row), flush=True)
-    table = "\n".join([header, "|" + "---|" * 14] + [markdown_row(r) for r in rows])
-    (RESULTS / f"{args.name}.md").write_text(
-        f"Made by `{command}`; chi2 = 2 x GTSAM error, scored on the outlier-free graph; "
-        f"{args.mode} wrong closures, seed 1; seconds are medians of {args.repeat} runs.\n\n"
-        + table + "\n")
+            print(row, flush=True)
+            save()
+    for name in args.cases.split(","):
+        graph, values, optimum, best = clean_case(name)
+        reference_s = clean_default_seconds(graph, values)
+        for fraction in map(float, args.fractions.split(",")):
+            for mode in args.modes.split(","):
+                bad, wrong = corrupted(name, graph, optimum, fraction, mode)
+                # the robust path in a forked process too, capped (a row that runs past
+                # --robust-timeout is recorded as such)
+                found, extra, seconds, status = run_anchor("robust", bad, values,
+                                                           args.robust_timeout)
+                row = {"case": name, "mode": mode, "fraction": fraction, "wrong": len(wrong),
+                       "clean_default_s": reference_s, "status": status, "seconds": seconds}
+                if extra is not None:
+                    rejected, ambiguous, seconds = extra
+                    precision, recall = scores(rejected, wrong)
+                    row |= {"rejected": len(rejected), "precision": precision,
+                            "recall": recall, "ratio": ratio(graph, found, best),
+                            "seconds": seconds, "ambiguous": ambiguous}
+                for kind in ("gnc", "dcs"):
+                    values_a, rejected_a, seconds_a, status = run_anchor(
+                        kind, bad, values, args.anchor_timeout)
+                    row[f"{kind}_ratio"] = ratio(graph, values_a, best)
+                    row[f"{kind}_s"], row[f"{kind}_status"] = seconds_a, status
+                    if rejected_a is not None:
+                        row[f"{kind}_precision"], row[f"{kind}_recall"] = scores(rejected_a, wrong)
+                rows.append(row)
+                print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()},
+                      flush=True)
+                save()
 
 
-def markdown_row(row: dict) -> str:
-    anchor = row["anchor"]
-    if isinstance(anchor, dict):
-        anchor = (f"{anchor['seconds']:.1f} s, P {anchor['precision']:.3f} R "
-                  f"{anchor['recall']:.3f}, chi2 {anchor['chi2_on_clean']:.6g}, "
-                  f"RMS {anchor['rms_m']:.3g} m")
-    return (f"| {row['case']} | {row['poses']} | {row['wrong_closures']} "
-            f"({row['fraction']:.0%}) | {row['rejected']} | {row['precision']:.4f} "
-            f"| {row['recall']:.4f} | {row['chi2_on_clean']:.6g} | {row['lowest_known']:.6g} "
-            f"| {row['gap']:+.3%} | {row['rms_m']:.3g} | {row['robust_seconds']:.2f} "
-            f"| {row['clean_default_seconds']:.2f} | {row['x_clean']:.2f} | {anchor} |")
+def _f(value, digits=3):
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| case | policy | fraction | wrong | rejected | precision | recall | chi2 ratio "
+             "| s | x clean | GNC ratio | GNC P/R | GNC s | DCS ratio | DCS s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if r["mode"] == "clean":
+            lines.append(f"| {r['case']} | clean | 0 | 0 | {r['rejected']} | - | - | "
+                         f"{r['robust_chi2'] / r['optimum_chi2']:.5f} | {r['seconds']:.1f} | "
+                         f"{r['seconds'] / r['clean_default_s']:.1f} | | | | | |")
+            continue
+        gnc_pr = (f"{r['gnc_precision']:.2f}/{r['gnc_recall']:.2f}"
+                  if "gnc_precision" in r else r.get("gnc_status", "-"))
+        if "precision" not in r:  # the robust path ran past its cap
+            lines.append(
+                f"| {r['case']} | {r['mode']} | {r['fraction']:g} | {r['wrong']} | "
+                f"{r['status']} | - | - | - | {r['seconds']:.1f} | - | {_f(r['gnc_ratio'], 4)} "
+                f"| {gnc_pr} | {r['gnc_s']:.1f} | {_f(r['dcs_ratio'], 4)} | {r['dcs_s']:.1f} |")
+            continue
+        lines.append(
+            f"| {r['case']} | {r['mode']} | {r['fraction']:g} | {r['wrong']} | {r['rejected']} "
+            f"| {r['precision']:.3f} | {r['recall']:.3f} | {_f(r['ratio'], 4)} | "
+            f"{r['seconds']:.1f} | {r['seconds'] / r['clean_default_s']:.1f} | "
+            f"{_f(r['gnc_ratio'], 4)} | {gnc_pr} | {r['gnc_s']:.1f} | {_f(r['dcs_ratio'], 4)} | "
+            f"{r['dcs_s']:.1f} |")
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

@@ -178,9 +178,40 @@ def rotation_weights(pose_graph: PoseGraph2D) -> np.ndarray:
 
 
 def odometry_edges(pose_graph: PoseGraph2D) -> np.ndarray:
-    """(m,) bool: the edges that join consecutive keys (k, k+1), in either direction."""
-    keys = pose_graph.keys.astype(np.int64)[pose_graph.edges]
-    return np.abs(keys[:, 1] - keys[:, 0]) == 1
+    """(m,) bool: the odometry chain, found from the graph itself: every edge between poses
+    adjacent in sorted-key order, completed to span the graph.
+
+    The one definition of "odometry edge":
+
+    1. every edge between poses adjacent in sorted-key order (index ``k`` and ``k + 1``:
+       keys k, k + 1, or 0, 10, 20 with gaps), a second edge between the same two poses
+       included (the generator's lawn mower closes a loop between the two poses of each
+       turn): a robot's odometry;
+    2. where those leave the graph in pieces, the other edges in graph (file) order, each
+       kept when it joins two pieces not yet connected (Kruskal, union-find): the edge that
+       first joins a new pose, as a front end writes them (shuffled ids, a star, a graph
+       built in any order).
+
+    On a graph whose keys run 0..n-1 along the robot's path this is the edges (k, k + 1).
+    """
+    g = pose_graph
+    parent = list(range(g.num_poses))
+
+    def root(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    adjacent = np.abs(g.edges[:, 1] - g.edges[:, 0]) == 1
+    order = np.concatenate([np.flatnonzero(adjacent), np.flatnonzero(~adjacent)])
+    chain = np.zeros(g.num_edges, bool)
+    for e, (i, j) in zip(order.tolist(), g.edges[order].tolist(), strict=True):
+        a, b = root(i), root(j)
+        if a != b or adjacent[e]:
+            parent[a] = b
+            chain[e] = True
+    return chain
 
 
 # The information matrices every method can use, measured on generated graphs whose edges

@@ -18,18 +18,32 @@ Wrong loop closures (``outliers > 0``): ``int(outliers x edges)`` extra between 
 ``edges`` the number of between factors of the outlier-free graph (odometry included: 5% of
 M3500's 5453 edges is 272 wrong closures), appended after every other factor and drawn from
 the same ``rng`` after everything else, so a seed gives the same outlier-free part with or
-without them. :func:`add_outliers` does the same to any graph (a benchmark file):
+without them. :func:`add_outliers` does the same to any graph (a benchmark file). Poses are
+taken in the order of the odometry chain (:func:`~rlpgo_gtsam.graph.odometry_edges`: sorted
+keys on a robot's path), so "pose i + k" is k steps further along it. Vertigo's four
+policies (Suenderhauf and Protzel, switchable constraints, ``generateDataset.py``):
 
-- ``"random"``: a random pose pair (not consecutive keys, not already joined) with a random
-  relative pose: translation uniform in ``[-s, s]^2``, ``s`` the longer side of the map's
-  bounding box, angle uniform in ``[-pi, pi)``;
+- ``"random"``: a random pose pair;
+- ``"local"``: the second pose within ``LOCAL_RANGE`` poses of the first;
+- ``"group"``: ``group_size`` consecutive pairs ``(i + k, j + k)``, k < group_size, all with
+  one measurement: they agree with each other around every cycle they form;
+- ``"localgroup"``: groups whose second pose lies within ``LOCAL_RANGE`` of the first.
+
+Each Vertigo closure measures a small relative pose (translation N(0, 0.3 m) per axis,
+rotation N(0, 10 deg): "these two places are the same", what perceptual aliasing gives) with
+the information of the graph's first loop closure (the first edge off the chain; the first
+edge if there is none). Two earlier modes remain:
+
+- ``"uniform"``: a random pose pair with a random relative pose: translation uniform in
+  ``[-s, s]^2``, ``s`` the longer side of the map's bounding box, angle uniform in
+  ``[-pi, pi)``;
 - ``"plausible"``: a random pair of poses at least ``far`` apart (a tenth of the map's
   diagonal, or three times the longest true closure if that is more), measured as a copy of
-  a randomly chosen true closure's measurement: a small offset of a true closure's magnitude
-  between places that are far apart (perceptual aliasing).
+  a randomly chosen true closure's measurement.
 
-Each wrong closure gets the noise model (information) of a randomly chosen true loop closure
-(of an odometry edge if the graph has none), so it looks like one.
+These two get the noise model (information) of a randomly chosen true loop closure (of an
+odometry edge if the graph has none). No wrong closure joins two poses adjacent on the chain
+or a pair the graph already joins.
 """
 
 from __future__ import annotations
@@ -40,13 +54,19 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import RlpgoError
-from rlpgo_gtsam.graph import MAX_CONDITION, PoseGraph2D
+from rlpgo_gtsam.graph import MAX_CONDITION, PoseGraph2D, odometry_edges
 
-__all__ = ["SyntheticGraph", "generate", "add_outliers", "OUTLIER_MODES", "ROW_LENGTH"]
+__all__ = ["SyntheticGraph", "generate", "add_outliers", "OUTLIER_MODES", "VERTIGO_MODES",
+           "ROW_LENGTH", "GROUP_SIZE", "LOCAL_RANGE"]
 
 ROW_LENGTH = 10
-# How wrong loop closures are drawn (see the module docstring); the first is the default.
-OUTLIER_MODES = ("random", "plausible")
+# Vertigo's policies, then the project's earlier two; the first is the default.
+VERTIGO_MODES = ("random", "local", "group", "localgroup")
+OUTLIER_MODES = (*VERTIGO_MODES, "uniform", "plausible")
+GROUP_SIZE = 5  # closures per group (group, localgroup)
+LOCAL_RANGE = 20  # local modes: the second pose within this many poses of the first
+_VERTIGO_SIGMA_T_M = 0.3
+_VERTIGO_SIGMA_R_RAD = np.deg2rad(10.0)
 # Pairs tried per wrong closure before giving up on a graph too small for the request.
 _TRIES_PER_OUTLIER = 1000
 
@@ -104,6 +124,7 @@ def generate(
     noisy_measurements: bool = False,
     outliers: float = 0.0,
     outlier_mode: str = OUTLIER_MODES[0],
+    group_size: int = GROUP_SIZE,
 ) -> SyntheticGraph:
     """Generate one lawn-mower pose graph.
 
@@ -119,6 +140,7 @@ def generate(
         outliers: wrong loop closures to add, as a fraction of the outlier-free graph's
             edges (``int(outliers x edges)`` of them), in [0, 1); drawn last.
         outlier_mode: how they are drawn, one of :data:`OUTLIER_MODES`.
+        group_size: closures per group in the group modes (>= 1).
     """
     if n < 2:
         raise RlpgoError(f"a graph needs at least 2 poses, got n={n}")
@@ -130,7 +152,7 @@ def generate(
                          "which no method can use; bring them closer")
     if not 0.0 <= lc <= 1.0:
         raise RlpgoError(f"lc must lie in [0, 1], got {lc}")
-    _check_outliers(outliers, outlier_mode)
+    _check_outliers(outliers, outlier_mode, group_size)
     truth = _true_poses(n, d)
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma_t, sigma_t, sigma_r]))
     odometry = [truth[k].between(truth[k + 1]) for k in range(n - 1)]
@@ -162,7 +184,8 @@ def generate(
         ground_truth.insert(k, true_pose)
     outlier_edges: list[int] = []
     if outliers > 0:
-        graph, outlier_edges = add_outliers(graph, ground_truth, outliers, rng, outlier_mode)
+        graph, outlier_edges = add_outliers(graph, ground_truth, outliers, rng, outlier_mode,
+                                            group_size)
     return SyntheticGraph(graph, initial, ground_truth, outlier_edges)
 
 
@@ -172,6 +195,7 @@ def add_outliers(
     fraction: float,
     rng: np.random.Generator,
     mode: str = OUTLIER_MODES[0],
+    group_size: int = GROUP_SIZE,
 ) -> tuple[gtsam.NonlinearFactorGraph, list[int]]:
     """A copy of ``graph`` with ``int(fraction x edges)`` wrong loop closures appended.
 
@@ -182,6 +206,8 @@ def add_outliers(
         fraction: wrong closures per between factor of ``graph``, in [0, 1).
         rng: the only source of randomness.
         mode: one of :data:`OUTLIER_MODES` (see the module docstring).
+        group_size: closures per group in the group modes (the last group may be cut short
+            to give exactly ``int(fraction x edges)``).
 
     Returns:
         The new graph (``graph`` itself is not changed) and the factor indices of the wrong
@@ -192,29 +218,45 @@ def add_outliers(
             pose pairs that qualify.
         GraphError: a graph the package cannot read as a planar pose graph.
     """
-    _check_outliers(fraction, mode)
+    _check_outliers(fraction, mode, group_size)
     g = PoseGraph2D.from_gtsam(graph, values)
     count = int(fraction * g.num_edges)
     result = gtsam.NonlinearFactorGraph(graph)
     if count == 0:
         return result, []
+    chain = odometry_edges(g)
+    order = _chain_order(g, chain)  # pose index at each place along the chain
+    place = np.empty(g.num_poses, np.int64)
+    place[order] = np.arange(g.num_poses)
     keys = g.keys.astype(np.int64)
-    pairs = keys[g.edges]
-    joined = {(min(a, b), max(a, b)) for a, b in pairs.tolist()}
-    is_closure = np.abs(pairs[:, 1] - pairs[:, 0]) != 1
+    joined = {(min(a, b), max(a, b)) for a, b in place[g.edges].tolist()}
+    is_closure = ~chain
     templates = np.flatnonzero(is_closure) if is_closure.any() else np.arange(g.num_edges)
+    first_closure = int(templates[0])
     positions = g.poses[:, :2]
     side = float(np.max(positions.max(axis=0) - positions.min(axis=0)))
     side = side if side > 0 else 1.0
     far = max(0.1 * np.hypot(*(positions.max(axis=0) - positions.min(axis=0))),
               3.0 * float(np.max(np.hypot(*g.measured[templates, :2].T))))
+    grouped = mode in ("group", "localgroup")
+    size = group_size if grouped else 1
+    n = g.num_poses
     start = result.size()
-    for drawn in range(count):
+    drawn = 0
+    while drawn < count:
+        members = min(size, count - drawn)
         for _ in range(_TRIES_PER_OUTLIER):
-            i, j = rng.integers(0, g.num_poses, size=2).tolist()
-            pair = (min(keys[i], keys[j]), max(keys[i], keys[j]))
-            if abs(keys[i] - keys[j]) <= 1 or pair in joined:
+            a = int(rng.integers(0, n - members + 1))
+            if mode in ("local", "localgroup"):
+                b = a + int(rng.integers(-LOCAL_RANGE, LOCAL_RANGE + 1))
+            else:
+                b = int(rng.integers(0, n - members + 1))
+            if abs(a - b) <= 1 or not 0 <= b <= n - members:
                 continue
+            pairs = [(a + k, b + k) for k in range(members)]
+            if any((min(p), max(p)) in joined for p in pairs):
+                continue
+            i, j = order[a], order[b]
             if mode == "plausible" and np.hypot(*(positions[i] - positions[j])) < far:
                 continue
             break
@@ -222,20 +264,51 @@ def add_outliers(
             raise RlpgoError(
                 f"could not place wrong closure {drawn + 1} of {count} ({mode}) after "
                 f"{_TRIES_PER_OUTLIER} tries: the graph has too few pose pairs that qualify")
-        joined.add(pair)
-        template = int(templates[rng.integers(len(templates))])
-        if mode == "random":
-            dx, dy = rng.uniform(-side, side, size=2).tolist()
-            measured = gtsam.Pose2(dx, dy, float(rng.uniform(-np.pi, np.pi)))
+        if mode in VERTIGO_MODES:
+            measured = gtsam.Pose2(*rng.normal(0.0, [_VERTIGO_SIGMA_T_M, _VERTIGO_SIGMA_T_M,
+                                                     _VERTIGO_SIGMA_R_RAD]).tolist())
+            information = g.information[first_closure]
         else:
-            measured = gtsam.Pose2(*g.measured[template])
-        noise = gtsam.noiseModel.Gaussian.Information(g.information[template])
-        result.add(gtsam.BetweenFactorPose2(int(keys[i]), int(keys[j]), measured, noise))
+            template = int(templates[rng.integers(len(templates))])
+            if mode == "uniform":
+                dx, dy = rng.uniform(-side, side, size=2).tolist()
+                measured = gtsam.Pose2(dx, dy, float(rng.uniform(-np.pi, np.pi)))
+            else:
+                measured = gtsam.Pose2(*g.measured[template])
+            information = g.information[template]
+        noise = gtsam.noiseModel.Gaussian.Information(information)
+        for p, q in pairs:
+            joined.add((min(p, q), max(p, q)))
+            result.add(gtsam.BetweenFactorPose2(int(keys[order[p]]), int(keys[order[q]]),
+                                                measured, noise))
+        drawn += members
     return result, list(range(start, start + count))
 
 
-def _check_outliers(fraction: float, mode: str) -> None:
+def _chain_order(g: PoseGraph2D, chain: np.ndarray) -> np.ndarray:
+    """Pose indices in the order a walk along the chain meets them: depth first from the
+    anchor, the lower index first (sorted keys on a path)."""
+    neighbours: list[list[int]] = [[] for _ in range(g.num_poses)]
+    for i, j in g.edges[chain].tolist():
+        neighbours[i].append(j)
+        neighbours[j].append(i)
+    seen = np.zeros(g.num_poses, bool)
+    order, stack = [], [g.anchor]
+    seen[g.anchor] = True
+    while stack:
+        a = stack.pop()
+        order.append(a)
+        for b in sorted(neighbours[a], reverse=True):
+            if not seen[b]:
+                seen[b] = True
+                stack.append(b)
+    return np.array(order, dtype=np.int64)
+
+
+def _check_outliers(fraction: float, mode: str, group_size: int = GROUP_SIZE) -> None:
     if not 0.0 <= fraction < 1.0:
         raise RlpgoError(f"the fraction of wrong loop closures must lie in [0, 1), got {fraction}")
     if mode not in OUTLIER_MODES:
         raise RlpgoError(f"unknown outlier mode '{mode}'; choose from {', '.join(OUTLIER_MODES)}")
+    if group_size < 1:
+        raise RlpgoError(f"group_size must be >= 1, got {group_size}")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rlpgo_gtsam.errors import RlpgoError, SolverError
-from rlpgo_gtsam.g2o import g2o_text
+from rlpgo_gtsam.g2o import g2o_text, read_g2o
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, edge_chi2
 from rlpgo_gtsam.initializers import make_initializer
 from rlpgo_gtsam.residuals import outlier_suspicion
@@ -17,6 +17,7 @@ from rlpgo_gtsam.robust import robust_initialize
 from rlpgo_gtsam.solvers import refine
 from rlpgo_gtsam.staged import staged_initialize
 from rlpgo_gtsam.synthetic import add_outliers, generate
+from tests.conftest import dataset
 
 # A 300-pose lawn mower with noisy measurements: rotation noise 0.1 rad per measurement.
 ARGS = (300, 0.1, 0.05, 1.0, 0.5)
@@ -47,7 +48,7 @@ def test_outlier_free_output_is_unchanged(args, seed, noisy, digest, next_draw):
 
 def test_wrong_closures_come_after_the_same_graph():
     clean = generate(*ARGS, np.random.default_rng(4), noisy_measurements=True)
-    for mode in ("random", "plausible"):
+    for mode in ("random", "local", "group", "localgroup", "uniform", "plausible"):
         sample = generate(*ARGS, np.random.default_rng(4), noisy_measurements=True,
                           outliers=0.1, outlier_mode=mode)
         m = clean.graph.size()
@@ -79,7 +80,7 @@ def test_add_outliers_leaves_its_input_alone_and_checks_arguments():
         generate(*ARGS, np.random.default_rng(0), outliers=0.1, outlier_mode="sneaky")
 
 
-@pytest.mark.parametrize("mode", ["random", "plausible"])
+@pytest.mark.parametrize("mode", ["uniform", "plausible"])
 def test_wrong_closures_are_rejected_and_the_map_recovered(mode):
     sample = generate(*ARGS, np.random.default_rng(3), noisy_measurements=True, outliers=0.2,
                       outlier_mode=mode)
@@ -92,7 +93,8 @@ def test_wrong_closures_are_rejected_and_the_map_recovered(mode):
     assert np.all(result.weights[sample.outlier_edges] == 0.0)
     assert chi2(clean.graph, result.values) == pytest.approx(lowest, rel=1e-6)
     assert result.chi2 == pytest.approx(lowest, rel=1e-6)
-    assert [step["step"] for step in result.steps] == ["consistency", "start", "verify", "gnc"]
+    assert [step["step"] for step in result.steps] == ["all edges", "consistency", "start",
+                                                       "verify", "gnc"]
 
 
 def test_a_clean_graph_comes_out_as_the_staged_default_leaves_it():
@@ -105,7 +107,8 @@ def test_a_clean_graph_comes_out_as_the_staged_default_leaves_it():
 
 
 def test_without_trusted_odometry_the_same_closures_go():
-    sample = generate(*ARGS, np.random.default_rng(3), noisy_measurements=True, outliers=0.1)
+    sample = generate(*ARGS, np.random.default_rng(3), noisy_measurements=True, outliers=0.1,
+                      outlier_mode="uniform")
     result = robust_initialize(sample.graph, sample.initial, trust_odometry=False)
     assert result.rejected == sample.outlier_edges
     assert result.trusted == []
@@ -128,7 +131,8 @@ def test_edge_chi2_is_gtsams():
 
 def test_outlier_suspicion_points_to_robust_only_when_the_tail_is_heavy():
     clean = generate(*ARGS, np.random.default_rng(3), noisy_measurements=True)
-    sample = generate(*ARGS, np.random.default_rng(3), noisy_measurements=True, outliers=0.05)
+    sample = generate(*ARGS, np.random.default_rng(3), noisy_measurements=True, outliers=0.05,
+                      outlier_mode="uniform")
     for graph, expect in ((clean.graph, None), (sample.graph, "--robust")):
         g = PoseGraph2D.from_gtsam(graph, clean.initial)
         start = make_initializer("chordal").run(g).values
@@ -145,7 +149,8 @@ def test_heavy_rotation_noise_keeps_the_true_closures():
     # and the thinned seed's optimum was a folded map (chi2 87517 on the clean graph
     # against 1376.45); the propagated covariances keep them.
     args = (1000, 0.2, 0.05, 1.0, 0.5)
-    sample = generate(*args, np.random.default_rng(7), noisy_measurements=True, outliers=0.1)
+    sample = generate(*args, np.random.default_rng(7), noisy_measurements=True, outliers=0.1,
+                      outlier_mode="uniform")
     clean = generate(*args, np.random.default_rng(7), noisy_measurements=True)
     lowest = refine(clean.graph, clean.ground_truth, "lm", 1000).chi2
 
@@ -153,3 +158,142 @@ def test_heavy_rotation_noise_keeps_the_true_closures():
 
     assert result.rejected == sample.outlier_edges
     assert chi2(clean.graph, result.values) == pytest.approx(lowest, rel=1e-6)
+
+
+# ----------------------------------------------------------- Vertigo's policies, clean maps
+
+# A 300-pose lawn mower with 0.01 rad per measurement: cycles through the odometry are
+# informative enough to show a group of wrong closures at odds with the true ones.
+LOW_NOISE = (300, 0.01, 0.05, 1.0, 0.5)
+
+
+def test_vertigo_policies_place_pairs_and_groups_as_vertigo_does():
+    for mode in ("local", "group", "localgroup"):
+        sample = generate(*LOW_NOISE, np.random.default_rng(2), noisy_measurements=True,
+                          outliers=0.1, outlier_mode=mode, group_size=4)
+        g = PoseGraph2D.from_gtsam(sample.graph, sample.initial)
+        m = g.num_edges - len(sample.outlier_edges)
+        wrong, measured = g.edges[m:], g.measured[m:]
+        if "local" in mode:
+            assert np.all(np.abs(wrong[:, 1] - wrong[:, 0]) <= 20)
+        if "group" in mode:  # runs of 4 consecutive pairs sharing one measurement
+            for start in range(0, len(wrong) - 3, 4):
+                np.testing.assert_array_equal(wrong[start:start + 4] - wrong[start],
+                                              np.arange(4)[:, None] * [1, 1])
+                assert np.all(measured[start:start + 4] == measured[start])
+        first_closure = g.information[np.flatnonzero(np.abs(np.diff(g.edges[:m])) != 1)[0]]
+        assert np.all(g.information[m:] == first_closure)
+        assert np.all(np.abs(measured[:, :2]) < 2.0)  # "these places are the same"
+
+
+def test_a_group_of_mutually_consistent_wrong_closures_goes_whole():
+    sample = generate(*LOW_NOISE, np.random.default_rng(5), noisy_measurements=True,
+                      outliers=0.1, outlier_mode="group")
+    clean = generate(*LOW_NOISE, np.random.default_rng(5), noisy_measurements=True)
+    lowest = refine(clean.graph, clean.ground_truth, "lm", 100).chi2
+
+    result = robust_initialize(sample.graph, sample.initial)
+
+    assert result.rejected == sample.outlier_edges
+    assert refine(clean.graph, result.values, "lm", 100).chi2 == pytest.approx(lowest, rel=1e-3)
+
+
+def test_a_clean_real_map_keeps_its_isolated_closures():
+    # MIT: 20 loop closures that no short cycle supports; the path used to drop 15 of them
+    graph, values = read_g2o(dataset("MIT.g2o"))
+    result = robust_initialize(graph, values)
+    assert result.rejected == []
+    assert result.steps[0]["passed"] and len(result.steps) == 1
+    assert result.chi2 == pytest.approx(41.2069, rel=1e-4)
+
+
+def _relabelled(graph, values, key_of):
+    """The same graph under new keys ``key_of[old]``, the factors in the same order."""
+    out, new_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for k in range(graph.size()):
+        factor = graph.at(k)
+        i, j = factor.keys()
+        out.add(gtsam.BetweenFactorPose2(int(key_of[i]), int(key_of[j]), factor.measured(),
+                                         factor.noiseModel()))
+    for key in values.keys():
+        new_values.insert(int(key_of[key]), values.atPose2(key))
+    return out, new_values
+
+
+@pytest.mark.parametrize("how", ["gaps", "shuffled"])
+def test_any_vertex_ids_give_the_same_decision(how):
+    sample = generate(*LOW_NOISE, np.random.default_rng(5), noisy_measurements=True,
+                      outliers=0.1, outlier_mode="group")
+    n = LOW_NOISE[0]
+    key_of = 10 * np.arange(n) if how == "gaps" else \
+        np.concatenate([[0], 1 + np.random.default_rng(0).permutation(3 * n)[:n - 1]])
+    graph, values = _relabelled(sample.graph, sample.initial, key_of)
+    result = robust_initialize(graph, values)
+    assert result.rejected == sample.outlier_edges
+
+
+def test_a_star_graph_works():
+    # pose 0 sees every other pose once (the chain is the star), plus closures between leaves
+    rng = np.random.default_rng(1)
+    truth = [gtsam.Pose2(*rng.uniform(-5, 5, 2), rng.uniform(-3, 3)) for _ in range(30)]
+    noise = gtsam.noiseModel.Diagonal.Sigmas([0.05, 0.05, 0.01])
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for k in range(1, 30):
+        graph.add(gtsam.BetweenFactorPose2(0, k, truth[0].between(truth[k]), noise))
+    for k in range(1, 29, 3):
+        graph.add(gtsam.BetweenFactorPose2(k, k + 1, truth[k].between(truth[k + 1]), noise))
+    for k, pose in enumerate(truth):
+        values.insert(k, pose.compose(gtsam.Pose2(0.3, -0.2, 0.1)))
+    result = robust_initialize(graph, values)
+    assert result.rejected == [] and result.chi2 < 1e-9
+
+
+def test_the_consistency_step_is_bounded_on_parallel_closures():
+    # 5000 closures between the same two poses of a 21-pose chain: every pair is "near";
+    # the step tests each against a bounded number, in seconds and little memory
+    import time
+    import tracemalloc
+
+    from rlpgo_gtsam.graph import odometry_edges
+    from rlpgo_gtsam.robust.consistency import FAR, NEAR, pairwise_consistency
+
+    noise = gtsam.noiseModel.Diagonal.Sigmas([0.05, 0.05, 0.01])
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    rng = np.random.default_rng(0)
+    for k in range(20):
+        graph.add(gtsam.BetweenFactorPose2(k, k + 1, gtsam.Pose2(1.0, 0.0, 0.0), noise))
+    for _ in range(5000):
+        graph.add(gtsam.BetweenFactorPose2(0, 20, gtsam.Pose2(20.0 + rng.normal(0, 0.05), 0.0,
+                                                              0.0), noise))
+    for k in range(21):
+        values.insert(k, gtsam.Pose2(k, 0.0, 0.0))
+    g = PoseGraph2D.from_gtsam(graph, values)
+    tracemalloc.start()
+    began = time.perf_counter()
+    result = pairwise_consistency(g, odometry_edges(g), 21.1)
+    seconds = time.perf_counter() - began
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert result.pairs <= 5000 * (NEAR + FAR)
+    assert seconds < 10.0 and peak < 300e6
+    assert result.kept.sum() >= 4990  # nothing contradicts them
+
+
+def test_two_equally_supported_sets_are_reported_ambiguous():
+    # a straight chain; group A says pose k is pose 20 + k, group B that pose k is pose
+    # 22 + k: each group agrees within itself, the two contradict each other, and nothing
+    # else decides between them
+    noise = gtsam.noiseModel.Diagonal.Sigmas([0.01, 0.01, 0.001])
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for k in range(34):
+        graph.add(gtsam.BetweenFactorPose2(k, k + 1, gtsam.Pose2(1.0, 0.0, 0.0), noise))
+    for k in range(35):
+        values.insert(k, gtsam.Pose2(k, 0.0, 0.0))
+    for shift in (20, 22):
+        for k in range(5):
+            graph.add(gtsam.BetweenFactorPose2(k, shift + k, gtsam.Pose2(), noise))
+    result = robust_initialize(graph, values)
+    assert len(result.ambiguous) == 1
+    kept, other = result.ambiguous[0]
+    assert sorted(map(len, (kept, other))) == [5, 5]
+    assert set(kept) | set(other) == set(range(34, 44))

@@ -10,7 +10,7 @@ from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import SEED, FiniteFloat, OutputFile
 from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text, g2o_text, g2o_text_lines
 from rlpgo_gtsam.graph import chi2
-from rlpgo_gtsam.synthetic import OUTLIER_MODES, generate
+from rlpgo_gtsam.synthetic import GROUP_SIZE, LOCAL_RANGE, OUTLIER_MODES, generate
 
 
 @click.command(cls=RlpgoCommand)
@@ -36,20 +36,27 @@ from rlpgo_gtsam.synthetic import OUTLIER_MODES, generate
               help="Wrong loop closures to add, as a fraction of the graph's edges.")
 @click.option("--outlier-mode", type=click.Choice(OUTLIER_MODES), default=OUTLIER_MODES[0],
               show_default=True,
-              help="random: random pose pairs and relative poses; plausible: far-apart poses "
-                   "measured like a true closure (perceptual aliasing).")
+              help="Vertigo's policies (each measures a small relative pose, N(0, 0.3 m), "
+                   "N(0, 10 deg), with the first loop closure's information): random: random "
+                   f"pose pairs; local: the second pose within {LOCAL_RANGE} of the first; "
+                   "group: --group-size consecutive pairs (i+k, j+k) sharing one measurement; "
+                   "localgroup: local groups. Earlier modes: uniform: random pairs with "
+                   "random relative poses; plausible: far-apart poses measured like a true "
+                   "closure.")
+@click.option("--group-size", type=click.IntRange(1, 10_000), default=GROUP_SIZE,
+              show_default=True, help="Wrong closures per group (group, localgroup).")
 @click.option("--outliers-out", type=OutputFile(),
               help=f"Text file listing the wrong loop closures, one a line as "
                    f"'{EDGE_LIST_LINE}' (L: the edge's line in OUTPUT, from 1), after one '#' "
                    "line: the format of rlpgo-init --outliers-out.")
 def main(n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_truth, outliers,
-         outlier_mode, outliers_out):
+         outlier_mode, group_size, outliers_out):
     """Generate a lawn-mower pose graph as in the RL-PGO paper."""
     run = RunFiles()
     run.check(output, ground_truth, outliers_out)
     sample = generate(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
                       noisy_measurements=noisy_measurements, outliers=outliers,
-                      outlier_mode=outlier_mode)
+                      outlier_mode=outlier_mode, group_size=group_size)
     text, lines = g2o_text_lines(sample.graph, sample.initial)
     files = [(output, text.encode())]
     if ground_truth is not None:
@@ -64,7 +71,9 @@ def main(n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_tr
                f"{chi2(sample.graph, sample.ground_truth):.6g}")
     if outliers > 0 or outliers_out is not None:
         listed = "" if outliers_out is None else f"; listed in {outliers_out}"
-        click.echo(f"added {len(sample.outlier_edges)} wrong loop closures ({outlier_mode})"
+        grouped = f", groups of {group_size}" if "group" in outlier_mode else ""
+        click.echo(f"added {len(sample.outlier_edges)} wrong loop closures ({outlier_mode}"
+                   f"{grouped})"
                    f"{listed}")
 
 

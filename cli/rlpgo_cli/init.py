@@ -111,10 +111,21 @@ def _check_robust_options(ctx: click.Context, robust: bool, method: str, refine:
 def _describe_step(step: dict) -> str:
     """One line on a step of the robust path (``RobustResult.steps``)."""
     shown = ("step", "seconds", "judged", "kept", "rejected")
+    if "kept" not in step:  # the all-edges check
+        verdict = "every edge fits, nothing rejected" if step.get("passed") else \
+            "not every edge fits"
+        return (f"step {step.get('step')}: certified {step.get('certified')}, worst edge chi2 "
+                f"{step.get('worst_edge_chi2', float('nan')):.4g}: {verdict}; "
+                f"{step.get('seconds', 0.0):.2f} s")
     text = (f"step {step.get('step')}: kept {step.get('kept')} of {step.get('judged')} edges "
             f"judged, rejected {step.get('rejected')}; {step.get('seconds', 0.0):.2f} s")
     return text + "".join(f"; {key.replace('_', ' ')} {value}" for key, value in step.items()
                           if key not in shown and value is not None)
+
+
+def _few(indices: list[int], limit: int = 5) -> str:
+    shown = ", ".join(str(k) for k in indices[:limit])
+    return shown + (f", ... ({len(indices)})" if len(indices) > limit else "")
 
 
 def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
@@ -128,6 +139,10 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
                                pose_graph=pose_graph)
     for step in result.steps:
         click.echo(_describe_step(step))
+    for kept, other in result.ambiguous:
+        click.echo(f"ambiguous: {len(kept)} loop closures kept conflict with {len(other)} "
+                   "others that agree among themselves and are nearly as well supported; the "
+                   f"map's fit decided (kept factors {_few(kept)}; the others {_few(other)})")
     files = [(output, g2o_text(graph, result.values).encode())]  # every edge, new vertices
     if outliers_out is not None:
         listed = edge_list_text(graph, result.rejected, lines, g2o_name=input_path.name,
@@ -174,8 +189,9 @@ def _print_stage(row: MethodResult, reason: str) -> None:
                    "closures that agree with each other, finished by GTSAM's GNC-LM. The "
                    "graph written keeps every edge of the input.")
 @click.option("--trust-odometry/--no-trust-odometry", default=True, show_default=True,
-              help="With --robust: edges between consecutive ids (k, k+1) are known inliers; "
-                   "--no-trust-odometry judges them like loop closures.")
+              help="With --robust: the odometry chain (edges between ids adjacent in sorted "
+                   "order, completed in file order to a spanning tree) is known inliers; "
+                   "--no-trust-odometry judges it like loop closures.")
 @click.option("--outliers-out", type=OutputFile(),
               help="With --robust: a text file listing the rejected edges, one a line as "
                    f"'{EDGE_LIST_LINE}' (L: the edge's line in INPUT.g2o, from 1), after one "

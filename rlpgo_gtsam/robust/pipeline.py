@@ -5,13 +5,18 @@ leads LM to a wrong map; GTSAM's graduated non-convexity (``GncLMOptimizer``) re
 closures but needs a start near the right map. :func:`robust_initialize` builds that start
 and lets GTSAM's GNC-LM (truncated least squares) finish from it:
 
-1. ``consistency``: every pair of loop closures whose ends lie within ``WINDOW`` steps of
-   each other along the odometry chain closes a short cycle through it, whose covariance
-   is propagated to first order from its measurements; a closure that agrees with at least
-   two neighbours in tests that a wrong closure would pass by chance less than 1% of the
-   time, or with at least three in any test, joins the seed (see
-   :func:`~rlpgo_gtsam.robust.consistency.consistent_closures`). Wrong closures join random
-   poses and agree with nothing.
+0. ``all edges``: the clean default on every edge (the certified relaxation, then LM to
+   convergence). When the relaxation is certified and every edge's chi2 lies within the
+   inlier bound, nothing speaks against any closure: the run stops there, rejects nothing
+   and hands over that optimum (the clean default's). A closure is rejected only on
+   evidence against it, never for lack of support.
+1. ``consistency``: pairwise consistency maximization with bounded tests
+   (:func:`~rlpgo_gtsam.robust.consistency.pairwise_consistency`): closures whose cycle
+   through the odometry conflicts go, the one with most conflicts first, until none is
+   left; groups of wrong closures that agree with each other conflict with the many true
+   closures they contradict. The seed is the closures left that have positive support
+   (agreeing tests); the others are judged later by the map's fit. Sets that conflict and
+   are nearly equally supported are reported in :attr:`RobustResult.ambiguous`.
 2. ``start``: the certified relaxation (:mod:`rlpgo_gtsam.certified`) of the seed (the
    odometry edges and the seed closures) gives the orientations; then GNC-TLS on the
    translation step at those orientations (odometry at weight 1, seed closures judged, the
@@ -33,9 +38,11 @@ and lets GTSAM's GNC-LM (truncated least squares) finish from it:
    set GNC's first control parameter near zero, and it then spends dozens of outer
    iterations re-deriving what the steps above found.)
 
-Trusted edges: with ``trust_odometry=True`` (the default) every edge between consecutive keys
-(k, k+1) is a known inlier in every step; without it those edges are judged like closures in
-steps 2-4 (step 1 still uses the chain). The anchor (and any FIXed pose) keeps its pose.
+Trusted edges: with ``trust_odometry=True`` (the default) the odometry chain (the spanning
+tree :func:`~rlpgo_gtsam.graph.odometry_edges` finds: edges between ids adjacent in sorted
+order, completed in file order; any ids, a star) is known inliers in every step; without it
+those edges are judged like closures in steps 2-4 (step 1 still uses the chain).
+The anchor (and any FIXed pose) keeps its pose.
 
 Thresholds are chi-square quantiles at ``inlier_probability`` (2 dof in step 2, 3 dof after).
 
@@ -57,7 +64,7 @@ from rlpgo_gtsam.errors import GraphError, SolverError, one_line
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, edge_chi2, odometry_edges
 from rlpgo_gtsam.initializers import make_initializer
 from rlpgo_gtsam.numerics import numeric_call
-from rlpgo_gtsam.robust.consistency import consistent_closures
+from rlpgo_gtsam.robust.consistency import pairwise_consistency
 from rlpgo_gtsam.robust.gnc import robust_positions
 from rlpgo_gtsam.solvers import refine, solver_params
 
@@ -97,6 +104,12 @@ class RobustResult:
         steps: what each step did, in order (JSON-ready dicts: step, seconds, iterations,
             kept / rejected counts, ...).
         trusted: factor indices of the edges treated as known inliers.
+        ambiguous: what the consistency step could not tell apart: per group of conflicting
+            closures, the factor indices kept there and those of a rejected alternative that
+            is (nearly) as well supported (at least ``AMBIGUOUS_RATIO`` of its size) and
+            consistent in itself. The later steps decided by the map's fit; empty when
+            nothing was ambiguous.
+        stopped: why the run ended where it did, in words.
     """
 
     values: gtsam.Values
@@ -106,11 +119,14 @@ class RobustResult:
     seconds: float
     steps: list[dict[str, Any]] = field(default_factory=list)
     trusted: list[int] = field(default_factory=list)
+    ambiguous: list[tuple[list[int], list[int]]] = field(default_factory=list)
+    stopped: str = ""
 
     def record(self) -> dict[str, Any]:
         """JSON-ready summary: rejected indices, chi2, seconds, steps."""
         return {"rejected": self.rejected, "chi2": self.chi2, "seconds": self.seconds,
-                "steps": self.steps, "trusted": len(self.trusted)}
+                "steps": self.steps, "trusted": len(self.trusted),
+                "ambiguous": self.ambiguous, "stopped": self.stopped}
 
 @numeric_call
 def robust_initialize(
@@ -153,9 +169,24 @@ def robust_initialize(
     steps: list[dict[str, Any]] = []
 
     step_began = time.perf_counter()
-    kept, loose, pairs = consistent_closures(g, chain, thresholds[3])
-    kept |= loose | chain
-    steps.append(_step("consistency", step_began, None, kept, known) | {"pairs": pairs})
+    clean = _all_edges(graph, g, thresholds[3])
+    steps.append({"step": "all edges", "seconds": time.perf_counter() - step_began,
+                  "certified": clean.certified, "worst_edge_chi2": clean.worst,
+                  "passed": clean.passed})
+    if clean.passed:  # no evidence against any edge: keep them all
+        return _result(graph, factor_of_edge, clean.values, np.ones(g.num_edges, bool),
+                       np.ones(g.num_edges), known, began, steps, [],
+                       "every edge fits: the relaxation of all edges is certified and every "
+                       "residual lies within the inlier bound after refinement")
+
+    step_began = time.perf_counter()
+    consistency = pairwise_consistency(g, chain, thresholds[3])
+    kept, loose = consistency.seed | chain, consistency.supported
+    steps.append(_step("consistency", step_began, None, kept, known) |
+                 {"pairs": consistency.pairs, "conflicts": consistency.conflicts,
+                  "ambiguous": len(consistency.ambiguous)})
+    ambiguous = [(sorted(factor_of_edge[k].tolist()), sorted(factor_of_edge[r].tolist()))
+                 for k, r in consistency.ambiguous]
 
     step_began = time.perf_counter()
     seed = replace(g, edges=g.edges[kept], measured=g.measured[kept],
@@ -179,22 +210,58 @@ def robust_initialize(
     kept &= gnc_weights >= REJECTED_BELOW
     steps.append(_step("gnc", step_began, None, kept, known))
 
+    return _result(graph, factor_of_edge, result, kept, gnc_weights, known, began, steps,
+                   ambiguous, "GNC-LM from the consistent set's verified optimum")
+
+
+def _result(graph, factor_of_edge: np.ndarray, values: gtsam.Values, kept: np.ndarray,
+            edge_weights: np.ndarray, known: np.ndarray, began: float,
+            steps: list[dict[str, Any]], ambiguous: list[tuple[list[int], list[int]]],
+            stopped: str) -> RobustResult:
     weights = np.full(graph.size(), np.nan)
     for k in range(graph.size()):
         if graph.at(k) is not None:
             weights[k] = 1.0
-    weights[factor_of_edge] = np.where(kept, np.maximum(gnc_weights, 0.0), 0.0)
+    weights[factor_of_edge] = np.where(kept, np.maximum(edge_weights, 0.0), 0.0)
     weights[factor_of_edge[known]] = 1.0
     rejected = sorted(factor_of_edge[~kept].tolist())
     return RobustResult(
-        values=result,
+        values=values,
         rejected=rejected,
         weights=weights,
-        chi2=chi2(_without(graph, rejected), result),
+        chi2=chi2(_without(graph, rejected), values),
         seconds=time.perf_counter() - began,
         steps=steps,
         trusted=sorted(factor_of_edge[known].tolist()),
+        ambiguous=ambiguous,
+        stopped=stopped,
     )
+
+
+@dataclass
+class _AllEdges:
+    values: gtsam.Values
+    certified: bool
+    worst: float
+    passed: bool
+
+
+def _all_edges(graph, g: PoseGraph2D, threshold: float) -> _AllEdges:
+    """The clean default on every edge: the certified relaxation, then LM to convergence
+    (only when certified); it passes when certified and every edge's chi2 (3 dof, whitened)
+    lies below ``threshold``. Wrong closures break one or the other."""
+    init = make_initializer("certified").run(g)
+    certified = bool(init.certificate is not None and init.certificate.certified)
+    if not certified:
+        return _AllEdges(init.values, False, float("nan"), False)
+    params = solver_params("lm", _LM_ITERS)
+    params.setRelativeErrorTol(_TOLERANCE)
+    refined = refine(graph, init.values, params, pose_graph=g)
+    if refined.failure is not None:
+        return _AllEdges(init.values, True, float("nan"), False)
+    worst = float(edge_chi2(g, g.poses_of(refined.values)).max())
+    return _AllEdges(refined.values, True, worst, worst < threshold)
+
 
 def _verify(graph, g: PoseGraph2D, factor_of_edge: np.ndarray, poses: np.ndarray,
             kept: np.ndarray, known: np.ndarray, supported: np.ndarray,
