@@ -30,7 +30,7 @@ import numpy as np
 
 from rlpgo_gtsam.errors import G2oFormatError, OutputError
 from rlpgo_gtsam.files import write_text
-from rlpgo_gtsam.g2o import _id, _lines, _numbers, _short
+from rlpgo_gtsam.g2o import _format_15, _id, _lines, _numbers, _short
 from rlpgo_gtsam.graph import disconnection
 from rlpgo_gtsam.graph3d import information_problem_6
 from rlpgo_gtsam.se3 import compose, inverse, quaternions_to_rotations, rotations_to_quaternions
@@ -239,7 +239,7 @@ def g2o3d_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
             back = np.argsort(G2O_TO_GTSAM)  # GTSAM's order -> g2o's
             upper = information[back][:, back][_UPPER]
             lines.append(f"{EDGE} {i} {j} " + _pose_text(factor.measured(), f"edge {i}-{j}")
-                         + " " + " ".join(repr(float(v)) for v in upper))
+                         + " " + " ".join(_format_15(v) for v in upper))
         elif isinstance(factor, gtsam.PriorFactorPose3):
             if not isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
                 raise OutputError(f"prior on key {factor.keys()[0]}: a soft prior has no g2o "
@@ -253,11 +253,13 @@ def g2o3d_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
 
 
 def _pose_text(pose: gtsam.Pose3, name: str) -> str:
-    numbers = [*np.asarray(pose.translation(), float).tolist(),
-               *rotations_to_quaternions(pose.rotation().matrix())[0].tolist()]
-    if not all(math.isfinite(v) for v in numbers):
+    # positions exactly; quaternions and (below) information with 15 significant digits, as
+    # the planar writer: matrix -> quaternion and R^T R drift by an ulp, which 15 digits undo
+    position = np.asarray(pose.translation(), float).tolist()
+    quaternion = rotations_to_quaternions(pose.rotation().matrix())[0].tolist()
+    if not all(math.isfinite(v) for v in position + quaternion):
         raise OutputError(f"{name} is not finite: the file would not read back")
-    return " ".join(repr(float(v)) for v in numbers)
+    return " ".join([repr(float(v)) for v in position] + [_format_15(v) for v in quaternion])
 
 
 def write_g2o3d(path: str | os.PathLike[str], graph: gtsam.NonlinearFactorGraph,
