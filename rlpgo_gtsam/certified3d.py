@@ -372,10 +372,13 @@ def _verify(problem: _Problem, x: np.ndarray, eta: float) -> _Check:
         values, vectors = np.linalg.eigh(0.5 * (s + s.T))
         return _Check(bool(values[0] >= -eta), float(values[0]), trace, vectors[:, 0])
     floor = -max(float(np.linalg.eigvalsh(lam)[:, -1].max()), 0.0)  # Q >= 0
-    shift = np.eye(3) * eta - lam
-    negatives = _negative_pivots(problem, shift)
+    try:  # S + eta I through its pivots; the same LU then serves shift-invert at -eta
+        lu = problem.factor(np.eye(3) * eta - lam)
+    except RuntimeError:  # an exact zero pivot
+        lu = None
+    negatives = _negative_pivots(lu)
     if negatives == 0:
-        value, vector = _nearest_above(problem, lam, -eta)
+        value, vector = _nearest_above(problem, lam, -eta, lu)
         if vector is None:
             return _Check(True, -eta, trace, None, imprecise=True)
         return _Check(True, value, trace, vector)
@@ -385,23 +388,21 @@ def _verify(problem: _Problem, x: np.ndarray, eta: float) -> _Check:
     return _Check(bool(value >= -eta), value, trace, vector)
 
 
-def _negative_pivots(problem: _Problem, blocks: np.ndarray) -> int | None:
-    """Eigenvalues of Q + M that are <= 0 (inertia of the pivot-free LU), or None when the
-    LU pivoted off the diagonal or met an exact zero."""
-    try:
-        lu = problem.factor(blocks)
-    except RuntimeError:
-        return None
-    if not np.array_equal(lu.perm_r, lu.perm_c):
+def _negative_pivots(lu) -> int | None:
+    """Eigenvalues of Q + M that are <= 0 from the pivot-free LU of :meth:`_Problem.factor`
+    (Sylvester's law of inertia), or None when there is no LU (an exact zero pivot) or it
+    pivoted off the diagonal."""
+    if lu is None or not np.array_equal(lu.perm_r, lu.perm_c):
         return None
     return int(np.count_nonzero(lu.U.diagonal() <= 0))
 
 
-def _nearest_above(problem: _Problem, lam: np.ndarray,
-                   sigma: float) -> tuple[float, np.ndarray | None]:
+def _nearest_above(problem: _Problem, lam: np.ndarray, sigma: float,
+                   lu=None) -> tuple[float, np.ndarray | None]:
     """The smallest eigenvalue of S when all lie above sigma (the largest of
-    (S - sigma I)^-1), with its eigenvector; (NaN, None) when ARPACK did not converge."""
-    lu = problem.factor(-lam - sigma * np.eye(3))
+    (S - sigma I)^-1), with its eigenvector; (NaN, None) when ARPACK did not converge.
+    ``lu``: the factor of S - sigma I, if already made."""
+    lu = problem.factor(-lam - sigma * np.eye(3)) if lu is None else lu
     size = 3 * problem.n
     op = LinearOperator((size, size), dtype=float,
                         matvec=lambda v: problem.solve_shifted(lu, v.reshape(-1, 1))[:, 0])
