@@ -59,6 +59,7 @@ from rlpgo_gtsam.certified import (
 from rlpgo_gtsam.chordal3d import chordal_rotations
 from rlpgo_gtsam.errors import GraphError, SolverError
 from rlpgo_gtsam.graph3d import PoseGraph3D, rotation_weights, translation_weights
+from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.se3 import project_to_so3
 
 __all__ = ["synchronize3d", "certify3d", "relaxation_cost3d"]
@@ -74,6 +75,7 @@ _PRECONDITIONER_SHIFT = 1e-5
 _INITIAL_RADIUS = 0.1
 
 
+@numeric_call
 def synchronize3d(
     pose_graph: PoseGraph3D,
     start_rotations: np.ndarray | None = None,
@@ -144,6 +146,7 @@ def synchronize3d(
     return rotations, _certificate(problem, check, estimate, eta, x.shape[1], started, stop)
 
 
+@numeric_call
 def certify3d(pose_graph: PoseGraph3D, rotations: np.ndarray, *,
               tolerance: float | None = None) -> Certificate:
     """The certificate of given rotations (n, 3, 3) at rank 3, no optimization: a rotation
