@@ -222,15 +222,16 @@ INFORMATION_RANGE = (1e-20, 1e20)
 MAX_CONDITION = 1e9
 
 
-def information_problem(information: np.ndarray) -> str | None:
-    """Why an edge's 3x3 information matrix cannot be used, or None if it can.
+def information_problem(information: np.ndarray, size: int = 3) -> str | None:
+    """Why an edge's ``size`` x ``size`` information matrix (3 in 2D, 6 in 3D) cannot be
+    used, or None if it can.
 
     It must be symmetric positive definite with eigenvalues in :data:`INFORMATION_RANGE`
     and a condition number at most :data:`MAX_CONDITION`.
     """
     matrix = np.asarray(information, dtype=float)
-    if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
-        return "information matrix is not a finite 3x3 matrix"
+    if matrix.shape != (size, size) or not np.all(np.isfinite(matrix)):
+        return f"information matrix is not a finite {size}x{size} matrix"
     if not np.allclose(matrix, matrix.T, rtol=1e-9, atol=0.0):
         return "information matrix is not symmetric"
     low, high = INFORMATION_RANGE

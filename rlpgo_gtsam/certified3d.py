@@ -1,0 +1,458 @@
+"""The SE(3) synchronization relaxation with an optimality certificate (SE-Sync for d = 3).
+
+What it solves. SE-Sync's cost (Rosen et al., IJRR 2019, eq. 11)::
+
+    F(R, t) = sum_e  kappa_e ||R_j - R_i R~_e||_F^2  +  tau_e ||t_j - t_i - R_i t~_e||^2
+
+with SE-Sync's weights for d = 3 (:func:`~rlpgo_gtsam.graph3d.rotation_weights`,
+:func:`~rlpgo_gtsam.graph3d.translation_weights`: ``kappa = 3 / (2 tr(Sigma_R))``,
+``tau = 3 / tr(Sigma_t)``). Minimizing over the translations in closed form (the anchor's
+held) leaves ``f(X) = tr(X^T Q X)`` with ``X`` the 3n x r matrix of stacked blocks
+``X_i = R_i^T`` (3 x r at rank r) and ``Q = D - B^T L^-1 B`` (SE-Sync's simplified
+``L(G^rho) + Q^tau``), applied through one sparse factorization of the anchored translation
+Laplacian ``L``, never formed. Rows of each block ``X_i`` are orthonormal: ``X_i^T`` is a
+point of the Stiefel manifold St(3, r), and SE-Sync's ``Y`` is ``X^T``.
+
+How (as :mod:`rlpgo_gtsam.certified`, in real 3x3 blocks). A Riemannian staircase: at each
+rank a Riemannian trust region with truncated CG preconditioned by ``(Q + delta I)^-1`` (a
+pivot-free sparse LU of a matrix whose Schur complement is ``Q + delta I``); the retraction
+projects each block onto the Stiefel manifold (polar factor), the tangent projection is
+``V_i - sym(V_i X_i^T) X_i``. Certificate: ``S = Q - Lambda(X)``, ``Lambda_i =
+sym((Q X)_i X_i^T)``; ``S + eta I`` is positive definite iff the sparse matrix
+``[[L, -B], [-B^T, D - Lambda + eta I]]`` has only positive pivots (Sylvester's law of
+inertia); the eigenvector of ``lambda_min(S)`` (ARPACK, shift-invert) escapes a saddle into
+rank r + 1. Rounding: the rank-3 truncated SVD ``X ~ U S V^T`` gives ``R_i = (U_i S)^T``;
+if fewer than half of them have a positive determinant they are reflected by
+``diag(1, 1, -1)``; each is projected onto SO(3), and the whole turned so that the anchor
+keeps its rotation. The staircase starts at rank 3: SE-Sync's default start (the chordal
+estimate padded with zeros at rank 5) stays in the same 3-dimensional subspace until an
+escape, so starting at 3 gives the same iterates with fewer columns.
+
+Certificate. ``Lambda + lambda_min(S) I`` is dual feasible, so ``lower_bound = tr(Lambda) +
+3n min(lambda_min, 0)``; certified means ``lambda_min >= -eta`` and the rounded estimate
+attains the bound within ``3n eta + 1e-6 |f|``; ``eta = 1e-7 x mean(diag D)`` by default.
+The costs are the relaxation's (SE-Sync's), not GTSAM's chi2: refine the estimate with
+GTSAM. The returned :class:`~rlpgo_gtsam.certified.Certificate` and its
+:class:`~rlpgo_gtsam.certified.Status` are the planar module's; ``rank`` is the real rank r
+(SE-Sync's), where the planar one counts complex columns.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import LinearOperator, splu
+
+from rlpgo_gtsam.certified import (
+    _ESCAPE_HALVINGS,
+    _GAP_TOLERANCE,
+    _RELATIVE_TOLERANCE,
+    Certificate,
+    Status,
+    _eigsh,
+    _truncated_cg,
+)
+from rlpgo_gtsam.chordal3d import chordal_rotations
+from rlpgo_gtsam.errors import GraphError, SolverError
+from rlpgo_gtsam.graph3d import PoseGraph3D, rotation_weights, translation_weights
+from rlpgo_gtsam.numerics import numeric_call
+from rlpgo_gtsam.se3 import project_to_so3
+
+__all__ = ["synchronize3d", "certify3d", "relaxation_cost3d"]
+
+_DENSE_BELOW = 150  # rows of Q (3n) below which eigenvalues are computed densely
+_REFLECT = np.diag([1.0, 1.0, -1.0])
+# (Q + delta I)^-1 preconditions the Hessian; delta / mean(diag D). The planar 1e-3 took
+# 1.5x the inner iterations on parking-garage; 1e-7 stalls at round-off.
+_PRECONDITIONER_SHIFT = 1e-5
+# The first trust-region radius, in units of the preconditioned gradient's norm. The planar
+# 10 had cubicle's first step rejected six times (cubicle 8.0 s CPU, 0.1: 6.1 s; garage,
+# spheres, torus within 10% either way).
+_INITIAL_RADIUS = 0.1
+
+
+@numeric_call
+def synchronize3d(
+    pose_graph: PoseGraph3D,
+    start_rotations: np.ndarray | None = None,
+    *,
+    max_rank: int = 10,
+    tolerance: float | None = None,
+    initial_rank: int = 3,
+    max_iterations: int = 300,
+    gradient_tolerance: float = 1e-7,
+    time_limit_s: float | None = None,
+) -> tuple[np.ndarray, Certificate]:
+    """Rotations (n, 3, 3) of the rounded estimate (the anchor keeps its rotation) and the
+    certificate.
+
+    Args:
+        pose_graph: the graph; its anchor's rotation fixes the gauge.
+        start_rotations: (n, 3, 3) start of the staircase; by default the chordal estimate.
+        max_rank: the staircase stops at this rank (certified or not).
+        tolerance: eta; default ``1e-7 x mean(diag D)``.
+        initial_rank: the first rank, 3 .. max_rank.
+        max_iterations: trust-region iterations per rank.
+        gradient_tolerance: stop a rank when the Riemannian gradient norm falls below this
+            times ``sqrt(n) x mean(diag D)``.
+        time_limit_s: checked between iterations and ranks; once passed, the current
+            estimate is rounded and returned with status ``time_limit``.
+
+    Raises:
+        SolverError: bad ranks, tolerance or start, or a graph whose translations the
+            measurements do not determine.
+        GraphError: non-finite measurements or information.
+    """
+    started = time.perf_counter()
+    if not 3 <= initial_rank <= max_rank:
+        raise SolverError(f"ranks must satisfy 3 <= initial_rank <= max_rank, got "
+                          f"initial_rank={initial_rank}, max_rank={max_rank}")
+    if time_limit_s is not None and not time_limit_s >= 0:
+        raise SolverError(f"time_limit_s must be a number >= 0 or None, got {time_limit_s}")
+    deadline = None if time_limit_s is None else started + time_limit_s
+    problem = _Problem(pose_graph)
+    eta = problem.tolerance(tolerance)
+    rotations = chordal_rotations(pose_graph) if start_rotations is None else \
+        _checked_rotations(start_rotations, problem.n)
+    x = np.zeros((3 * problem.n, initial_rank))
+    x[:, :3] = np.transpose(rotations, (0, 2, 1)).reshape(-1, 3)
+    grad_tol = gradient_tolerance * math.sqrt(problem.n) * problem.scale
+    escaped = True
+    while True:
+        x, ended = _trust_region(problem, x, max_iterations, grad_tol, deadline)
+        if ended is Status.TIME_LIMIT:
+            check, stop = _Check(False, math.nan, problem.cost(x), None), Status.TIME_LIMIT
+            break
+        check = _verify(problem, x, eta)
+        if check.imprecise and check.vector is None and not check.certified:
+            stop = Status.EIGENVALUE_IMPRECISE
+            break
+        if check.certified or x.shape[1] >= max_rank:
+            stop = (Status.EIGENVALUE_IMPRECISE if check.imprecise else
+                    Status.SADDLE_ESCAPE_FAILED if not escaped else ended or Status.RANK_LIMIT)
+            break
+        if deadline is not None and time.perf_counter() > deadline:
+            stop = Status.TIME_LIMIT
+            break
+        x, escaped = _escape(problem, x, check.vector)
+    rotations = _round(x)
+    anchor = pose_graph.anchor
+    rotations = pose_graph.anchor_rotation @ rotations[anchor].T @ rotations
+    estimate = problem.cost(_stack(rotations))
+    return rotations, _certificate(problem, check, estimate, eta, x.shape[1], started, stop)
+
+
+@numeric_call
+def certify3d(pose_graph: PoseGraph3D, rotations: np.ndarray, *,
+              tolerance: float | None = None) -> Certificate:
+    """The certificate of given rotations (n, 3, 3) at rank 3, no optimization: a rotation
+    estimate that is not the relaxation's optimum gets a clearly negative ``lambda_min(S)``
+    (status ``not_optimal``)."""
+    started = time.perf_counter()
+    problem = _Problem(pose_graph)
+    eta = problem.tolerance(tolerance)
+    x = _stack(_checked_rotations(rotations, problem.n))
+    check = _verify(problem, x, eta)
+    stop = Status.EIGENVALUE_IMPRECISE if check.imprecise else Status.NOT_OPTIMAL
+    return _certificate(problem, check, problem.cost(x), eta, 3, started, stop)
+
+
+def relaxation_cost3d(pose_graph: PoseGraph3D, rotations: np.ndarray) -> float:
+    """``f(R) = min_t F(R, t)``: SE-Sync's cost with the translations eliminated."""
+    problem = _Problem(pose_graph)
+    return problem.cost(_stack(_checked_rotations(rotations, problem.n)))
+
+
+def _stack(rotations: np.ndarray) -> np.ndarray:
+    """(3n, 3) the blocks ``X_i = R_i^T`` stacked."""
+    return np.transpose(rotations, (0, 2, 1)).reshape(-1, 3)
+
+
+def _checked_rotations(rotations: np.ndarray, n: int) -> np.ndarray:
+    rotations = np.asarray(rotations, dtype=float)
+    if rotations.shape != (n, 3, 3):
+        raise SolverError(f"rotations must have shape ({n}, 3, 3), got {rotations.shape}")
+    if not np.all(np.isfinite(rotations)):
+        raise SolverError("rotations must be finite")
+    return rotations
+
+
+# --- the problem ---------------------------------------------------------------------------
+
+def _blocks(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> tuple:
+    """COO entries of 3x3 blocks ``values`` (k, 3, 3) at block rows/cols (k,)."""
+    a = np.arange(3)
+    r = (3 * rows[:, None, None] + a[None, :, None]) + 0 * a[None, None, :]
+    c = (3 * cols[:, None, None] + a[None, None, :]) + 0 * a[None, :, None]
+    return values.ravel(), r.ravel(), c.ravel()
+
+
+class _Problem:
+    """Q = D - B^T L^-1 B applied as an operator on (3n, r) arrays.
+
+    ``D``: the rotations' connection Laplacian (blocks ``kappa I`` on the diagonal,
+    ``-kappa R~`` at (i, j)) plus ``tau t~ t~^T`` at (i, i) of each edge; ``L``: the
+    tau-weighted translation Laplacian without the anchor; ``B`` ((n-1) x 3n): the coupling
+    of the residual ``t_j - t_i - R_i t~`` (rows without the anchor).
+    """
+
+    def __init__(self, pose_graph: PoseGraph3D) -> None:
+        g = pose_graph
+        n = g.num_poses
+        if n < 2:
+            raise GraphError(f"a pose graph for the relaxation needs 2 poses or more, got {n}")
+        kappa, tau = rotation_weights(g), translation_weights(g)
+        if not (np.all(np.isfinite(kappa)) and np.all(np.isfinite(tau))
+                and np.all(np.isfinite(g.measured_rotations))
+                and np.all(np.isfinite(g.measured_translations))):
+            raise GraphError("the relaxation needs finite measurements and information")
+        i, j = g.edges[:, 0], g.edges[:, 1]
+        eye = np.broadcast_to(np.eye(3), (len(i), 3, 3))
+        t = g.measured_translations
+        parts = [
+            _blocks(i, i, kappa[:, None, None] * eye + tau[:, None, None] * t[:, :, None]
+                    * t[:, None, :]),
+            _blocks(j, j, kappa[:, None, None] * eye),
+            _blocks(i, j, -kappa[:, None, None] * g.measured_rotations),
+            _blocks(j, i, -kappa[:, None, None] * np.transpose(g.measured_rotations, (0, 2, 1))),
+        ]
+        data, rows, cols = (np.concatenate(p) for p in zip(*parts, strict=True))
+        self.d = sp.csr_matrix((data, (rows, cols)), shape=(3 * n, 3 * n))
+        self.n = n
+        keep = np.delete(np.arange(n), g.anchor)
+        lap = sp.coo_matrix((np.concatenate([tau, tau, -tau, -tau]),
+                             (np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i]))),
+                            shape=(n, n)).tocsr()
+        cols3 = (3 * i[:, None] + np.arange(3)).ravel()
+        coupling = sp.coo_matrix(
+            (np.concatenate([(tau[:, None] * t).ravel(), -(tau[:, None] * t).ravel()]),
+             (np.concatenate([np.repeat(j, 3), np.repeat(i, 3)]), np.concatenate([cols3, cols3]))),
+            shape=(n, 3 * n)).tocsr()
+        self.lap = lap[keep][:, keep].tocsc()
+        self.b = coupling[keep].tocsr()
+        self.bt = self.b.T.tocsr()
+        try:
+            self.lap_lu = splu(self.lap, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                               options={"SymmetricMode": True})
+        except RuntimeError:
+            raise SolverError("the measurements do not determine the translations") from None
+        self.scale = float(np.mean(self.d.diagonal()))
+        if not self.scale > 0:
+            raise SolverError("every edge has zero information: nothing to synchronize")
+
+    def tolerance(self, tolerance: float | None) -> float:
+        if tolerance is None:
+            return _RELATIVE_TOLERANCE * self.scale
+        if not (np.isfinite(tolerance) and tolerance >= 0):
+            raise SolverError(f"tolerance must be a finite number >= 0, got {tolerance}")
+        return float(tolerance)
+
+    def apply(self, x: np.ndarray) -> np.ndarray:
+        """Q x for x (3n, r)."""
+        w = self.lap_lu.solve(np.ascontiguousarray(self.b @ x))
+        return self.d @ x - self.bt @ w
+
+    def cost(self, x: np.ndarray) -> float:
+        return float(np.sum(x * self.apply(x)))
+
+    def factor(self, blocks: np.ndarray):
+        """Pivot-free sparse LU of [[L, -B], [-B^T, D + M]], M block diagonal of (n, 3, 3)
+        ``blocks``: its Schur complement is Q + M."""
+        index = np.arange(self.n)
+        data, rows, cols = _blocks(index, index, blocks)
+        shift = sp.csr_matrix((data, (rows, cols)), shape=(3 * self.n, 3 * self.n))
+        block = sp.bmat([[self.lap, -self.b], [-self.bt, self.d + shift]], format="csc")
+        return splu(block, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                    options={"SymmetricMode": True})
+
+    def solve_shifted(self, lu, v: np.ndarray) -> np.ndarray:
+        m = self.n - 1
+        return lu.solve(np.vstack([np.zeros((m, v.shape[1])), v]))[m:]
+
+
+# --- the Riemannian trust region on St(3, r)^n -------------------------------------------
+
+def _sym(a: np.ndarray) -> np.ndarray:
+    return 0.5 * (a + np.transpose(a, (0, 2, 1)))
+
+
+def _lambda(x: np.ndarray, qx: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) Lambda_i = sym((Q X)_i X_i^T)."""
+    r = x.shape[1]
+    xb, qb = x.reshape(-1, 3, r), qx.reshape(-1, 3, r)
+    return _sym(qb @ np.transpose(xb, (0, 2, 1)))
+
+
+def _times_blocks(blocks: np.ndarray, v: np.ndarray) -> np.ndarray:
+    r = v.shape[1]
+    return (blocks @ v.reshape(-1, 3, r)).reshape(-1, r)
+
+
+def _project(x: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Projection of v onto the tangent space at x: V_i - sym(V_i X_i^T) X_i."""
+    r = x.shape[1]
+    xb, vb = x.reshape(-1, 3, r), v.reshape(-1, 3, r)
+    return (vb - _sym(vb @ np.transpose(xb, (0, 2, 1))) @ xb).reshape(-1, r)
+
+
+def _retract(x: np.ndarray) -> np.ndarray:
+    """Each 3 x r block replaced by its polar factor (orthonormal rows)."""
+    r = x.shape[1]
+    u, _, vt = np.linalg.svd(x.reshape(-1, 3, r), full_matrices=False)
+    return (u @ vt).reshape(-1, r)
+
+
+def _inner(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sum(a * b))
+
+
+def _trust_region(problem: _Problem, x: np.ndarray, max_iterations: int, grad_tol: float,
+                  deadline: float | None) -> tuple[np.ndarray, Status | None]:
+    """A local minimum of f(X) = tr(X^T Q X) on St(3, r)^n: Riemannian trust region with
+    truncated CG (the planar module's), preconditioned by (Q + delta I)^-1. Ends as the
+    planar one: None, ``ITERATION_LIMIT`` or ``TIME_LIMIT``."""
+    precon = None
+    qx = problem.apply(x)
+    f = _inner(x, qx)
+    radius = None
+    for _ in range(max_iterations):
+        lam = _lambda(x, qx)
+        grad = 2.0 * (qx - _times_blocks(lam, x))
+        if np.linalg.norm(grad) <= grad_tol:
+            return x, None
+        if deadline is not None and time.perf_counter() > deadline:
+            return x, Status.TIME_LIMIT
+        if precon is None:
+            precon = problem.factor(np.broadcast_to(
+                _PRECONDITIONER_SHIFT * problem.scale * np.eye(3), (problem.n, 3, 3)))
+
+        def hess(v: np.ndarray, x=x, lam=lam) -> np.ndarray:
+            return 2.0 * _project(x, problem.apply(v) - _times_blocks(lam, v))
+
+        def pre(v: np.ndarray, x=x, precon=precon) -> np.ndarray:
+            return 0.5 * _project(x, problem.solve_shifted(precon, v))
+
+        if radius is None:
+            radius = _INITIAL_RADIUS * math.sqrt(max(_inner(grad, pre(grad)), 1e-300))
+        step, h_step, on_boundary = _truncated_cg(grad, hess, pre, radius)
+        model_decrease = -(_inner(grad, step) + 0.5 * _inner(step, h_step))
+        x_new = _retract(x + step)
+        qx_new = problem.apply(x_new)
+        f_new = _inner(x_new, qx_new)
+        actual = f - f_new
+        rho = actual / model_decrease if model_decrease > 0 else -1.0
+        if model_decrease <= 1e-15 * abs(f) and actual <= 1e-15 * abs(f):
+            return x, None
+        if rho < 0.25:
+            radius *= 0.25
+        elif rho > 0.75 and on_boundary:
+            radius *= 2.0
+        if rho > 0.1 or (actual > 0 and model_decrease <= 1e-12 * abs(f)):
+            x, qx, f = x_new, qx_new, f_new
+    return x, Status.ITERATION_LIMIT
+
+
+# --- verification, escape, rounding --------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Check:
+    certified: bool  # lambda_min(S) >= -eta
+    min_eigenvalue: float  # a proven floor where imprecise; NaN where not verified
+    trace: float  # tr(Lambda) = f(X)
+    vector: np.ndarray | None  # eigenvector of lambda_min(S), where known
+    imprecise: bool = False
+
+
+def _verify(problem: _Problem, x: np.ndarray, eta: float) -> _Check:
+    """lambda_min(S), S = Q - Lambda(X), and whether S + eta I >= 0."""
+    lam = _lambda(x, problem.apply(x))
+    trace = float(np.trace(lam, axis1=1, axis2=2).sum())
+    size = 3 * problem.n
+    if size < _DENSE_BELOW:
+        s = problem.apply(np.eye(size))
+        for k in range(problem.n):
+            s[3 * k:3 * k + 3, 3 * k:3 * k + 3] -= lam[k]
+        values, vectors = np.linalg.eigh(0.5 * (s + s.T))
+        return _Check(bool(values[0] >= -eta), float(values[0]), trace, vectors[:, 0])
+    floor = -max(float(np.linalg.eigvalsh(lam)[:, -1].max()), 0.0)  # Q >= 0
+    try:  # S + eta I through its pivots; the same LU then serves shift-invert at -eta
+        lu = problem.factor(np.eye(3) * eta - lam)
+    except RuntimeError:  # an exact zero pivot
+        lu = None
+    negatives = _negative_pivots(lu)
+    if negatives == 0:
+        value, vector = _nearest_above(problem, lam, -eta, lu)
+        if vector is None:
+            return _Check(True, -eta, trace, None, imprecise=True)
+        return _Check(True, value, trace, vector)
+    value, vector = _nearest_above(problem, lam, floor - eta - 1e-3 * problem.scale)
+    if vector is None:
+        return _Check(False, floor, trace, None, imprecise=True)
+    return _Check(bool(value >= -eta), value, trace, vector)
+
+
+def _negative_pivots(lu) -> int | None:
+    """Eigenvalues of Q + M that are <= 0 from the pivot-free LU of :meth:`_Problem.factor`
+    (Sylvester's law of inertia), or None when there is no LU (an exact zero pivot) or it
+    pivoted off the diagonal."""
+    if lu is None or not np.array_equal(lu.perm_r, lu.perm_c):
+        return None
+    return int(np.count_nonzero(lu.U.diagonal() <= 0))
+
+
+def _nearest_above(problem: _Problem, lam: np.ndarray, sigma: float,
+                   lu=None) -> tuple[float, np.ndarray | None]:
+    """The smallest eigenvalue of S when all lie above sigma (the largest of
+    (S - sigma I)^-1), with its eigenvector; (NaN, None) when ARPACK did not converge.
+    ``lu``: the factor of S - sigma I, if already made."""
+    lu = problem.factor(-lam - sigma * np.eye(3)) if lu is None else lu
+    size = 3 * problem.n
+    op = LinearOperator((size, size), dtype=float,
+                        matvec=lambda v: problem.solve_shifted(lu, v.reshape(-1, 1))[:, 0])
+    values, vectors, converged = _eigsh(op, k=1, which="LA", tol=1e-10)
+    if not converged or len(values) == 0:
+        return math.nan, None
+    return float(sigma + 1.0 / values[0]), vectors[:, 0]
+
+
+def _escape(problem: _Problem, x: np.ndarray, vector: np.ndarray) -> tuple[np.ndarray, bool]:
+    """X at rank r + 1, lower than X, along the eigenvector of lambda_min(S) in the new
+    column; and whether it descended."""
+    f0 = problem.cost(x)
+    v = vector / np.max(np.abs(vector))
+    alpha = 1.0
+    for _ in range(_ESCAPE_HALVINGS):
+        x_new = _retract(np.hstack([x, alpha * v[:, None]]))
+        if problem.cost(x_new) < f0:
+            return x_new, True
+        alpha *= 0.5
+    return _retract(np.hstack([x, alpha * v[:, None]])), False
+
+
+def _round(x: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotations: rank-3 SVD, reflection rule, projection onto SO(3)."""
+    u, s, _ = np.linalg.svd(x, full_matrices=False)
+    blocks = np.transpose((u[:, :3] * s[:3]).reshape(-1, 3, 3), (0, 2, 1))  # R_i = (U_i S)^T
+    if np.count_nonzero(np.linalg.det(blocks) > 0) < 0.5 * len(blocks):
+        blocks = _REFLECT @ blocks
+    return project_to_so3(blocks)
+
+
+def _certificate(problem: _Problem, check: _Check, estimate: float, eta: float, rank: int,
+                 started: float, stop: Status) -> Certificate:
+    size = 3 * problem.n
+    lower = check.trace + size * min(check.min_eigenvalue, 0.0)
+    gap = max(estimate - lower, 0.0)
+    if check.certified:
+        exact = gap <= size * eta + _GAP_TOLERANCE * abs(estimate)
+        status = Status.CERTIFIED if exact else Status.NOT_TIGHT
+    else:
+        status = stop
+    return Certificate(status=status, lower_bound=float(lower), estimate_cost=float(estimate),
+                       suboptimality_bound=float(gap), min_eigenvalue=float(check.min_eigenvalue),
+                       tolerance=float(eta), rank=int(rank),
+                       seconds=time.perf_counter() - started)

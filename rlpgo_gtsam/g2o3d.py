@@ -1,0 +1,274 @@
+"""Reading and writing 3D g2o files as GTSAM graphs, with line-by-line validation.
+
+The Pose3 sibling of :mod:`rlpgo_gtsam.g2o`: every malformed line is a
+:class:`~rlpgo_gtsam.errors.G2oFormatError` of the form ``file:line: reason``.
+
+Supported lines::
+
+    VERTEX_SE3:QUAT id x y z qx qy qz qw
+    EDGE_SE3:QUAT i j x y z qx qy qz qw I_11 I_12 ... I_66   (21 entries, upper triangle)
+    FIX id [id ...]
+    # comment
+
+The information is in g2o's order (translation first, then rotation); the graph holds it in
+GTSAM's tangent order (rotation first), as ``gtsam.readG2o(path, True)`` does. Quaternions
+are normalized; a zero or non-finite one is an error. A line of a planar file (``VERTEX_SE2``,
+``EDGE_SE2``) is an error naming that line. A file without vertices gets its initial guess
+chained from the edges (i -> i+1 first, then through any edge). A ``FIX``-ed vertex becomes
+a :class:`gtsam.PriorFactorPose3` with a constrained noise model.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from rlpgo_gtsam.errors import G2oFormatError, OutputError
+from rlpgo_gtsam.files import write_text
+from rlpgo_gtsam.g2o import _format_15, _id, _lines, _numbers, _short
+from rlpgo_gtsam.graph import disconnection
+from rlpgo_gtsam.graph3d import information_problem_6
+from rlpgo_gtsam.se3 import compose, inverse, quaternions_to_rotations, rotations_to_quaternions
+
+__all__ = ["read_g2o3d", "write_g2o3d", "g2o3d_text", "G2O_TO_GTSAM"]
+
+VERTEX = "VERTEX_SE3:QUAT"
+EDGE = "EDGE_SE3:QUAT"
+_VERTEX_FIELDS = 8
+_EDGE_FIELDS = 30
+_2D_TAGS = ("VERTEX_SE2", "EDGE_SE2", "VERTEX2", "EDGE2")
+_FIX_PER_LINE = 1000
+# g2o's tangent order (x y z, then rotation) -> GTSAM's (rotation, then x y z): the
+# information in GTSAM's order is info_g2o[G2O_TO_GTSAM][:, G2O_TO_GTSAM]
+G2O_TO_GTSAM = np.array([3, 4, 5, 0, 1, 2])
+_UPPER = np.triu_indices(6)
+_QUATERNION_FLOOR = 1e-9  # a quaternion shorter than this has no direction to normalize
+
+
+@dataclass
+class _Parsed:
+    vertices: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    vertex_lines: dict[int, int] = field(default_factory=dict)
+    # (line, i, j, rotation, translation, information in GTSAM's order)
+    edges: list[tuple[int, int, int, np.ndarray, np.ndarray, np.ndarray]] = field(
+        default_factory=list)
+    fixed: list[tuple[int, int]] = field(default_factory=list)  # (id, line)
+
+
+def read_g2o3d(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """Read a 3D g2o file into a GTSAM factor graph and initial values.
+
+    Each ``EDGE_SE3:QUAT`` becomes a :class:`gtsam.BetweenFactorPose3` whose Gaussian noise
+    model holds the edge's full 6x6 information; then one constrained
+    :class:`gtsam.PriorFactorPose3` per ``FIX``-ed id. Keys are the file's ids.
+
+    Raises:
+        G2oFormatError: the file is missing, unreadable or malformed, or its graph is not
+            connected; the message names the file and the line.
+    """
+    path = Path(path)
+    parsed = _parse(path)
+    if parsed.vertices:
+        for line, i, j, *_ in parsed.edges:
+            for key in (i, j):
+                if key not in parsed.vertices:
+                    raise G2oFormatError(path, line, f"{EDGE} refers to vertex {key}, which no "
+                                         f"{VERTEX} line defines")
+    known = parsed.vertices.keys() | {k for e in parsed.edges for k in e[1:3]}
+    for key, line in parsed.fixed:
+        if key not in known:
+            raise G2oFormatError(path, line, f"FIX refers to vertex {key}, which is not defined")
+    problem = disconnection(known, [(e[1], e[2]) for e in parsed.edges])
+    if problem is not None:
+        raise G2oFormatError(path, None, problem)
+    if not parsed.vertices:
+        parsed.vertices = _chain(parsed.edges)
+        for key, (r, t) in parsed.vertices.items():
+            if not (np.all(np.isfinite(r)) and np.all(np.isfinite(t))):
+                raise G2oFormatError(path, None, f"chaining the edges overflows at vertex "
+                                     f"{key}: give {VERTEX} lines")
+    graph = gtsam.NonlinearFactorGraph()
+    for _, i, j, r, t, information in parsed.edges:
+        graph.add(gtsam.BetweenFactorPose3(i, j, gtsam.Pose3(gtsam.Rot3(r), t),
+                                           gtsam.noiseModel.Gaussian.Information(information)))
+    values = gtsam.Values()
+    for key in sorted(parsed.vertices):
+        r, t = parsed.vertices[key]
+        values.insert(key, gtsam.Pose3(gtsam.Rot3(r), t))
+    for key, _ in parsed.fixed:
+        graph.add(gtsam.PriorFactorPose3(key, values.atPose3(key),
+                                         gtsam.noiseModel.Constrained.All(6)))
+    return graph, values
+
+
+def _parse(path: Path) -> _Parsed:
+    parsed = _Parsed()
+    for number, text in _lines(path):
+        tokens = text.split()
+        if not tokens or tokens[0].startswith("#"):
+            continue
+        tag, fields = tokens[0], tokens[1:]
+        if tag == VERTEX:
+            _check_count(path, number, tag, fields, _VERTEX_FIELDS)
+            key = _id(path, number, fields[0])
+            numbers = _numbers(path, number, tag, fields[1:], first=2)
+            if key in parsed.vertices:
+                raise G2oFormatError(path, number, f"{VERTEX} id {key} defined twice (first "
+                                     f"on line {parsed.vertex_lines[key]})")
+            rotation = _rotation(path, number, tag, numbers[3:7])
+            parsed.vertices[key] = (rotation, np.array(numbers[:3]))
+            parsed.vertex_lines[key] = number
+        elif tag == EDGE:
+            _check_count(path, number, tag, fields, _EDGE_FIELDS)
+            i, j = _id(path, number, fields[0]), _id(path, number, fields[1])
+            if i == j:
+                raise G2oFormatError(path, number, f"{EDGE} joins vertex {i} to itself")
+            numbers = _numbers(path, number, tag, fields[2:], first=3)
+            rotation = _rotation(path, number, tag, numbers[3:7])
+            upper = np.zeros((6, 6))
+            upper[_UPPER] = numbers[7:]
+            information = upper + np.triu(upper, 1).T
+            information = information[G2O_TO_GTSAM][:, G2O_TO_GTSAM]
+            problem = information_problem_6(information)
+            if problem is not None:
+                raise G2oFormatError(path, number, f"{EDGE} {problem}")
+            parsed.edges.append((number, i, j, rotation, np.array(numbers[:3]), information))
+        elif tag == "FIX":
+            if not fields:
+                raise G2oFormatError(path, number, "FIX needs at least one vertex id")
+            parsed.fixed.extend((_id(path, number, f), number) for f in fields)
+        elif tag.upper().startswith(_2D_TAGS):
+            raise G2oFormatError(path, number, f"{_short(tag)}: a planar line in a 3D file "
+                                 "(a file holds 2D or 3D lines, not both)")
+        else:
+            raise G2oFormatError(path, number, f"unknown tag '{_short(tag)}' (this reader "
+                                 f"takes {VERTEX}, {EDGE} and FIX)")
+    if not parsed.edges:
+        raise G2oFormatError(path, None, f"holds no {EDGE} line: a pose graph needs edges")
+    return parsed
+
+
+def _check_count(path: Path, line: int, tag: str, fields: list[str], count: int) -> None:
+    if len(fields) != count:
+        raise G2oFormatError(path, line, f"{tag} needs {count} numbers after the tag, found "
+                             f"{len(fields)}")
+
+
+def _rotation(path: Path, line: int, tag: str, quaternion: list[float]) -> np.ndarray:
+    size = math.sqrt(math.fsum(q * q for q in quaternion))
+    if not size >= _QUATERNION_FLOOR:
+        raise G2oFormatError(path, line, f"{tag} quaternion ({', '.join(map(repr, quaternion))}) "
+                             "is zero: it names no rotation")
+    return quaternions_to_rotations(np.array(quaternion) / size)[0]
+
+
+def _chain(edges: list) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Initial poses composed along i -> i+1 edges from the smallest key, then through any
+    edge (depth-first) to the vertices off that chain."""
+    step: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    neighbours: dict[int, list[int]] = {}
+    for _, i, j, r, t, _ in edges:
+        if (i, j) not in step:
+            step[(i, j)] = (r, t)
+            r_inv, t_inv = inverse(r[None], t[None])
+            step.setdefault((j, i), (r_inv[0], t_inv[0]))
+        neighbours.setdefault(i, []).append(j)
+        neighbours.setdefault(j, []).append(i)
+    keys = sorted(neighbours)
+    poses = {keys[0]: (np.eye(3), np.zeros(3))}
+    with np.errstate(all="ignore"):
+        for a, b in zip(keys, keys[1:], strict=False):
+            if (a, b) not in step:
+                break
+            poses[b] = _then(poses[a], step[(a, b)])
+        frontier = list(poses)
+        while frontier:
+            key = frontier.pop()
+            for other in neighbours[key]:
+                if other not in poses:
+                    poses[other] = _then(poses[key], step[(key, other)])
+                    frontier.append(other)
+    return poses
+
+
+def _then(pose: tuple[np.ndarray, np.ndarray],
+          move: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    r, t = compose(pose[0][None], pose[1][None], move[0][None], move[1][None])
+    return r[0], t[0]
+
+
+def g2o3d_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
+    """The 3D g2o text of ``graph`` and ``values`` (what :func:`write_g2o3d` writes).
+
+    Raises:
+        OutputError: a factor, value or information that a 3D g2o file cannot hold.
+    """
+    lines = []
+    for key in sorted(values.keys()):
+        try:
+            pose = values.atPose3(key)
+        except RuntimeError:
+            raise OutputError(f"value of key {key} is not a Pose3: a 3D g2o file holds Pose3 "
+                              "vertices only") from None
+        lines.append(f"{VERTEX} {key} " + _pose_text(pose, f"vertex {key}"))
+    fixed = []
+    for index in range(graph.size()):
+        factor = graph.at(index)
+        if factor is None:
+            continue
+        for key in factor.keys():
+            if not values.exists(key):
+                raise OutputError(f"factor {index} refers to key {key}, which has no value: "
+                                  "the file would not read back")
+        if isinstance(factor, gtsam.BetweenFactorPose3):
+            i, j = factor.keys()
+            model = factor.noiseModel()
+            if not isinstance(model, gtsam.noiseModel.Gaussian) or isinstance(
+                    model, gtsam.noiseModel.Constrained):
+                raise OutputError(f"edge {i}-{j} has a {type(model).__name__} noise model: a g2o "
+                                  "edge holds a Gaussian information matrix only")
+            information = model.information()
+            problem = information_problem_6(information)
+            if problem is not None:
+                raise OutputError(f"edge {i}-{j}: {problem} (the reader would refuse it)")
+            back = np.argsort(G2O_TO_GTSAM)  # GTSAM's order -> g2o's
+            upper = information[back][:, back][_UPPER]
+            lines.append(f"{EDGE} {i} {j} " + _pose_text(factor.measured(), f"edge {i}-{j}")
+                         + " " + " ".join(_format_15(v) for v in upper))
+        elif isinstance(factor, gtsam.PriorFactorPose3):
+            if not isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
+                raise OutputError(f"prior on key {factor.keys()[0]}: a soft prior has no g2o "
+                                  "line (FIX holds a pose exactly)")
+            fixed.append(factor.keys()[0])
+        else:
+            raise OutputError(f"cannot write a {type(factor).__name__} as a 3D g2o line")
+    for start in range(0, len(fixed), _FIX_PER_LINE):
+        lines.append("FIX " + " ".join(str(key) for key in fixed[start:start + _FIX_PER_LINE]))
+    return "\n".join(lines) + "\n"
+
+
+def _pose_text(pose: gtsam.Pose3, name: str) -> str:
+    # positions exactly; quaternions and (below) information with 15 significant digits, as
+    # the planar writer: matrix -> quaternion and R^T R drift by an ulp, which 15 digits undo
+    position = np.asarray(pose.translation(), float).tolist()
+    quaternion = rotations_to_quaternions(pose.rotation().matrix())[0].tolist()
+    if not all(math.isfinite(v) for v in position + quaternion):
+        raise OutputError(f"{name} is not finite: the file would not read back")
+    return " ".join([repr(float(v)) for v in position] + [_format_15(v) for v in quaternion])
+
+
+def write_g2o3d(path: str | os.PathLike[str], graph: gtsam.NonlinearFactorGraph,
+                values: gtsam.Values) -> None:
+    """Write ``graph`` and ``values`` as a 3D g2o file, atomically (a temporary file beside
+    ``path`` replaces it).
+
+    Raises:
+        OutputError: ``path`` cannot be written, or the graph holds what a 3D g2o file
+            cannot (see :func:`g2o3d_text`).
+    """
+    write_text(path, g2o3d_text(graph, values))

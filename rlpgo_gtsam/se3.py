@@ -1,0 +1,158 @@
+"""SE(3) maths on arrays: rotations are (k, 3, 3) matrices, translations (k, 3), quaternions
+(k, 4) in g2o's order ``(qx, qy, qz, qw)``, tangent vectors (k, 6) in GTSAM's order (rotation
+first, then translation). Every function works on stacks of k elements.
+
+The one home of the spatial group operations (Exp/Log of SO(3), compose, inverse, between,
+GTSAM's Pose3 Logmap) and of the projection onto SO(3). Nothing here imports GTSAM; the
+conventions are GTSAM's (``gtsam.Rot3``, ``gtsam.Pose3`` built with GTSAM_POSE3_EXPMAP, as the
+wheels are: a BetweenFactorPose3's error is ``Pose3.Logmap(measured^-1 X_i^-1 X_j)``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "skew",
+    "quaternions_to_rotations",
+    "rotations_to_quaternions",
+    "exp_so3",
+    "log_so3",
+    "compose",
+    "inverse",
+    "between",
+    "logmap",
+    "project_to_so3",
+    "rotation_angles",
+]
+
+_SMALL = 1e-10  # below this angle GTSAM's Pose3 Logmap returns the translation as is
+_SERIES = 1e-4  # below this angle the trigonometric ratios use their Taylor series
+
+
+def skew(w: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) skew-symmetric matrices ``[w]_x`` of (k, 3) vectors."""
+    w = np.asarray(w, dtype=float).reshape(-1, 3)
+    zero = np.zeros(len(w))
+    return np.stack([np.stack([zero, -w[:, 2], w[:, 1]], -1),
+                     np.stack([w[:, 2], zero, -w[:, 0]], -1),
+                     np.stack([-w[:, 1], w[:, 0], zero], -1)], -2)
+
+
+def quaternions_to_rotations(q: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) rotation matrices of (k, 4) quaternions ``(qx, qy, qz, qw)`` (normalized
+    here; the caller rejects zero or non-finite ones)."""
+    q = np.asarray(q, dtype=float).reshape(-1, 4)
+    q = q / np.linalg.norm(q, axis=1)[:, None]
+    x, y, z, w = q.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
+
+
+def rotations_to_quaternions(rotations: np.ndarray) -> np.ndarray:
+    """(k, 4) unit quaternions ``(qx, qy, qz, qw)`` with ``qw >= 0`` of (k, 3, 3) rotations
+    (Shepperd's method: the largest of the four squared components is taken first, so it is
+    stable at every angle, pi included)."""
+    r = np.asarray(rotations, dtype=float).reshape(-1, 3, 3)
+    trace = r[:, 0, 0] + r[:, 1, 1] + r[:, 2, 2]
+    # 4 q_c^2 for c = x, y, z, w
+    squares = np.stack([1 + 2 * r[:, 0, 0] - trace, 1 + 2 * r[:, 1, 1] - trace,
+                        1 + 2 * r[:, 2, 2] - trace, 1 + trace], -1)
+    pick = np.argmax(squares, axis=1)
+    big = np.sqrt(np.maximum(squares[np.arange(len(r)), pick], 0.0))  # 2 |q_pick|
+    # the off-diagonal sums and differences: 4 q_a q_b for each pair
+    xy, xz, yz = r[:, 0, 1] + r[:, 1, 0], r[:, 0, 2] + r[:, 2, 0], r[:, 1, 2] + r[:, 2, 1]
+    xw, yw, zw = r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]
+    products = np.stack([  # row c: 4 q_c q_(x, y, z, w)
+        np.stack([big * big, xy, xz, xw], -1), np.stack([xy, big * big, yz, yw], -1),
+        np.stack([xz, yz, big * big, zw], -1), np.stack([xw, yw, zw, big * big], -1)], 1)
+    q = products[np.arange(len(r)), pick] / (2.0 * np.where(big > 0, big, 1.0))[:, None]
+    q /= np.linalg.norm(q, axis=1)[:, None]
+    return np.where(q[:, 3:4] < 0, -q, q)
+
+
+def exp_so3(w: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) ``Exp(w)`` of (k, 3) rotation vectors (Rodrigues; series near 0)."""
+    w = np.asarray(w, dtype=float).reshape(-1, 3)
+    theta = np.linalg.norm(w, axis=1)
+    small = theta < _SERIES
+    safe = np.where(small, 1.0, theta)
+    t2 = theta * theta
+    a = np.where(small, 1 - t2 / 6 + t2 * t2 / 120, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - t2 / 24 + t2 * t2 / 720, (1 - np.cos(safe)) / (safe * safe))
+    k = skew(w)
+    return np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k)
+
+
+def log_so3(rotations: np.ndarray) -> np.ndarray:
+    """(k, 3) ``Log(R)`` of (k, 3, 3) rotations, angles in [0, pi] (through the quaternion:
+    ``theta = 2 atan2(|v|, w)``, stable near 0 and near pi)."""
+    q = rotations_to_quaternions(rotations)
+    v, w = q[:, :3], q[:, 3]
+    norm_v = np.linalg.norm(v, axis=1)
+    theta = 2.0 * np.arctan2(norm_v, w)
+    # theta / |v|, or its series 2 / w (1 - |v|^2 / (3 w^2)) where |v| is tiny
+    small = norm_v < 1e-8
+    scale = np.where(small, 2.0 / np.where(w > 0, w, 1.0) * (1 - norm_v ** 2 / 3.0),
+                     theta / np.where(small, 1.0, norm_v))
+    return scale[:, None] * v
+
+
+def rotation_angles(rotations: np.ndarray) -> np.ndarray:
+    """(k,) angles in [0, pi] of (k, 3, 3) rotations: ``|Log(R)|``."""
+    return np.linalg.norm(log_so3(rotations), axis=1)
+
+
+def compose(r_a: np.ndarray, t_a: np.ndarray, r_b: np.ndarray,
+            t_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``a * b`` of poses given as rotations (k, 3, 3) and translations (k, 3)."""
+    return r_a @ r_b, t_a + np.einsum("kab,kb->ka", r_a, t_b)
+
+
+def inverse(r: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``a^-1``: ``(R^T, -R^T t)``."""
+    r_t = np.transpose(r, (0, 2, 1))
+    return r_t, -np.einsum("kab,kb->ka", r_t, t)
+
+
+def between(r_a: np.ndarray, t_a: np.ndarray, r_b: np.ndarray,
+            t_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``a^-1 * b``: ``(R_a^T R_b, R_a^T (t_b - t_a))``."""
+    r_t = np.transpose(r_a, (0, 2, 1))
+    return r_t @ r_b, np.einsum("kab,kb->ka", r_t, t_b - t_a)
+
+
+def inverse_left_jacobians(w: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) the matrices ``V(w)^-1`` with which GTSAM's Pose3 Logmap turns a translation
+    into its tangent part: ``I - W / 2 + c W^2``, ``W = [w]_x``,
+    ``c = (1 - (theta / 2) / tan(theta / 2)) / theta^2`` (series near 0)."""
+    w = np.asarray(w, dtype=float).reshape(-1, 3)
+    theta = np.linalg.norm(w, axis=1)
+    small = theta < _SERIES
+    safe = np.where(small, 1.0, theta)
+    half = 0.5 * safe
+    c = np.where(small, 1.0 / 12.0 + theta * theta / 720.0,
+                 (1.0 - half / np.tan(half)) / (safe * safe))
+    k = skew(w)
+    result = np.eye(3) - 0.5 * k + c[:, None, None] * (k @ k)
+    result[theta < _SMALL] = np.eye(3)  # GTSAM returns the translation as is there
+    return result
+
+
+def logmap(r: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(k, 6) GTSAM's ``Pose3.Logmap`` of poses (rotation first): ``(w, V(w)^-1 t)`` with
+    ``w = Log(R)``."""
+    w = log_so3(r)
+    return np.hstack([w, np.einsum("kab,kb->ka", inverse_left_jacobians(w), t)])
+
+
+def project_to_so3(matrices: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) the nearest rotations (Frobenius norm) to (k, 3, 3) matrices: ``U D V^T``
+    from the SVD, with ``D = diag(1, 1, det(U V^T))`` fixing the sign."""
+    u, _, vt = np.linalg.svd(np.asarray(matrices, dtype=float).reshape(-1, 3, 3))
+    sign = np.sign(np.linalg.det(u @ vt))
+    u[:, :, 2] *= np.where(sign == 0, 1.0, sign)[:, None]
+    return u @ vt

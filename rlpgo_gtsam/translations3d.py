@@ -1,0 +1,154 @@
+"""The 3D translation step: positions that minimize GTSAM's cost for fixed rotations.
+
+With the rotations fixed, an edge's error ``e = Logmap(measured^-1 X_i^-1 X_j)`` has a fixed
+rotation part ``e_R`` and a translation part ``e_t = V(e_R)^-1 R~^T (R_i^T (t_j - t_i) - t~)``
+that is linear in the positions (GTSAM's Pose3 Logmap), so
+``e^T Lambda e = ||W (e_t + Lambda_tt^-1 Lambda_tR e_R)||^2 + const`` (``W^T W = Lambda_tt``)
+is minimized exactly by one sparse linear solve: the full information is kept, rotation-
+translation correlations included (as the planar step, :mod:`rlpgo_gtsam.translations`).
+
+:class:`~rlpgo_gtsam.linear.PairwiseSystem` is written for 2-vectors; the same system for
+d-vectors (and several right-hand sides at once) is :func:`solve_block_pairwise`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rlpgo_gtsam.errors import SolverError
+from rlpgo_gtsam.graph3d import PoseGraph3D, edge_chi2
+from rlpgo_gtsam.se3 import inverse_left_jacobians, log_so3
+
+__all__ = ["solve_block_pairwise", "solve_translations", "poses_with_rotations",
+           "TranslationStep3D"]
+
+_PIVOT_FLOOR = 1e-10  # a pivot below this fraction of its diagonal: the system is indeterminate
+
+
+def solve_block_pairwise(num_poses: int, edges: np.ndarray, a_i: np.ndarray, a_j: np.ndarray,
+                         b: np.ndarray, held: np.ndarray, held_values: np.ndarray) -> np.ndarray:
+    """Minimize ``sum_e ||A_i x_i + A_j x_j - b_e||^2`` over d-vectors, some held.
+
+    Args:
+        num_poses: number n of unknowns, indexed 0..n-1.
+        edges: (m, 2) indices (i, j) of each residual.
+        a_i, a_j: (m, d, d) blocks of each residual.
+        b: (m, d) right-hand sides, or (m, d, k) for k problems with the same blocks.
+        held: (h,) indices held fixed (h >= 1 fixes the gauge).
+        held_values: (h, d) or (h, d, k) their values.
+
+    Returns:
+        (n, d) or (n, d, k): the minimizer, held unknowns at their values.
+
+    Raises:
+        SolverError: the system is indeterminate (the first undetermined pose is named).
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    a_i, a_j = np.asarray(a_i, float), np.asarray(a_j, float)
+    m, d = a_i.shape[0], a_i.shape[1]
+    single = np.ndim(b) == 2
+    b = np.asarray(b, float).reshape(m, d, -1)
+    k = b.shape[2]
+    x = np.zeros((num_poses, d, k))
+    held = np.asarray(held, dtype=np.int64).reshape(-1)
+    x[held] = np.asarray(held_values, float).reshape(len(held), d, k)
+    free = np.ones(num_poses, bool)
+    free[held] = False
+    column = np.full(num_poses, -1, np.int64)
+    column[free] = np.arange(int(free.sum()))
+    if free.any():
+        i, j = edges[:, 0], edges[:, 1]
+        rhs = b - a_i @ x[i] - a_j @ x[j]  # held unknowns moved to the right-hand side
+        rows, cols, data = [], [], []
+        offsets = np.arange(d)
+        for index, block in ((i, a_i), (j, a_j)):
+            take = column[index] >= 0
+            row = (np.flatnonzero(take)[:, None, None] * d + offsets[None, :, None])
+            col = column[index[take]][:, None, None] * d + offsets[None, None, :]
+            rows.append(np.broadcast_to(row, (int(take.sum()), d, d)).ravel())
+            cols.append(np.broadcast_to(col, (int(take.sum()), d, d)).ravel())
+            data.append(block[take].ravel())
+        size = d * int(free.sum())
+        a = sp.csr_matrix((np.concatenate(data), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(m * d, size))
+        normal = (a.T @ a).tocsc()
+        gradient = a.T @ rhs.reshape(m * d, k)
+        try:
+            lu = splu(normal, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                      options={"SymmetricMode": True})
+            pivots = np.abs(lu.U.diagonal()[lu.perm_c])
+            vanishing = pivots <= _PIVOT_FLOOR * np.abs(normal.diagonal())
+        except RuntimeError:
+            lu, vanishing = None, np.ones(size, bool)
+        if lu is None or vanishing.any():
+            pose = int(np.flatnonzero(free)[np.flatnonzero(vanishing)[0] // d])
+            raise SolverError(f"linear solve failed: Indeterminate linear system detected "
+                              f"while working near variable {pose}: linear solve left pose "
+                              f"index {pose} undetermined")
+        solution = lu.solve(np.asarray(gradient))
+        if not np.all(np.isfinite(solution)):
+            raise SolverError("linear solve failed: the solution is not finite")
+        x[free] = solution.reshape(-1, d, k)
+    return x[..., 0] if single else x
+
+
+class TranslationStep3D:
+    """Positions of least GTSAM cost for given rotations, and their chi2; keeps what does
+    not depend on the rotations (whitening factors, rotation-translation shifts)."""
+
+    def __init__(self, pose_graph: PoseGraph3D) -> None:
+        g = pose_graph
+        self.pose_graph = g
+        info = g.information
+        try:
+            lower = np.linalg.cholesky(info[:, 3:, 3:])
+        except np.linalg.LinAlgError:
+            raise SolverError("an edge's translational information is not positive "
+                              "definite") from None
+        self.w = np.transpose(lower, (0, 2, 1))  # W^T W = Lambda_tt
+        self.shift = np.linalg.solve(info[:, 3:, 3:], info[:, 3:, :3])  # Lambda_tt^-1 Lambda_tR
+        self.measured_t = np.transpose(g.measured_rotations, (0, 2, 1))  # R~^T
+
+    def positions(self, rotations: np.ndarray) -> np.ndarray:
+        """(n, 3) positions of least cost for (n, 3, 3) ``rotations`` (held poses keep
+        theirs; the rotations are used as given)."""
+        g = self.pose_graph
+        i, j = g.edges[:, 0], g.edges[:, 1]
+        error_r = log_so3(self.measured_t @ np.transpose(rotations[i], (0, 2, 1)) @ rotations[j])
+        v_inv = inverse_left_jacobians(error_r)
+        a_j = self.w @ v_inv @ self.measured_t @ np.transpose(rotations[i], (0, 2, 1))
+        b = np.einsum("eab,eb->ea", self.w,
+                      np.einsum("eab,eb->ea", v_inv @ self.measured_t, g.measured_translations)
+                      - np.einsum("eab,eb->ea", self.shift, error_r))
+        held, _, held_t = g.held
+        return solve_block_pairwise(g.num_poses, g.edges, -a_j, a_j, b, held, held_t)
+
+    def solve(self, rotations: np.ndarray) -> tuple[np.ndarray, float]:
+        """(n, 3) positions of least cost and the edges' chi2 there."""
+        t = self.positions(rotations)
+        return t, float(edge_chi2(self.pose_graph, rotations, t).sum())
+
+
+def solve_translations(pose_graph: PoseGraph3D, rotations: np.ndarray) -> np.ndarray:
+    """(n, 3) positions minimizing GTSAM's cost of the edges with ``rotations`` fixed (see
+    the module docstring); held poses (the anchor, FIXed poses) keep their positions."""
+    return TranslationStep3D(pose_graph).positions(np.asarray(rotations, float))
+
+
+def poses_with_rotations(pose_graph: PoseGraph3D,
+                         rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (n, 3, 3) in the anchor's gauge and positions (n, 3) solved for them.
+
+    ``rotations`` are turned as a whole (``G R_k``) so that the anchor gets its rotation;
+    every held pose keeps its rotation and position; the others get positions from
+    :func:`solve_translations`.
+    """
+    g = pose_graph
+    held, held_r, _ = g.held
+    rotations = np.asarray(rotations, float)
+    turned = held_r[0] @ rotations[held[0]].T @ rotations
+    turned[held] = held_r
+    return turned, solve_translations(g, turned)

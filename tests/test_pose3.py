@@ -1,0 +1,258 @@
+"""Pose3 core: SE(3) maths against GTSAM, the 3D g2o reader against gtsam.readG2o and its
+errors, priors and FIX, the chordal estimate and the certified relaxation on exact graphs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+
+from rlpgo_gtsam import se3
+from rlpgo_gtsam.certified import Status
+from rlpgo_gtsam.certified3d import certify3d, synchronize3d
+from rlpgo_gtsam.chordal3d import chordal_rotations
+from rlpgo_gtsam.errors import G2oFormatError, GraphError
+from rlpgo_gtsam.g2o3d import g2o3d_text, read_g2o3d, write_g2o3d
+from rlpgo_gtsam.graph import chi2
+from rlpgo_gtsam.graph3d import PoseGraph3D, edge_chi2
+from rlpgo_gtsam.initializers3d import INITIALIZERS_3D
+from rlpgo_gtsam.translations3d import poses_with_rotations
+
+DATA = Path("/work/shared/datasets/3d")
+
+
+def _rotations(rng: np.random.Generator, k: int, scale: float = 1.0) -> np.ndarray:
+    return se3.exp_so3(scale * rng.normal(size=(k, 3)))
+
+
+def _exact_graph(rng: np.random.Generator, n: int = 40, closures: int = 15,
+                 noise: float = 0.0) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values,
+                                              np.ndarray, np.ndarray]:
+    """A random 3D trajectory with odometry and loop closures; measurements exact (or with
+    ``noise``); values: the truth perturbed, the first pose exact."""
+    steps_r = _rotations(rng, n, 0.3)
+    rotations, translations = [np.eye(3)], [np.zeros(3)]
+    for k in range(1, n):
+        rotations.append(rotations[-1] @ steps_r[k])
+        translations.append(translations[-1] + rotations[-2] @ rng.normal(size=3))
+    rotations, translations = np.array(rotations), np.array(translations)
+    pairs = [(k, k + 1) for k in range(n - 1)]
+    while len(pairs) < n - 1 + closures:
+        i, j = sorted(rng.choice(n, 2, replace=False).tolist())
+        if j > i + 1 and (i, j) not in pairs:
+            pairs.append((i, j))
+    graph = gtsam.NonlinearFactorGraph()
+    info = np.diag([50.0, 60.0, 70.0, 5.0, 6.0, 7.0])
+    info[0, 4] = info[4, 0] = 2.0
+    for i, j in pairs:
+        r_ij, t_ij = se3.between(rotations[[i]], translations[[i]], rotations[[j]],
+                                 translations[[j]])
+        r_ij = r_ij @ se3.exp_so3(noise * rng.normal(size=(1, 3)))
+        measured = gtsam.Pose3(gtsam.Rot3(r_ij[0]), t_ij[0] + noise * rng.normal(size=3))
+        graph.add(gtsam.BetweenFactorPose3(i, j, measured,
+                                           gtsam.noiseModel.Gaussian.Information(info)))
+    values = gtsam.Values()
+    wrong_r = rotations @ _rotations(rng, n, 0.2)
+    wrong_r[0] = rotations[0]
+    wrong_t = translations + rng.normal(size=(n, 3)) * np.r_[0, np.ones(n - 1)][:, None]
+    for k in range(n):
+        values.insert(k, gtsam.Pose3(gtsam.Rot3(wrong_r[k]), wrong_t[k]))
+    return graph, values, rotations, translations
+
+
+# --- SE(3) maths -------------------------------------------------------------------------
+
+def test_se3_against_gtsam():
+    rng = np.random.default_rng(1)
+    axes = rng.normal(size=(6, 3))
+    axes /= np.linalg.norm(axes, axis=1)[:, None]
+    w = np.vstack([rng.normal(size=(30, 3)), 1e-12 * rng.normal(size=(4, 3)),
+                   1e-6 * rng.normal(size=(4, 3)), np.pi * axes, (np.pi - 1e-7) * axes])
+    expected = np.array([gtsam.Rot3.Expmap(v).matrix() for v in w])
+    assert np.allclose(se3.exp_so3(w), expected, atol=1e-14)
+    logs = se3.log_so3(expected)
+    gtsam_logs = np.array([gtsam.Rot3.Logmap(gtsam.Rot3(r)) for r in expected])
+    # at exactly pi, w and -w are the same rotation
+    assert np.allclose(np.minimum(np.abs(logs - gtsam_logs).max(1),
+                                  np.abs(logs + gtsam_logs).max(1)), 0, atol=1e-12)
+    assert np.allclose(se3.exp_so3(logs), expected, atol=1e-14)
+    t = rng.normal(size=(len(w), 3))
+    keep = slice(0, 38)  # away from pi, where the sign of Log is a convention
+    pose_logs = np.array([gtsam.Pose3.Logmap(gtsam.Pose3(gtsam.Rot3(r), v))
+                          for r, v in zip(expected, t, strict=True)])
+    assert np.allclose(se3.logmap(expected, t)[keep], pose_logs[keep], atol=1e-11)
+    q = se3.rotations_to_quaternions(expected)
+    for quaternion, r in zip(q, expected, strict=True):
+        g = gtsam.Rot3(r).toQuaternion()
+        assert np.allclose(np.abs(quaternion @ [g.x(), g.y(), g.z(), g.w()]), 1.0, atol=1e-14)
+    assert np.allclose(se3.quaternions_to_rotations(q), expected, atol=1e-14)
+    noisy = expected + 0.1 * rng.normal(size=expected.shape)
+    projected = se3.project_to_so3(noisy)
+    assert np.allclose(np.linalg.det(projected), 1.0)
+    assert np.allclose(projected @ np.transpose(projected, (0, 2, 1)), np.eye(3), atol=1e-14)
+    r_ab, t_ab = se3.between(expected[:5], t[:5], expected[5:10], t[5:10])
+    for k in range(5):
+        a = gtsam.Pose3(gtsam.Rot3(expected[k]), t[k])
+        b = gtsam.Pose3(gtsam.Rot3(expected[5 + k]), t[5 + k])
+        assert np.allclose(a.between(b).matrix()[:3], np.c_[r_ab[k], t_ab[k]], atol=1e-13)
+
+
+def test_edge_chi2_is_gtsam_error():
+    graph, values, _, _ = _exact_graph(np.random.default_rng(2), noise=0.1)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    assert np.isclose(edge_chi2(g, g.rotations, g.translations).sum(), chi2(graph, values),
+                      rtol=1e-12)
+
+
+# --- the 3D reader -----------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["tinyGrid3D", "smallGrid3D"])
+def test_reader_matches_gtsam(name):
+    path = DATA / f"{name}.g2o"
+    if not path.exists():
+        pytest.skip(f"{path} absent")
+    graph, values = read_g2o3d(path)
+    expected_graph, expected_values = gtsam.readG2o(str(path), True)
+    assert graph.size() == expected_graph.size()
+    for k in range(graph.size()):
+        ours, theirs = graph.at(k), expected_graph.at(k)
+        assert ours.keys() == theirs.keys()
+        assert np.allclose(ours.measured().matrix(), theirs.measured().matrix(), atol=1e-12)
+        assert np.allclose(ours.noiseModel().information(), theirs.noiseModel().information(),
+                           rtol=1e-12, atol=1e-12)
+    assert sorted(values.keys()) == sorted(expected_values.keys())
+    for key in values.keys():
+        assert np.allclose(values.atPose3(key).matrix(), expected_values.atPose3(key).matrix(),
+                           atol=1e-12)
+    assert np.isclose(chi2(graph, values), chi2(expected_graph, expected_values), rtol=1e-12)
+
+
+def test_writer_round_trip(tmp_path):
+    graph, values, _, _ = _exact_graph(np.random.default_rng(3), n=8, closures=3, noise=0.1)
+    graph.add(gtsam.PriorFactorPose3(2, values.atPose3(2), gtsam.noiseModel.Constrained.All(6)))
+    path = tmp_path / "g.g2o"
+    write_g2o3d(path, graph, values)
+    back, back_values = read_g2o3d(path)
+    for key in values.keys():  # 15 significant digits of a quaternion: equal to 1e-14
+        assert np.allclose(back_values.atPose3(key).matrix(), values.atPose3(key).matrix(),
+                           atol=1e-14)
+    assert g2o3d_text(back, back_values).count("\n") == path.read_text().count("\n")
+    assert np.isclose(chi2(back, back_values), chi2(graph, values), rtol=1e-12)
+    assert isinstance(back.at(back.size() - 1), gtsam.PriorFactorPose3)
+
+
+_VERTEX = "VERTEX_SE3:QUAT {} 0 0 0 0 0 0 1"
+_INFO = "1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1"
+_EDGE = "EDGE_SE3:QUAT {} {} 1 0 0 0 0 0 1 " + _INFO
+
+
+@pytest.mark.parametrize(("lines", "line", "reason"), [
+    ([_VERTEX.format(0), _VERTEX.format(1), "EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 1 0"], 3,
+     "needs 30 numbers after the tag, found 11"),
+    ([_VERTEX.format(0), "VERTEX_SE3:QUAT 1 0 0 0 0 0 1", _EDGE.format(0, 1)], 2,
+     "needs 8 numbers after the tag, found 7"),
+    ([_VERTEX.format(0), "VERTEX_SE3:QUAT 1 nan 0 0 0 0 0 1", _EDGE.format(0, 1)], 2,
+     "field 2 is not finite"),
+    ([_VERTEX.format(0), _VERTEX.format(1), "EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 0 " + _INFO], 3,
+     "quaternion (0.0, 0.0, 0.0, 0.0) is zero"),
+    ([_VERTEX.format(0), _VERTEX.format(1), "EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1"], 3,
+     "a planar line in a 3D file"),
+    ([_VERTEX.format(0), _VERTEX.format(1), _EDGE.format(0, 2)], 3,
+     "refers to vertex 2, which no VERTEX_SE3:QUAT line defines"),
+    ([_VERTEX.format(0), _VERTEX.format(1), _EDGE.format(0, 1).replace(_INFO, "-" + _INFO)], 3,
+     "not positive definite"),
+    ([_VERTEX.format(0), _VERTEX.format(0)], 2, "id 0 defined twice (first on line 1)"),
+    ([_VERTEX.format(0), _VERTEX.format(1), _EDGE.format(0, 1), "FIX 7"], 4,
+     "FIX refers to vertex 7"),
+])
+def test_reader_errors_name_the_line(tmp_path, lines, line, reason):
+    path = tmp_path / "bad.g2o"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(G2oFormatError) as caught:
+        read_g2o3d(path)
+    assert str(caught.value).startswith(f"{path}:{line}: ")
+    assert reason in str(caught.value)
+
+
+def test_reader_normalizes_quaternions_and_chains_odometry(tmp_path):
+    path = tmp_path / "g.g2o"
+    path.write_text("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 2 " + _INFO + "\n"
+                    "EDGE_SE3:QUAT 1 2 0 1 0 0 0 0.7071067811865476 0.7071067811865476 "
+                    + _INFO + "\n")
+    graph, values = read_g2o3d(path)
+    assert np.allclose(graph.at(0).measured().rotation().matrix(), np.eye(3))
+    assert np.allclose(values.atPose3(2).translation(), [1, 1, 0])
+    assert np.isclose(chi2(graph, values), 0.0, atol=1e-20)
+
+
+# --- priors, FIX, initializers -----------------------------------------------------------
+
+def test_fix_and_priors_are_honoured(tmp_path):
+    graph, values, _, _ = _exact_graph(np.random.default_rng(4), n=12, closures=4, noise=0.05)
+    path = tmp_path / "g.g2o"
+    graph.add(gtsam.PriorFactorPose3(3, values.atPose3(3), gtsam.noiseModel.Constrained.All(6)))
+    graph.add(gtsam.PriorFactorPose3(7, values.atPose3(7), gtsam.noiseModel.Constrained.All(6)))
+    write_g2o3d(path, graph, values)
+    graph, values = read_g2o3d(path)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    assert g.anchor == 3 and g.fixed.tolist() == [3, 7]
+    for name, factory in INITIALIZERS_3D.items():
+        result = factory().run(g)
+        for key in (3, 7):
+            assert np.allclose(result.values.atPose3(key).matrix(),
+                               values.atPose3(key).matrix(), atol=1e-9), name
+    soft = gtsam.NonlinearFactorGraph()
+    for k in range(graph.size() - 2):
+        soft.add(graph.at(k))
+    prior = gtsam.Pose3(gtsam.Rot3.Rodrigues(0.1, 0.2, 0.3), np.array([1.0, 2.0, 3.0]))
+    soft.add(gtsam.PriorFactorPose3(5, prior, gtsam.noiseModel.Isotropic.Sigma(6, 0.1)))
+    g = PoseGraph3D.from_gtsam(soft, values)
+    assert g.anchor == 5 and len(g.fixed) == 0
+    result = INITIALIZERS_3D["chordal"]().run(g)
+    assert np.allclose(result.values.atPose3(5).matrix(), prior.matrix(), atol=1e-12)
+
+
+def test_graph_errors_name_what_they_refuse():
+    graph, values, _, _ = _exact_graph(np.random.default_rng(5), n=5, closures=1)
+    graph.add(gtsam.BetweenFactorPose2(0, 1, gtsam.Pose2(), gtsam.noiseModel.Unit.Create(3)))
+    with pytest.raises(GraphError, match="unsupported factor BetweenFactorPose2"):
+        PoseGraph3D.from_gtsam(graph, values)
+    values.insert(9, gtsam.Pose3())
+    with pytest.raises(GraphError, match="connected components"):
+        PoseGraph3D.from_gtsam(_exact_graph(np.random.default_rng(5), n=5, closures=1)[0],
+                               values)
+
+
+# --- chordal and certified on exact graphs -----------------------------------------------
+
+def test_chordal_recovers_an_exact_graph():
+    graph, values, rotations, _ = _exact_graph(np.random.default_rng(6))
+    g = PoseGraph3D.from_gtsam(graph, values)
+    assert np.allclose(chordal_rotations(g), rotations, atol=1e-10)
+
+
+def test_certified_recovers_an_exact_graph_and_refuses_a_wrong_estimate():
+    graph, values, rotations, translations = _exact_graph(np.random.default_rng(7), n=60,
+                                                          closures=25)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    start = rotations @ _rotations(np.random.default_rng(8), g.num_poses, 0.3)
+    found, certificate = synchronize3d(g, start, gradient_tolerance=1e-12)
+    assert certificate.status == Status.CERTIFIED, certificate.describe()
+    assert certificate.describe().startswith("certified optimal")
+    found, positions = poses_with_rotations(g, found)
+    assert np.allclose(found, rotations, atol=1e-8)
+    assert np.allclose(positions, translations, atol=1e-8)
+    wrong = certify3d(g, start)
+    assert not wrong.certified and wrong.status == Status.NOT_OPTIMAL
+    assert wrong.suboptimality_bound > 0
+
+
+def test_certified_on_a_noisy_graph_is_certified_and_refined_by_gtsam():
+    graph, values, _, _ = _exact_graph(np.random.default_rng(9), n=50, closures=20, noise=0.05)
+    result = INITIALIZERS_3D["certified"]().run(PoseGraph3D.from_gtsam(graph, values))
+    assert result.certificate.certified, result.certificate.describe()
+    assert result.poses.shape == (50, 3, 4)
+    chordal = INITIALIZERS_3D["chordal"]().run(PoseGraph3D.from_gtsam(graph, values))
+    assert result.chi2 <= chordal.chi2 * 1.5
