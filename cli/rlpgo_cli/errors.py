@@ -90,7 +90,8 @@ class RlpgoCommand(click.Command):
             raise click.ClickException(printable_line(str(error))) from None
         except OSError as error:
             where = f"{error.filename}: " if error.filename else ""
-            raise click.ClickException(printable_line(f"{where}{error.strerror or error}")) from None
+            message = f"{where}{error.strerror or error}"
+            raise click.ClickException(printable_line(message)) from None
         except (KeyboardInterrupt, _Terminated):
             click.echo("Error: interrupted", err=True)
             ctx.exit(INTERRUPTED_EXIT)
