@@ -99,7 +99,8 @@ def test_a_failed_initializer_reports_the_seconds_it_spent(heavy):
     row = run_method(heavy.graph, pose_graph, "shonan", options={"max_p": 2, "starts": 1})
     assert row.init is None and "failed from every start (1 run, " in row.failure
     told = float(row.failure.split("(1 run, ")[1].split(" s)")[0])
-    assert row.init_seconds >= told > 0.01 and row.record()["init_seconds"] == row.init_seconds
+    assert told > 0.01 and row.init_seconds >= told - 0.005  # the message rounds to 0.01 s
+    assert row.record()["init_seconds"] == row.init_seconds
 
 
 def test_rlpgo_init_prints_the_certificate_and_loads_no_torch(tmp_path, small_exact):

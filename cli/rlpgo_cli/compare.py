@@ -27,8 +27,11 @@ from rlpgo_gtsam.rl.models import DEFAULT_MODEL, model_path
 from rlpgo_gtsam.solvers import SOLVERS
 from rlpgo_gtsam.synthetic import generate
 
-# The classical rows, GTSAM's fastSyncPose2, the certified relaxation and the agent from it.
-DEFAULT_METHODS = ",".join([*CLASSICAL, "fastsync", "certified", "rl@certified"])
+# The classical rows (Shonan from the best of those before it), GTSAM's fastSyncPose2 and
+# the certified relaxation. The agent is one name away (--methods ...,rl@certified): from the
+# certified start it took 22 s on M3500 and 99 s on City10K, three quarters of the whole
+# comparison, and lowered the refined chi2 on neither (nor on any graph in staged.py's table).
+DEFAULT_METHODS = ",".join([*CLASSICAL, "fastsync", "certified"])
 # The graph compared when no file is given: the paper's n = 300 lawn mower with heavy
 # rotation noise and noisy measurements, where odometry and the classical starts differ.
 DEMO = dict(n=300, sigma_r=0.3, sigma_t=0.05, d=3.0, lc=0.5, noisy_measurements=True)

@@ -31,7 +31,7 @@ from rlpgo_gtsam.staged import DEFAULT_BUDGET_S, DEFAULT_SEARCHES, staged_initia
 ALL = [*CLASSICAL, "fastsync", "certified", *(f"rl@{s}" for s in (*CLASSICAL, "certified"))]
 # Options of the staged default and the methods, which --robust does not use.
 NOT_ROBUST = ("budget", "model", "cycles", "episodes", "start", "iters", "seed")
-# The agent's options, and those only --method rl reads.
+# The agent's options (--start, read by --method rl alone, is checked on its own).
 AGENT_OPTIONS = ("model", "cycles", "episodes", "seed")
 
 
@@ -104,9 +104,9 @@ def _print_progress(method: str, line: str) -> None:
     click.echo(f"  {method}: {line}")
 
 
-def _check_agent_options(ctx: click.Context, methods: list[str], method: str) -> None:
-    """A usage error for agent options when no method of the run is the agent (they would
-    change nothing), and for --start without --method rl."""
+def _check_method_options(ctx: click.Context, methods: list[str], method: str) -> None:
+    """A usage error for options that would change nothing: agent options when no method
+    of the run is the agent, --start without --method rl, --budget without --method auto."""
 
     def given(name: str) -> bool:
         return ctx.get_parameter_source(name) not in (
@@ -116,6 +116,9 @@ def _check_agent_options(ctx: click.Context, methods: list[str], method: str) ->
         [f"--{name}" for name in AGENT_OPTIONS if given(name)]
     if method != "rl" and given("start"):
         unused.append("--start")
+    if method != "auto" and given("budget"):
+        raise click.UsageError(f"--budget bounds --method auto; --method {method} runs "
+                               "every method it names to its end")
     if unused:
         runs = "runs no agent" if method == "auto" else f"{method} is not the agent"
         raise click.UsageError(f"{', '.join(unused)}: options of the agent (--method rl, "
@@ -199,11 +202,13 @@ def _print_stage(row: MethodResult, reason: str) -> None:
 @click.option("-o", "--output", type=OutputFile(), required=True,
               help="g2o file to write (never the input).")
 @click.option("--method", default="auto", show_default=True,
-              help="auto (certify, else search), all (every method, keep the lowest chi2), rl, "
+              help="auto (certify, then refine), all (every method, keep the lowest chi2), rl, "
                    "rl@<start>, or one initializer: " + ", ".join(
                        [*CLASSICAL, "fastsync", "certified"]) + ".")
 @click.option("--budget", type=FiniteFloat(0.0, 1e6), default=DEFAULT_BUDGET_S,
-              show_default=True, help="--method auto: no search starts after this many seconds.")
+              show_default=True,
+              help="--method auto: the whole run's time limit, the certified stage's included; "
+                   "cut short, it writes the best estimate so far and says what was cut.")
 @click.option("--refine", type=click.Choice(["none", "gn", "lm"]), default="lm",
               show_default=True, help="GTSAM refinement of the guess that is written. "
               "--robust writes GNC-LM's guess, already refined on the edges it kept: with it "
@@ -222,8 +227,8 @@ def _print_stage(row: MethodResult, reason: str) -> None:
                    f"'{EDGE_LIST_LINE}' (L: the edge's line in INPUT.g2o, from 1), after one "
                    "'#' line.")
 @click.option("--model", default=DEFAULT_MODEL, show_default=True,
-              help="[agent] A shipped model name or a model file (the rl stage of --method auto, "
-                   "--method rl).")
+              help="[agent] A shipped model name or a model file (--method rl, rl@<start>, "
+                   "all).")
 @click.option("--cycles", type=click.IntRange(1, 10_000), default=None,
               help="[agent] Passes over the edges [default: the model's test cycles].")
 @click.option("--episodes", type=ROLLOUTS, default=1, show_default=True,
@@ -239,11 +244,12 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
          iters, seed, robust, trust_odometry, outliers_out):
     """Write an initial guess for INPUT.g2o to OUTPUT.
 
-    The default, --method auto, runs the certified SE(2) relaxation and stops if its
-    certificate holds; otherwise it escalates (chordal, Shonan and the agent from the best
-    result so far), each refined with --refine, until --budget, and writes the lowest chi2
-    (with a hint when wrong loop closures are likely). --method all runs every initializer
-    and prints the ranking. The paper's behaviour is --method rl --start odometry --refine
+    The default, --method auto, runs the certified SE(2) relaxation, refines its estimate
+    with --refine and writes it; the certificate says whether it is the global optimum (if
+    not, a hint follows when wrong loop closures are likely). No search runs after it: on
+    graphs it did not certify, none lowered the chi2 (rlpgo_gtsam/staged.py). --budget
+    bounds the whole run. --method all runs every initializer, prints each row as it is
+    done, then the ranking. The paper's behaviour is --method rl --start odometry --refine
     none. --robust rejects wrong loop closures and writes the guess from the edges kept.
     """
     _check_robust_options(ctx, robust, method, refine, outliers_out)
@@ -251,7 +257,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
         _run_robust(input_path, output, outliers_out, trust_odometry)
         return
     methods = _method_list(method, start)
-    _check_agent_options(ctx, methods, method)
+    _check_method_options(ctx, methods, method)
     run = RunFiles([input_path])
     uses_agent = any(m.partition("@")[0] == "rl" for m in methods)
     if uses_agent:
