@@ -54,6 +54,7 @@ __all__ = [
     "register",
     "make_initializer",
     "initializer_names",
+    "initializer_options",
     "start_names",
     "check_method",
 ]
@@ -202,23 +203,29 @@ class ChordalInitializer(OrientationInitializer):
         return chordal_orientations(pose_graph)
 
 
-class ShonanInitializer(OrientationInitializer):
+class ShonanInitializer(Initializer):
     """GTSAM's Shonan rotation averaging (SO(2)), best of a few starts.
 
     The measurements are built from the graph's factors, each weighted by its rotation
-    weight. Started from given orientations (``start_theta``) it runs once from them;
+    weight. Started from given orientations (``start_poses``) it runs once from them;
     otherwise from ``starts`` seeded random rotations. The result with the lowest weighted
     rotation cost wins; then the translation step.
+
+    Each run is timed: ``details["runs"]`` lists, per start, its seconds and its weighted
+    rotation cost or why it failed, and a run that failed from every start says how long it
+    tried (``Shonan averaging failed from every start (2 runs, 4.1 s): ...``).
 
     Args:
         starts: number of random starts (when no start orientations are given).
         seed: seed of the random starts.
         max_p: highest rank of the Riemannian staircase.
+        progress: called with one line after each run (its seconds and cost, or failure).
     """
 
     name = "shonan"
 
-    def __init__(self, starts: int = 2, seed: int = 0, max_p: int = 10) -> None:
+    def __init__(self, starts: int = 2, seed: int = 0, max_p: int = 10,
+                 progress: Callable[[str], None] | None = None) -> None:
         if not 1 <= starts <= 1000:
             raise SolverError(f"shonan: starts must lie in 1 .. 1000, got {starts}")
         if not 2 <= max_p <= 100:
@@ -226,9 +233,11 @@ class ShonanInitializer(OrientationInitializer):
         self.starts = starts
         self.seed = seed
         self.max_p = max_p
+        self.progress = progress
 
-    def orientations(self, pose_graph: PoseGraph2D, start_theta: np.ndarray | None) -> np.ndarray:
+    def estimate(self, pose_graph: PoseGraph2D, start_poses: np.ndarray | None) -> Estimate:
         g = pose_graph
+        began = time.perf_counter()
         weights = rotation_weights(g)
         factors = [
             gtsam.BetweenFactorPose2(
@@ -240,26 +249,38 @@ class ShonanInitializer(OrientationInitializer):
             factors, gtsam.ShonanAveragingParameters2(gtsam.LevenbergMarquardtParams())
         )
         rng = np.random.default_rng(self.seed)
-        starts = [start_theta] if start_theta is not None else [
+        starts = [start_poses[:, 2]] if start_poses is not None else [
             rng.uniform(-np.pi, np.pi, g.num_poses) for _ in range(self.starts)]
-        best_theta, best_cost, failures = None, np.inf, []
-        for angles in starts:
+        best_theta, best_cost, runs = None, np.inf, []
+        for number, angles in enumerate(starts, 1):
+            run_began = time.perf_counter()
             initial = gtsam.Values()
             for k, angle in enumerate(np.asarray(angles, dtype=float).tolist()):
                 initial.insert(k, gtsam.Rot2(angle))
             try:
                 result, _ = shonan.run(initial, 2, self.max_p)
             except RuntimeError as error:
-                failures.append(one_line(error))
-                continue
-            theta = np.array([result.atRot2(k).theta() for k in range(g.num_poses)])
-            cost = float(weights @ chordal_edge_costs(angle_residuals(theta, g.edges,
-                                                                      g.measured[:, 2])))
-            if cost < best_cost:
-                best_theta, best_cost = theta, cost
+                runs.append({"seconds": time.perf_counter() - run_began,
+                             "failure": one_line(error)})
+            else:
+                theta = np.array([result.atRot2(k).theta() for k in range(g.num_poses)])
+                cost = float(weights @ chordal_edge_costs(angle_residuals(theta, g.edges,
+                                                                          g.measured[:, 2])))
+                runs.append({"seconds": time.perf_counter() - run_began, "rotation_cost": cost})
+                if cost < best_cost:
+                    best_theta, best_cost = theta, cost
+            if self.progress is not None:
+                run = runs[-1]
+                outcome = (f"failed ({run['failure']})" if "failure" in run else
+                           f"rotation cost {run['rotation_cost']:.6g}")
+                self.progress(f"run {number} of {len(starts)}: {outcome}, "
+                              f"{run['seconds']:.2f} s")
         if best_theta is None:
-            raise SolverError(f"Shonan averaging failed from every start: {failures[0]}")
-        return best_theta
+            raise SolverError(
+                f"Shonan averaging failed from every start ({len(runs)} "
+                f"run{'s' if len(runs) > 1 else ''}, {time.perf_counter() - began:.2f} s): "
+                f"{runs[0]['failure']}")
+        return Estimate(poses_with_orientations(g, best_theta), details={"runs": runs})
 
 
 class CertifiedInitializer(Initializer):
@@ -353,6 +374,12 @@ def register(name: str, factory: Callable[..., Initializer], takes_start: bool =
 def initializer_names() -> list[str]:
     """Names of the registered initializers, in registration order."""
     return list(_REGISTRY)
+
+
+def initializer_options(name: str) -> list[str]:
+    """The options a registered initializer's factory takes (its keyword names)."""
+    check_method(name)
+    return list(inspect.signature(_factory(name.partition("@")[0])).parameters)
 
 
 def start_names() -> list[str]:

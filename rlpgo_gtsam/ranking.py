@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import time
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from typing import Any
 
@@ -12,10 +14,12 @@ import numpy as np
 
 from rlpgo_gtsam.errors import RlpgoError, one_line
 from rlpgo_gtsam.graph import PoseGraph2D
-from rlpgo_gtsam.initializers import InitResult, make_initializer
-from rlpgo_gtsam.solvers import refine
+from rlpgo_gtsam.initializers import InitResult, initializer_options, make_initializer
+from rlpgo_gtsam.solvers import RefineResult, refine
 
-__all__ = ["MethodResult", "compare_methods", "best_of", "tied_best", "run_method", "TIE_RELATIVE"]
+__all__ = ["MethodResult", "compare_methods", "best_of", "tied_best", "run_method",
+           "initialize_row", "refine_row", "refine_until", "start_from", "line_progress_options",
+           "FROM_BEST", "TIE_RELATIVE"]
 
 
 @dataclass
@@ -29,6 +33,8 @@ class MethodResult:
         solver, iters: the refinement run (``solver`` None: no refinement).
         refined_chi2, refine_seconds, refined: the refinement's outcome.
         failure: why the method or its refinement failed, or None.
+        failed_after_s: the seconds the initializer ran before it failed (None if it did not).
+        cut: what a time limit cut short in this row (its refinement), or None.
     """
 
     dataset: str
@@ -42,6 +48,8 @@ class MethodResult:
     refine_seconds: float | None = None
     refined: gtsam.Values | None = None
     failure: str | None = None
+    failed_after_s: float | None = None
+    cut: str | None = None
 
     @property
     def init_chi2(self) -> float | None:
@@ -49,12 +57,19 @@ class MethodResult:
 
     @property
     def init_seconds(self) -> float | None:
-        return None if self.init is None else self.init.seconds
+        """The initializer's seconds, a failed one's included."""
+        return self.failed_after_s if self.init is None else self.init.seconds
+
+    @property
+    def seconds(self) -> float:
+        """The row's whole wall time: the initializer's and the refinement's."""
+        return (self.init_seconds or 0.0) + (self.refine_seconds or 0.0)
 
     def record(self) -> dict[str, Any]:
-        """The JSON record: dataset, poses, edges, method, init_chi2, init_seconds, solver,
-        iters, refined_chi2, refine_seconds, failure, the method's details where it has any,
-        and its certificate's record (status included) where it has one."""
+        """The JSON record: dataset, poses, edges, method, init_chi2, init_seconds (a failed
+        initializer's included), solver, iters, refined_chi2, refine_seconds, failure, the
+        method's details where it has any, its certificate's record (status included) where
+        it has one, and ``cut`` where a time limit cut the row short."""
         record = {
             "dataset": self.dataset, "poses": self.poses, "edges": self.edges,
             "method": self.method, "init_chi2": self.init_chi2,
@@ -66,7 +81,105 @@ class MethodResult:
             record["details"] = self.init.details
         if self.init is not None and self.init.certificate is not None:
             record["certificate"] = self.init.certificate.record()
+        if self.cut is not None:
+            record["cut"] = self.cut
         return record
+
+
+def initialize_row(
+    pose_graph: PoseGraph2D,
+    method: str,
+    solver: str | None = "lm",
+    dataset: str = "graph",
+    options: dict[str, Any] | None = None,
+    start: InitResult | None = None,
+) -> MethodResult:
+    """One initializer's row, not yet refined (see :func:`refine_row`); ``failure`` and
+    ``failed_after_s`` set instead of raising."""
+    row = MethodResult(dataset, pose_graph.num_poses, pose_graph.num_edges, method, None, solver)
+    began = time.perf_counter()
+    try:
+        row.init = make_initializer(method, **(options or {})).run(pose_graph, start)
+    except RlpgoError as error:
+        row.failure = str(error)
+    except (RuntimeError, ArithmeticError, ValueError, np.linalg.LinAlgError) as error:
+        # a numerical failure inside GTSAM, scipy or numpy on extreme (finite) input: this
+        # method failed, the others may not
+        row.failure = f"{type(error).__name__}: {one_line(error)}"
+    if row.init is None:
+        row.failed_after_s = time.perf_counter() - began
+    return row
+
+
+def refine_row(
+    row: MethodResult,
+    graph: gtsam.NonlinearFactorGraph,
+    pose_graph: PoseGraph2D,
+    iters: int = 30,
+    deadline: float | None = None,
+) -> MethodResult:
+    """Refine ``row``'s guess with its ``solver`` (None: the guess is the result); ``row``
+    is filled in and returned. A row whose initializer failed is returned as it is.
+
+    Args:
+        deadline: a ``time.perf_counter()`` time the refinement must end by (see
+            :func:`refine_until`); None: ``iters`` iterations or convergence, however long.
+    """
+    if row.init is None:
+        return row
+    if row.solver is None:
+        row.iters, row.refined_chi2, row.refine_seconds = 0, row.init.chi2, 0.0
+        row.refined = row.init.values
+        return row
+    began = time.perf_counter()
+    if deadline is None:
+        refined = refine(graph, row.init.values, solver=row.solver, iters=iters,
+                         pose_graph=pose_graph)
+    else:
+        refined, row.cut = refine_until(graph, row.init.values, row.solver, iters, deadline,
+                                        pose_graph)
+    row.refine_seconds = time.perf_counter() - began
+    row.iters, row.refined_chi2 = refined.iterations, refined.chi2
+    row.refined, row.failure = refined.values, refined.failure
+    return row
+
+
+def refine_until(
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    solver: str,
+    iters: int,
+    deadline: float,
+    pose_graph: PoseGraph2D | None = None,
+) -> tuple[RefineResult, str | None]:
+    """:func:`~rlpgo_gtsam.solvers.refine` in chunks that end by ``deadline``
+    (a ``time.perf_counter()`` time), and what the deadline cut (None: nothing).
+
+    GTSAM's solvers take no time limit, so the iterations run in chunks, each a fresh
+    ``refine`` from the last one's values: one iteration first, to time one, then as many
+    as the time left holds. It stops at ``iters`` iterations, at convergence (a chunk that
+    ended before its cap), at a failure, or when not one more iteration fits. The chunks
+    restart LM's damping, so the path may differ slightly from one ``refine`` call.
+    """
+    g = pose_graph if pose_graph is not None else PoseGraph2D.from_gtsam(graph, values)
+    current = refine(graph, values, solver=solver, iters=0, pose_graph=g)
+    trace, done, per_iteration = list(current.chi2_trace), 0, 0.0
+    while done < iters:
+        left = deadline - time.perf_counter()
+        chunk = 1 if done == 0 else min(iters - done, int(left / per_iteration))
+        if left <= 0 or chunk < 1:
+            return (RefineResult(current.values, current.chi2, done, trace),
+                    f"the time limit stopped {solver.upper()} after {done} of {iters} "
+                    "iterations")
+        began = time.perf_counter()
+        step = refine(graph, current.values, solver=solver, iters=chunk, pose_graph=g)
+        per_iteration = max(per_iteration, (time.perf_counter() - began) / max(step.iterations, 1))
+        done += step.iterations
+        trace += step.chi2_trace[1:]
+        current = step
+        if step.failure is not None or step.iterations < chunk:
+            break
+    return RefineResult(current.values, current.chi2, done, trace, current.failure), None
 
 
 def run_method(
@@ -78,6 +191,7 @@ def run_method(
     dataset: str = "graph",
     options: dict[str, Any] | None = None,
     start: InitResult | None = None,
+    deadline: float | None = None,
 ) -> MethodResult:
     """One initializer then ``refine``: a row, with ``failure`` set instead of raising.
 
@@ -85,28 +199,34 @@ def run_method(
         method: an initializer name (``rl@chordal`` names a start).
         options: options for the initializer's factory.
         start: the guess to start from, for initializers that take one.
+        deadline: the refinement ends by this ``time.perf_counter()`` time (see
+            :func:`refine_until`); None: no limit.
     """
-    row = MethodResult(dataset, pose_graph.num_poses, pose_graph.num_edges, method, None, solver)
-    try:
-        row.init = make_initializer(method, **(options or {})).run(pose_graph, start)
-    except RlpgoError as error:
-        row.failure = str(error)
-        return row
-    except (RuntimeError, ArithmeticError, ValueError, np.linalg.LinAlgError) as error:
-        # a numerical failure inside GTSAM, scipy or numpy on extreme (finite) input: this
-        # method failed, the others may not
-        row.failure = f"{type(error).__name__}: {one_line(error)}"
-        return row
-    if solver is None:
-        row.iters, row.refined_chi2, row.refine_seconds = 0, row.init.chi2, 0.0
-        row.refined = row.init.values
-        return row
-    began = time.perf_counter()
-    refined = refine(graph, row.init.values, solver=solver, iters=iters, pose_graph=pose_graph)
-    row.refine_seconds = time.perf_counter() - began
-    row.iters, row.refined_chi2 = refined.iterations, refined.chi2
-    row.refined, row.failure = refined.values, refined.failure
-    return row
+    row = initialize_row(pose_graph, method, solver, dataset, options, start)
+    return refine_row(row, graph, pose_graph, iters, deadline)
+
+
+def start_from(row: MethodResult, pose_graph: PoseGraph2D) -> InitResult:
+    """``row``'s refined result as a start for another initializer (its seconds not
+    charged again: the row already counts them)."""
+    return InitResult(row.method, row.refined, pose_graph.poses_of(row.refined),
+                      row.refined_chi2, 0.0)
+
+
+# Methods that, in a comparison, start from the lowest refined chi2 of the rows before them
+# rather than from their own start: Shonan from random rotations took 52 s on M3500 and
+# 154 s on City10K, never won, and often failed.
+FROM_BEST = ("shonan",)
+# Initializers that can report progress as lines of text (``progress(line)``).
+_LINE_PROGRESS = ("certified", "shonan")
+
+
+def line_progress_options(report: Callable[[str, str], None]) -> dict[str, dict[str, Any]]:
+    """Options (for :func:`compare_methods`, ``staged_initialize``) that make each
+    initializer able to report progress lines call ``report(method, line)``; one that
+    takes no ``progress`` option is left out."""
+    return {method: {"progress": functools.partial(report, method)}
+            for method in _LINE_PROGRESS if "progress" in initializer_options(method)}
 
 
 def compare_methods(
@@ -118,6 +238,8 @@ def compare_methods(
     dataset: str = "graph",
     options: dict[str, dict[str, Any]] | None = None,
     pose_graph: PoseGraph2D | None = None,
+    start_from_best: Collection[str] = FROM_BEST,
+    on_row: Callable[[MethodResult], None] | None = None,
 ) -> list[MethodResult]:
     """Run each named initializer on one extraction of the graph, then ``refine`` each guess.
 
@@ -126,6 +248,11 @@ def compare_methods(
         solver: "lm", "gn", or None for no refinement.
         options: per base method name, options for its factory (``{"rl": {"episodes": 4}}``).
         pose_graph: the graph's extraction, if the caller has it.
+        start_from_best: methods that, when a row with a result ran before them, start from
+            the best of those rows (the lowest refined chi2, :func:`best_of`) instead of
+            their own start (by default :data:`FROM_BEST`: Shonan); such a row is named
+            ``<method>@best`` and its details say which row it started from.
+        on_row: called with each row as soon as it is done (to print it).
 
     A method that starts from another (``rl@chordal``) reuses that method's guess where it
     ran earlier in the list and is charged its seconds. A method that fails (an
@@ -134,14 +261,25 @@ def compare_methods(
     """
     g = pose_graph if pose_graph is not None else PoseGraph2D.from_gtsam(graph, values)
     rows: dict[str, MethodResult] = {}
-    results = []
+    results: list[MethodResult] = []
     for method in methods:
         base, _, start = method.partition("@")
         earlier = rows.get(start) if start else None
+        start_result = earlier.init if earlier is not None else None
+        best = None
+        if method in start_from_best and tied_best(results):
+            best = best_of(results)
+            start_result = start_from(best, g)
         row = run_method(graph, g, method, solver, iters, dataset, (options or {}).get(base),
-                         earlier.init if earlier is not None else None)
+                         start_result)
+        if best is not None:
+            row.method = f"{method}@best"
+            if row.init is not None:
+                row.init.details = {**row.init.details, "started_from": best.method}
         rows[method] = row
         results.append(row)
+        if on_row is not None:
+            on_row(row)
     return results
 
 

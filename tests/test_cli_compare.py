@@ -75,3 +75,31 @@ def test_a_failing_method_is_reported_and_the_others_still_run(tmp_path, monkeyp
     records = json.loads(json_path.read_text())
     assert [r["method"] for r in records] == ["odometry", "failing", "lago"]
     assert records[0]["init_chi2"] is not None
+    assert records[1]["init_chi2"] is None and records[1]["init_seconds"] > 0  # time it spent
+
+
+def test_rows_stream_and_shonan_starts_from_the_best_so_far(tmp_path, small_noisy):
+    """Each row is printed as soon as its method is done: the rows before Shonan come before
+    Shonan's progress line. Shonan starts from the lowest refined chi2 before it."""
+    path = tmp_path / "small.g2o"
+    write_g2o(path, small_noisy.graph, small_noisy.initial)
+    json_path = tmp_path / "out.json"
+    result = CliRunner().invoke(main, [str(path), "--methods", "odometry,lago,shonan",
+                                       "--json", str(json_path)])
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.splitlines()
+    header = next(k for k, line in enumerate(lines) if line.split()[:1] == ["method"])
+    row = {line.split()[0]: k for k, line in enumerate(lines) if line.startswith("  ")
+           and not line.startswith("    ")}
+    progress = next(k for k, line in enumerate(lines) if line.startswith("    shonan: run 1 of 1"))
+    assert header < row["odometry"] < row["lago"] < progress < row["shonan@best"]
+    assert lines[row["shonan@best"] + 1].startswith(("* lowest refined chi2: ", "= "))
+    records = json.loads(json_path.read_text())
+    assert [r["method"] for r in records] == ["odometry", "lago", "shonan@best"]
+    lowest = min(r["refined_chi2"] for r in records[:2])
+    best = next(r for r in records[:2] if r["refined_chi2"] <= lowest * (1 + 1e-6))  # ties: first
+    shonan = records[2]
+    assert shonan["details"]["started_from"] == best["method"]
+    assert len(shonan["details"]["runs"]) == 1  # one run, from the best; no random starts
+    assert shonan["init_seconds"] >= shonan["details"]["runs"][0]["seconds"] > 0
+    assert shonan["refined_chi2"] <= best["refined_chi2"] * (1 + 1e-6)

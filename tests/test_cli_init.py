@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 from pathlib import Path
 
 import gtsam
@@ -31,18 +32,24 @@ from rlpgo_gtsam import (
     refine,
     write_g2o,
 )
+from rlpgo_gtsam.initializers import initializer_options
 from rlpgo_gtsam.rl.agent.checkpoint import save_model
 from rlpgo_gtsam.rl.agent.networks import Actor
 from rlpgo_gtsam.synthetic import generate
 from tests.conftest import assert_same_edges, cli_error, cli_ok
 
-ALL_METHODS = set(ALL)
+# The certified stage's time limit is CertifiedInitializer(time_limit_s=...) (issue 20's
+# relaxation side); where it is not there yet, --budget cannot cut that stage.
+needs_time_limit = pytest.mark.skipif(
+    "time_limit_s" not in initializer_options("certified"),
+    reason="CertifiedInitializer takes no time_limit_s yet")
 SUMMARY = re.compile(
     r"^input chi2 (?P<input>\S+); (?P<method>\S+)(?: \+ (?P<step>[A-Z]+\d+))?: chi2 "
     r"(?P<result>\S+); \d+\.\d\d s; wrote (?P<output>.+)$"
 )
 ROW = re.compile(
-    r"^(?P<rank>=?\d+)\s+(?P<method>\S+)\s+(?P<guess>\S+)\s+(?P<result>\S+)(?P<tail>.*)$"
+    r"^(?P<method>[a-z]\S*)\s+(?P<guess>[-\d.e+]+)\s+(?P<result>[-\d.e+]+)\s+"
+    r"(?P<seconds>\d+\.\d\d)(?P<tail>.*)$"
 )
 
 
@@ -93,30 +100,39 @@ def _assert_same_poses(first: gtsam.Values, second: gtsam.Values, atol: float) -
 # --------------------------------------------------------------------------- rlpgo-init
 
 
-def test_init_all_ranks_every_method_and_writes_the_lowest(tmp_path, graph_file, agent):
+def test_init_all_streams_every_method_then_ranks_and_writes_the_lowest(tmp_path, graph_file,
+                                                                      agent):
     output = tmp_path / "out.g2o"
     result = run_init(graph_file, "-o", output, "--model", agent, "--method", "all")
     cli_ok(result)
     lines = result.stdout.rstrip("\n").splitlines()
-    assert lines[0].split() == ["rank", "method", "guess", "chi2", "result", "chi2"]
-    rows = [ROW.match(line) for line in lines[1:-1]]
-    assert all(rows), lines
-    assert {r["method"] for r in rows} == ALL_METHODS and len(rows) == len(ALL_METHODS)
-    # a rank is the number of rows above plus one; rows that tie share it, as "=k"
-    ranks = [r["rank"] for r in rows]
+    assert lines[0].split() == ["method", "guess", "chi2", "result", "chi2", "seconds"]
+    rows = [ROW.match(line) for line in lines if ROW.match(line)]
+    # one row per method, in the order they ran, each printed as soon as it was done: the
+    # rows before Shonan came before Shonan's own progress line
+    shonan = lines.index(next(line for line in lines if line.startswith("  shonan: run 1 of 1")))
+    assert [r["method"] for r in rows] == [m if m != "shonan" else "shonan@best" for m in ALL]
+    assert all(lines.index(r.string) < shonan for r in rows[:ALL.index("shonan")])
+    assert lines.index(rows[ALL.index("shonan")].string) > shonan
+    assert all(r["tail"] == "" and float(r["seconds"]) > 0 for r in rows), "no method may fail"
+    # then the ranking: a rank is the number of rows above plus one; ties share it, as "=k"
+    ranking = lines[-2]
+    assert ranking.startswith("ranking: ")
+    ranked = [entry.split() for entry in ranking.removeprefix("ranking: ").split(", ")]
+    ranks = [rank for rank, _ in ranked]
+    assert sorted(method for _, method in ranked) == sorted(r["method"] for r in rows)
     for rank in ranks:
-        tied = ranks.count(rank) > 1
-        assert rank.startswith("=") == tied
+        assert rank.startswith("=") == (ranks.count(rank) > 1)
         assert int(rank.lstrip("=")) == ranks.index(rank) + 1
-    assert all(r["tail"] == "" for r in rows), "no method may fail on this graph"
-    results = [float(r["result"]) for r in rows]
+    result_of = {r["method"]: float(r["result"]) for r in rows}
+    results = [result_of[method] for _, method in ranked]
     assert results == sorted(results)
 
     summary = _summary(result.stdout)
     graph, values = read_g2o(graph_file)
     assert summary["input"] == _g6(chi2(graph, values))
     assert summary["step"] == "LM30"
-    assert summary["method"] in ALL_METHODS
+    assert summary["method"] == ranked[0][1]
     assert float(summary["result"]) == min(results)
     assert Path(summary["output"]) == output
 
@@ -129,6 +145,35 @@ def test_init_all_ranks_every_method_and_writes_the_lowest(tmp_path, graph_file,
     chordal = make_initializer("chordal").initialize(graph, values)
     reference = refine(graph, chordal, "lm", 30).chi2
     assert written_chi2 <= reference * (1 + 1e-9) + 1e-9
+
+
+@pytest.fixture(scope="module")
+def hard_1000(tmp_path_factory) -> Path:
+    """1000 poses, sigma_R 0.5, noisy measurements: the certified stage needs seconds."""
+    sample = generate(1000, 0.5, 0.05, 3.0, 0.5, np.random.default_rng(1),
+                      noisy_measurements=True)
+    path = tmp_path_factory.mktemp("hard") / "hard.g2o"
+    write_g2o(path, sample.graph, sample.initial)
+    return path
+
+
+@needs_time_limit
+def test_init_budget_cuts_the_certified_stage_and_writes_its_estimate(tmp_path, hard_1000):
+    output = tmp_path / "out.g2o"
+    began = time.perf_counter()
+    result = run_init(hard_1000, "-o", output, "--budget", "0.2")
+    cli_ok(result)
+    assert time.perf_counter() - began < 30  # the stage alone takes 5 s or more
+    lines = result.stdout.splitlines()
+    assert any(line.startswith("  certified: ") for line in lines)  # its progress
+    assert "stopped: time budget of 0.2 s spent during the certified stage: its best " \
+           "estimate so far, not certified" in result.stdout
+    assert "NOT certified: time limit reached" in result.stdout
+    assert not any(line.startswith("hint: ") for line in lines)
+    assert re.search(r"; certified \+ LM30 \(cut after \d+\): chi2 ", lines[-1])
+    graph, values = read_g2o(hard_1000)
+    out_graph, out_values = read_g2o(output)
+    assert chi2(out_graph, out_values) < chi2(graph, values) / 100  # a guess, not the input
 
 
 def test_init_rl_without_refinement_writes_the_agents_guess(tmp_path, graph_file, agent):
@@ -172,11 +217,26 @@ def test_init_classical_method_with_gauss_newton(tmp_path, graph_file):
     assert chi2(out_graph, out_values) < chi2(graph, values)
 
 
-@pytest.mark.parametrize("method", [["--method", "rl"], []], ids=["rl", "default"])
-def test_init_missing_model(tmp_path, graph_file, method):
+def test_init_missing_model(tmp_path, graph_file):
     model, output = tmp_path / "nope.zip", tmp_path / "out.g2o"
-    result = run_init(graph_file, "-o", output, "--model", model, *method)
+    result = run_init(graph_file, "-o", output, "--model", model, "--method", "rl")
     assert cli_error(result).endswith(f"{model}: no such model file")
+    assert not output.exists()
+
+
+@pytest.mark.parametrize(("method", "given", "refused"), [
+    ([], ["--model", "nope.zip"], "--model"),
+    (["--method", "chordal"], ["--episodes", "3", "--seed", "2"], "--episodes, --seed"),
+    (["--method", "all"], ["--start", "lago"], "--start"),
+    (["--method", "chordal"], ["--budget", "5"], "--budget bounds --method auto"),
+], ids=["default", "chordal", "all", "budget"])
+def test_init_options_that_change_nothing_are_usage_errors(tmp_path, graph_file, method,
+                                                                given, refused):
+    """The default runs no agent: its options would change nothing; nor would --budget
+    outside the default."""
+    output = tmp_path / "out.g2o"
+    result = run_init(graph_file, "-o", output, *method, *given)
+    cli_error(result, f"Error: {refused}", code=2)
     assert not output.exists()
 
 

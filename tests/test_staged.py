@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -10,8 +11,16 @@ from click.testing import CliRunner
 from rlpgo_cli.compare import main as compare_main
 from rlpgo_cli.init import main as init_main
 
-from rlpgo_gtsam import chi2, generate, read_g2o, write_g2o
-from rlpgo_gtsam.staged import staged_initialize
+from rlpgo_gtsam import PoseGraph2D, chi2, generate, make_initializer, read_g2o, refine, write_g2o
+from rlpgo_gtsam.initializers import initializer_options
+from rlpgo_gtsam.ranking import refine_until, run_method
+from rlpgo_gtsam.staged import DEFAULT_SEARCHES, SEARCHES, staged_initialize
+
+# The certified stage's time limit is CertifiedInitializer(time_limit_s=...) (issue 20's
+# relaxation side); where it is not there yet, the budget cannot cut that stage.
+needs_time_limit = pytest.mark.skipif(
+    "time_limit_s" not in initializer_options("certified"),
+    reason="CertifiedInitializer takes no time_limit_s yet")
 
 
 @pytest.fixture(scope="module")
@@ -27,22 +36,71 @@ def test_an_exact_graph_is_certified_and_the_run_stops(small_exact):
     assert chi2(small_exact.graph, run.values) < 1e-9
 
 
-def test_a_failed_certificate_escalates_and_keeps_the_lowest(heavy):
+def test_the_default_stops_after_a_failed_certificate_with_its_refined_estimate(heavy):
+    """No search is in the default: none lowered the refined chi2 (staged.py's docstring)."""
+    assert DEFAULT_SEARCHES == ()
     run = staged_initialize(heavy.graph, heavy.initial)
     assert not run.certified
-    assert [r.method for r in run.rows] == ["certified", "chordal", "shonan@best", "rl@best"]
+    assert [r.method for r in run.rows] == ["certified"] and run.best is run.rows[0]
+    assert run.stopped == "relaxation not certified; no search after it (none is in the default)"
     assert run.rows[0].init.certificate.suboptimality_bound > 0
+    assert run.rows[0].refined_chi2 < run.rows[0].init_chi2
+    assert chi2(heavy.graph, run.values) == pytest.approx(run.rows[0].refined_chi2, rel=1e-9)
+
+
+def test_searches_on_request_escalate_and_keep_the_lowest(heavy):
+    run = staged_initialize(heavy.graph, heavy.initial, searches=SEARCHES)
+    assert not run.certified
+    assert [r.method for r in run.rows] == ["certified", "chordal", "shonan@best", "rl@best"]
     refined = [r.refined_chi2 for r in run.rows]
     ties = [k for k, value in enumerate(refined) if value <= min(refined) * (1 + 1e-6)]
     assert run.best is run.rows[ties[0]]  # the lowest; a tie goes to the earlier stage
     assert chi2(heavy.graph, run.values) == pytest.approx(min(refined), rel=1e-6)
     assert all("not certified" in reason for reason in run.reasons[1:])
+    assert all(r.init_seconds > 0 for r in run.rows)
 
 
 def test_the_budget_stops_the_searches(heavy):
-    run = staged_initialize(heavy.graph, heavy.initial, budget_s=0.0)
+    run = staged_initialize(heavy.graph, heavy.initial, budget_s=0.0, searches=SEARCHES)
     assert [r.method for r in run.rows] == ["certified"]
-    assert run.stopped == "time budget of 0 s spent"
+    assert "time budget of 0 s spent" in run.stopped
+
+
+@needs_time_limit
+def test_a_budget_cut_in_the_certified_stage_hands_over_its_estimate(heavy):
+    lines = []
+    run = staged_initialize(heavy.graph, heavy.initial, budget_s=0.0,
+                            options={"certified": {"progress": lines.append}})
+    assert [r.method for r in run.rows] == ["certified"]
+    assert run.rows[0].init.certificate.status == "time_limit" and not run.certified
+    assert run.stopped.startswith("time budget of 0 s spent during the certified stage: its "
+                                  "best estimate so far, not certified; certified: the time "
+                                  "limit stopped LM after 0 of 30 iterations")
+    assert run.hint is None  # an unfinished estimate's residuals say nothing of the closures
+    assert run.best.refined_chi2 == pytest.approx(chi2(heavy.graph, run.values))
+    assert lines  # the stage reported progress
+
+
+def test_refine_until_ends_by_its_deadline(heavy):
+    values = make_initializer("chordal").initialize(heavy.graph, heavy.initial)
+    spent, cut = refine_until(heavy.graph, values, "lm", 30, time.perf_counter() - 1.0)
+    assert (spent.iterations, spent.chi2_trace) == (0, [chi2(heavy.graph, values)])
+    assert cut == "the time limit stopped LM after 0 of 30 iterations"
+    whole = refine(heavy.graph, values, "lm", 30)
+    ample, cut = refine_until(heavy.graph, values, "lm", 30, time.perf_counter() + 600.0)
+    assert cut is None and 1 <= ample.iterations <= 30
+    assert ample.chi2 == pytest.approx(whole.chi2, rel=1e-6)  # chunks restart LM's damping
+    assert ample.chi2_trace[-1] == ample.chi2 and len(ample.chi2_trace) == ample.iterations + 1
+
+
+def test_a_failed_initializer_reports_the_seconds_it_spent(heavy):
+    """Shonan with max_p 2 does not converge on this graph (after about 0.3 s)."""
+    pose_graph = PoseGraph2D.from_gtsam(heavy.graph, heavy.initial)
+    row = run_method(heavy.graph, pose_graph, "shonan", options={"max_p": 2, "starts": 1})
+    assert row.init is None and "failed from every start (1 run, " in row.failure
+    told = float(row.failure.split("(1 run, ")[1].split(" s)")[0])
+    assert told > 0.01 and row.init_seconds >= told - 0.005  # the message rounds to 0.01 s
+    assert row.record()["init_seconds"] == row.init_seconds
 
 
 def test_rlpgo_init_prints_the_certificate_and_loads_no_torch(tmp_path, small_exact):
@@ -60,15 +118,16 @@ def test_rlpgo_init_prints_the_certificate_and_loads_no_torch(tmp_path, small_ex
     assert chi2(*read_g2o(output)) < 1e-9
 
 
-def test_rlpgo_init_auto_reports_each_stage(tmp_path, heavy):
+def test_rlpgo_init_auto_reports_the_stage_and_why_it_stopped(tmp_path, heavy):
     path, output = tmp_path / "in.g2o", tmp_path / "out.g2o"
     write_g2o(path, heavy.graph, heavy.initial)
     result = CliRunner().invoke(init_main, [str(path), "-o", str(output)])
     assert result.exit_code == 0, result.output
     stages = [line.split()[1].rstrip(":") for line in result.stdout.splitlines()
               if line.startswith("stage ")]
-    assert stages == ["certified", "chordal", "shonan@best", "rl@best"]
+    assert stages == ["certified"]
     assert "NOT certified" in result.stdout
+    assert "stopped: relaxation not certified; no search after it" in result.stdout
 
 
 def test_compare_marks_the_best_row_and_shows_certificates(tmp_path, small_exact):
@@ -83,11 +142,13 @@ def test_compare_marks_the_best_row_and_shows_certificates(tmp_path, small_exact
     assert records["certified"]["certificate"]["certified"] is True
     assert records["certified"]["certificate"]["suboptimality_bound"] < 1e-6
     assert "certificate" not in records["chordal"]
-    rows = {line[2:].split()[0]: line for line in result.stdout.splitlines()
+    lines = result.stdout.splitlines()
+    rows = {line.split()[0]: line for line in lines
             if line[2:].split()[:1] in (["odometry"], ["chordal"], ["certified"])}
-    # the lowest chi2 is marked "*", or "=" on every row of a tie for it
-    marked = [name for name, line in rows.items() if line[0] in "*="]
-    assert marked == ["chordal", "certified"] and all(rows[m][0] == "=" for m in marked)
+    # after the rows (printed as each is done): the lowest chi2, or every row of a tie for it
+    tie = "= 2 methods tie for the lowest refined chi2 (within a relative 1e-06): chordal, " \
+          "certified"
+    assert lines.index(tie) == lines.index(rows["certified"]) + 1
     assert rows["certified"].rstrip().endswith("yes")
     assert rows["odometry"].rstrip().endswith("-")
 

@@ -12,19 +12,27 @@ import click
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, FiniteFloat, OutputFile
-from rlpgo_gtsam.errors import ModelError, RlpgoError
+from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text, g2o_text, read_g2o, read_g2o_lines
 from rlpgo_gtsam.graph import PoseGraph2D, chi2
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
-from rlpgo_gtsam.ranking import TIE_RELATIVE, MethodResult, best_of, compare_methods
+from rlpgo_gtsam.ranking import (
+    TIE_RELATIVE,
+    MethodResult,
+    best_of,
+    compare_methods,
+    line_progress_options,
+)
 from rlpgo_gtsam.rl.models import DEFAULT_MODEL, model_path
 from rlpgo_gtsam.robust import robust_initialize
-from rlpgo_gtsam.staged import DEFAULT_BUDGET_S, staged_initialize
+from rlpgo_gtsam.staged import DEFAULT_BUDGET_S, DEFAULT_SEARCHES, staged_initialize
 
 # --method all: every initializer, and the agent from each classical start.
 ALL = [*CLASSICAL, "fastsync", "certified", *(f"rl@{s}" for s in (*CLASSICAL, "certified"))]
 # Options of the staged default and the methods, which --robust does not use.
 NOT_ROBUST = ("budget", "model", "cycles", "episodes", "start", "iters", "seed")
+# The agent's options (--start, read by --method rl alone, is checked on its own).
+AGENT_OPTIONS = ("model", "cycles", "episodes", "seed")
 
 
 def _progress_bar():
@@ -49,7 +57,7 @@ def _progress_bar():
 
 def _method_list(method: str, start: str) -> list[str]:
     if method == "auto":
-        return ["certified", "chordal", "shonan", "rl"]
+        return ["certified", *(name for name, _ in DEFAULT_SEARCHES)]
     if method == "all":
         return ALL
     name = f"rl@{start}" if method == "rl" else method
@@ -79,6 +87,42 @@ def _ranking(results: list[MethodResult]) -> list[tuple[str, MethodResult]]:
         label = f"={len(ranked) + 1}" if len(group) > 1 else str(len(ranked) + 1)
         ranked.extend((label, r) for r in sorted(group, key=results.index))
     return ranked + [("-", r) for r in results if r not in usable]
+
+
+ROW_HEADER = f"{'method':<14}{'guess chi2':>14}{'result chi2':>14}{'seconds':>9}"
+
+
+def _print_row(row: MethodResult) -> None:
+    """One method's row of --method all, printed as soon as the method is done."""
+    guess = "-" if row.init_chi2 is None else f"{row.init_chi2:.6g}"
+    result = "-" if row.refined_chi2 is None else f"{row.refined_chi2:.6g}"
+    tail = f"  FAILED: {row.failure}" if row.failure else ""
+    click.echo(f"{row.method:<14}{guess:>14}{result:>14}{row.seconds:>9.2f}{tail}")
+
+
+def _print_progress(method: str, line: str) -> None:
+    click.echo(f"  {method}: {line}")
+
+
+def _check_method_options(ctx: click.Context, methods: list[str], method: str) -> None:
+    """A usage error for options that would change nothing: agent options when no method
+    of the run is the agent, --start without --method rl, --budget without --method auto."""
+
+    def given(name: str) -> bool:
+        return ctx.get_parameter_source(name) not in (
+            None, click.core.ParameterSource.DEFAULT, click.core.ParameterSource.DEFAULT_MAP)
+
+    unused = [] if any(m.partition("@")[0] == "rl" for m in methods) else \
+        [f"--{name}" for name in AGENT_OPTIONS if given(name)]
+    if method != "rl" and given("start"):
+        unused.append("--start")
+    if method != "auto" and given("budget"):
+        raise click.UsageError(f"--budget bounds --method auto; --method {method} runs "
+                               "every method it names to its end")
+    if unused:
+        runs = "runs no agent" if method == "auto" else f"{method} is not the agent"
+        raise click.UsageError(f"{', '.join(unused)}: options of the agent (--method rl, "
+                               f"rl@<start>, all); --method {method}: {runs}")
 
 
 def _check_robust_options(ctx: click.Context, robust: bool, method: str, refine: str,
@@ -161,8 +205,8 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
 def _print_stage(row: MethodResult, reason: str) -> None:
     guess = "-" if row.init_chi2 is None else f"{row.init_chi2:.6g}"
     result = "-" if row.refined_chi2 is None else f"{row.refined_chi2:.6g}"
-    seconds = (row.init_seconds or 0.0) + (row.refine_seconds or 0.0)
-    click.echo(f"stage {row.method}: guess chi2 {guess}, result chi2 {result}, {seconds:.2f} s"
+    click.echo(f"stage {row.method}: guess chi2 {guess}, result chi2 {result}, "
+               f"{row.seconds:.2f} s"
                f" ({reason})" + (f"  FAILED: {row.failure}" if row.failure else ""))
     if row.init is not None and row.init.certificate is not None:
         click.echo(f"  certificate: {row.init.certificate.describe()}")
@@ -173,11 +217,13 @@ def _print_stage(row: MethodResult, reason: str) -> None:
 @click.option("-o", "--output", type=OutputFile(), required=True,
               help="g2o file to write (never the input).")
 @click.option("--method", default="auto", show_default=True,
-              help="auto (certify, else search), all (every method, keep the lowest chi2), rl, "
+              help="auto (certify, then refine), all (every method, keep the lowest chi2), rl, "
                    "rl@<start>, or one initializer: " + ", ".join(
                        [*CLASSICAL, "fastsync", "certified"]) + ".")
 @click.option("--budget", type=FiniteFloat(0.0, 1e6), default=DEFAULT_BUDGET_S,
-              show_default=True, help="--method auto: no search starts after this many seconds.")
+              show_default=True,
+              help="--method auto: the whole run's time limit, the certified stage's included; "
+                   "cut short, it writes the best estimate so far and says what was cut.")
 @click.option("--refine", type=click.Choice(["none", "gn", "lm"]), default="lm",
               show_default=True, help="GTSAM refinement of the guess that is written. "
               "--robust writes GNC-LM's guess, already refined on the edges it kept: with it "
@@ -197,8 +243,8 @@ def _print_stage(row: MethodResult, reason: str) -> None:
                    f"'{EDGE_LIST_LINE}' (L: the edge's line in INPUT.g2o, from 1), after one "
                    "'#' line.")
 @click.option("--model", default=DEFAULT_MODEL, show_default=True,
-              help="[agent] A shipped model name or a model file (the rl stage of --method auto, "
-                   "--method rl).")
+              help="[agent] A shipped model name or a model file (--method rl, rl@<start>, "
+                   "all).")
 @click.option("--cycles", type=click.IntRange(1, 10_000), default=None,
               help="[agent] Passes over the edges [default: the model's test cycles].")
 @click.option("--episodes", type=ROLLOUTS, default=1, show_default=True,
@@ -214,11 +260,12 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
          iters, seed, robust, trust_odometry, outliers_out):
     """Write an initial guess for INPUT.g2o to OUTPUT.
 
-    The default, --method auto, runs the certified SE(2) relaxation and stops if its
-    certificate holds; otherwise it escalates (chordal, Shonan and the agent from the best
-    result so far), each refined with --refine, until --budget, and writes the lowest chi2
-    (with a hint when wrong loop closures are likely). --method all runs every initializer
-    and prints the ranking. The paper's behaviour is --method rl --start odometry --refine
+    The default, --method auto, runs the certified SE(2) relaxation, refines its estimate
+    with --refine and writes it; the certificate says whether it is the global optimum (if
+    not, a hint follows when wrong loop closures are likely). No search runs after it: on
+    graphs it did not certify, none lowered the chi2 (rlpgo_gtsam/staged.py). --budget
+    bounds the whole run. --method all runs every initializer, prints each row as it is
+    done, then the ranking. The paper's behaviour is --method rl --start odometry --refine
     none. --robust rejects wrong loop closures and writes the guess from the edges kept.
     """
     _check_robust_options(ctx, robust, method, refine, outliers_out)
@@ -226,24 +273,23 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
         _run_robust(input_path, output, outliers_out, trust_odometry)
         return
     methods = _method_list(method, start)
+    _check_method_options(ctx, methods, method)
     run = RunFiles([input_path])
-    if any(m.partition("@")[0] == "rl" for m in methods):
+    uses_agent = any(m.partition("@")[0] == "rl" for m in methods)
+    if uses_agent:
         run.add_input(model_path(model))
     run.check(output)  # fail before minutes of work, not after
+    if uses_agent:
+        from rlpgo_gtsam.rl.models import resolve_model
+
+        resolve_model(model)  # a bad --model is an error, not a row of failed methods
     graph, values = read_g2o(input_path)
     began = time.perf_counter()
     pose_graph = PoseGraph2D.from_gtsam(graph, values)
     solver = None if refine == "none" else refine
-    options = {"rl": {"model": model, "cycles": cycles, "episodes": episodes, "seed": seed,
-                      "progress": _progress_bar()}}
-    if method == "auto":  # the agent may not run: check the file, load torch only if it does
-        path = model_path(model)
-        if not path.is_file():
-            raise ModelError(f"{path}: no such model file")
-    elif any(m.startswith("rl") for m in methods):
-        from rlpgo_gtsam.rl.models import resolve_model
-
-        resolve_model(model)  # a bad --model is an error, not a row of failed methods
+    options = line_progress_options(_print_progress)
+    options["rl"] = {"model": model, "cycles": cycles, "episodes": episodes, "seed": seed,
+                     "progress": _progress_bar()}
     if method == "auto":
         staged = staged_initialize(graph, values, solver=solver or "lm",
                                    iters=iters if solver else 0, budget_s=budget,
@@ -254,22 +300,24 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
             click.echo(f"hint: {staged.hint}")
         results, chosen = staged.rows, staged.best
     else:
+        several = len(methods) > 1
+        if several:
+            click.echo(ROW_HEADER)
         results = compare_methods(graph, values, methods, solver, iters,
                                   dataset=input_path.name, options=options,
-                                  pose_graph=pose_graph)
+                                  pose_graph=pose_graph,
+                                  on_row=_print_row if several else None)
         chosen = best_of(results)
-        if len(results) == 1 and chosen.init.certificate is not None:
+        if several:
+            click.echo("ranking: " + ", ".join(f"{rank} {r.method}" for rank, r in
+                                               _ranking(results)))
+        elif chosen.init.certificate is not None:
             click.echo(f"certificate: {chosen.init.certificate.describe()}")
     run.write_g2o(output, graph, chosen.refined)
     seconds = time.perf_counter() - began
-    if len(results) > 1 and method != "auto":
-        click.echo(f"{'rank':<6}{'method':<14}{'guess chi2':>14}{'result chi2':>14}")
-        for rank, r in _ranking(results):
-            tail = f"  FAILED: {r.failure}" if r.failure else ""
-            guess = "-" if r.init_chi2 is None else f"{r.init_chi2:.6g}"
-            result = "-" if r.refined_chi2 is None else f"{r.refined_chi2:.6g}"
-            click.echo(f"{rank:<6}{r.method:<14}{guess:>14}{result:>14}{tail}")
     step = "" if solver is None else f" + {solver.upper()}{iters}"
+    if chosen.cut is not None:
+        step += f" (cut after {chosen.iters})"
     click.echo(f"input chi2 {chi2(graph, values):.6g}; {chosen.method}{step}: chi2 "
                f"{chosen.refined_chi2:.6g}; {seconds:.2f} s; wrote {output}")
 
