@@ -204,7 +204,7 @@ def test_robust_with_refine_none_writes_the_same_guess(clean, tmp_path):
 
 def test_the_staged_default_hints_at_robust_when_closures_are_wrong(with_outliers, tmp_path):
     output = tmp_path / "init.g2o"
-    result = _run(init_main, with_outliers.graph, "-o", output, "--budget", "0")
+    result = _run(init_main, with_outliers.graph, "-o", output)
     cli_ok(result)
     assert "NOT certified" in result.stdout
     hints = [line for line in result.stdout.splitlines() if line.startswith("hint: ")]

@@ -48,8 +48,9 @@ def graph12(tmp_path_factory) -> Path:
 
 # command -> (options fuzzed, the other arguments from (folder, graph12), the output written)
 COMMANDS = {
-    "init": (init_main, ["--iters", "--seed", "--budget", "--episodes", "--cycles"],
-             lambda f, g: [g, "-o", f / "o.g2o", "--method", "chordal"], "o.g2o"),
+    "init": (init_main, ["--iters", "--budget"], lambda f, g: [g, "-o", f / "o.g2o"], "o.g2o"),
+    "init-agent": (init_main, ["--seed", "--episodes", "--cycles"],
+                   lambda f, g: [g, "-o", f / "o.g2o", "--method", "rl"], "o.g2o"),
     "generate": (generate_main, ["--sigma-r", "--sigma-t", "--d", "--lc", "--seed"],
                  lambda f, g: ["--n", "12", "-o", f / "g.g2o"], "g.g2o"),
     "compare": (compare_main, ["--iters", "--seed", "--episodes", "--cycles", "--solver",
