@@ -41,26 +41,18 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import LinearOperator, splu
+from scipy.sparse.linalg import splu
 
-from rlpgo_gtsam.certified import (
-    _ESCAPE_HALVINGS,
-    _GAP_TOLERANCE,
-    _RELATIVE_TOLERANCE,
-    Certificate,
-    Status,
-    _eigsh,
-    _truncated_cg,
-)
+from rlpgo_gtsam.certified import Certificate, Status
 from rlpgo_gtsam.chordal3d import chordal_rotations
 from rlpgo_gtsam.errors import GraphError, SolverError
 from rlpgo_gtsam.graph3d import PoseGraph3D, rotation_weights, translation_weights
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.se3 import project_to_so3
+from rlpgo_gtsam.staircase import Manifold, Relaxation, certificate, check_start, climb, verify
 
 __all__ = ["synchronize3d", "certify3d", "relaxation_cost3d"]
 
@@ -76,17 +68,10 @@ _INITIAL_RADIUS = 0.1
 
 
 @numeric_call
-def synchronize3d(
-    pose_graph: PoseGraph3D,
-    start_rotations: np.ndarray | None = None,
-    *,
-    max_rank: int = 10,
-    tolerance: float | None = None,
-    initial_rank: int = 3,
-    max_iterations: int = 300,
-    gradient_tolerance: float = 1e-7,
-    time_limit_s: float | None = None,
-) -> tuple[np.ndarray, Certificate]:
+def synchronize3d(pose_graph: PoseGraph3D, start_rotations: np.ndarray | None = None, *,
+                  max_rank: int = 10, tolerance: float | None = None, initial_rank: int = 3,
+                  max_iterations: int = 300, gradient_tolerance: float = 1e-7,
+                  time_limit_s: float | None = None) -> tuple[np.ndarray, Certificate]:
     """Rotations (n, 3, 3) of the rounded estimate (the anchor keeps its rotation) and the
     certificate.
 
@@ -108,12 +93,7 @@ def synchronize3d(
         GraphError: non-finite measurements or information.
     """
     started = time.perf_counter()
-    if not 3 <= initial_rank <= max_rank:
-        raise SolverError(f"ranks must satisfy 3 <= initial_rank <= max_rank, got "
-                          f"initial_rank={initial_rank}, max_rank={max_rank}")
-    if time_limit_s is not None and not time_limit_s >= 0:
-        raise SolverError(f"time_limit_s must be a number >= 0 or None, got {time_limit_s}")
-    deadline = None if time_limit_s is None else started + time_limit_s
+    deadline = check_start(started, initial_rank, max_rank, 3, time_limit_s)
     problem = _Problem(pose_graph)
     eta = problem.tolerance(tolerance)
     rotations = chordal_rotations(pose_graph) if start_rotations is None else \
@@ -121,29 +101,14 @@ def synchronize3d(
     x = np.zeros((3 * problem.n, initial_rank))
     x[:, :3] = np.transpose(rotations, (0, 2, 1)).reshape(-1, 3)
     grad_tol = gradient_tolerance * math.sqrt(problem.n) * problem.scale
-    escaped = True
-    while True:
-        x, ended = _trust_region(problem, x, max_iterations, grad_tol, deadline)
-        if ended is Status.TIME_LIMIT:
-            check, stop = _Check(False, math.nan, problem.cost(x), None), Status.TIME_LIMIT
-            break
-        check = _verify(problem, x, eta)
-        if check.imprecise and check.vector is None and not check.certified:
-            stop = Status.EIGENVALUE_IMPRECISE
-            break
-        if check.certified or x.shape[1] >= max_rank:
-            stop = (Status.EIGENVALUE_IMPRECISE if check.imprecise else
-                    Status.SADDLE_ESCAPE_FAILED if not escaped else ended or Status.RANK_LIMIT)
-            break
-        if deadline is not None and time.perf_counter() > deadline:
-            stop = Status.TIME_LIMIT
-            break
-        x, escaped = _escape(problem, x, check.vector)
+    x, check, stop = climb(problem, _STIEFEL, x, eta, max_rank, max_iterations, grad_tol,
+                           deadline)
     rotations = _round(x)
     anchor = pose_graph.anchor
     rotations = pose_graph.anchor_rotation @ rotations[anchor].T @ rotations
     estimate = problem.cost(_stack(rotations))
-    return rotations, _certificate(problem, check, estimate, eta, x.shape[1], started, stop)
+    return rotations, certificate(check, estimate, eta, 3 * problem.n, x.shape[1], started,
+                                  stop)
 
 
 @numeric_call
@@ -156,9 +121,9 @@ def certify3d(pose_graph: PoseGraph3D, rotations: np.ndarray, *,
     problem = _Problem(pose_graph)
     eta = problem.tolerance(tolerance)
     x = _stack(_checked_rotations(rotations, problem.n))
-    check = _verify(problem, x, eta)
+    check = verify(problem, _STIEFEL, x, eta)
     stop = Status.EIGENVALUE_IMPRECISE if check.imprecise else Status.NOT_OPTIMAL
-    return _certificate(problem, check, problem.cost(x), eta, 3, started, stop)
+    return certificate(check, problem.cost(x), eta, 3 * problem.n, 3, started, stop)
 
 
 def relaxation_cost3d(pose_graph: PoseGraph3D, rotations: np.ndarray) -> float:
@@ -191,7 +156,7 @@ def _blocks(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> tuple:
     return values.ravel(), r.ravel(), c.ravel()
 
 
-class _Problem:
+class _Problem(Relaxation):
     """Q = D - B^T L^-1 B applied as an operator on (3n, r) arrays.
 
     ``D``: the rotations' connection Laplacian (blocks ``kappa I`` on the diagonal,
@@ -244,13 +209,6 @@ class _Problem:
         if not self.scale > 0:
             raise SolverError("every edge has zero information: nothing to synchronize")
 
-    def tolerance(self, tolerance: float | None) -> float:
-        if tolerance is None:
-            return _RELATIVE_TOLERANCE * self.scale
-        if not (np.isfinite(tolerance) and tolerance >= 0):
-            raise SolverError(f"tolerance must be a finite number >= 0, got {tolerance}")
-        return float(tolerance)
-
     def apply(self, x: np.ndarray) -> np.ndarray:
         """Q x for x (3n, r)."""
         w = self.lap_lu.solve(np.ascontiguousarray(self.b @ x))
@@ -274,164 +232,70 @@ class _Problem:
         return lu.solve(np.vstack([np.zeros((m, v.shape[1])), v]))[m:]
 
 
-# --- the Riemannian trust region on St(3, r)^n -------------------------------------------
+# --- the product of Stiefel manifolds St(3, r)^n ------------------------------------------
 
 def _sym(a: np.ndarray) -> np.ndarray:
     return 0.5 * (a + np.transpose(a, (0, 2, 1)))
 
 
-def _lambda(x: np.ndarray, qx: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) Lambda_i = sym((Q X)_i X_i^T)."""
-    r = x.shape[1]
-    xb, qb = x.reshape(-1, 3, r), qx.reshape(-1, 3, r)
-    return _sym(qb @ np.transpose(xb, (0, 2, 1)))
+class _Stiefel(Manifold):
+    """3 x r blocks ``X_i`` with orthonormal rows: the staircase's manifold in 3D; the
+    multipliers are the blocks ``Lambda_i = sym((Q X)_i X_i^T)`` (n, 3, 3)."""
 
+    def size(self, n: int) -> int:
+        return 3 * n
 
-def _times_blocks(blocks: np.ndarray, v: np.ndarray) -> np.ndarray:
-    r = v.shape[1]
-    return (blocks @ v.reshape(-1, 3, r)).reshape(-1, r)
+    def inner(self, a: np.ndarray, b: np.ndarray) -> float:
+        return float(np.sum(a * b))
 
+    def project(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """V_i - sym(V_i X_i^T) X_i."""
+        r = x.shape[1]
+        xb, vb = x.reshape(-1, 3, r), v.reshape(-1, 3, r)
+        return (vb - _sym(vb @ np.transpose(xb, (0, 2, 1))) @ xb).reshape(-1, r)
 
-def _project(x: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Projection of v onto the tangent space at x: V_i - sym(V_i X_i^T) X_i."""
-    r = x.shape[1]
-    xb, vb = x.reshape(-1, 3, r), v.reshape(-1, 3, r)
-    return (vb - _sym(vb @ np.transpose(xb, (0, 2, 1))) @ xb).reshape(-1, r)
+    def retract(self, x: np.ndarray) -> np.ndarray:
+        """Each 3 x r block replaced by its polar factor (orthonormal rows)."""
+        r = x.shape[1]
+        u, _, vt = np.linalg.svd(x.reshape(-1, 3, r), full_matrices=False)
+        return (u @ vt).reshape(-1, r)
 
+    def multipliers(self, x: np.ndarray, qx: np.ndarray) -> np.ndarray:
+        r = x.shape[1]
+        xb, qb = x.reshape(-1, 3, r), qx.reshape(-1, 3, r)
+        return _sym(qb @ np.transpose(xb, (0, 2, 1)))
 
-def _retract(x: np.ndarray) -> np.ndarray:
-    """Each 3 x r block replaced by its polar factor (orthonormal rows)."""
-    r = x.shape[1]
-    u, _, vt = np.linalg.svd(x.reshape(-1, 3, r), full_matrices=False)
-    return (u @ vt).reshape(-1, r)
+    def times(self, lam: np.ndarray, v: np.ndarray) -> np.ndarray:
+        r = v.shape[1]
+        return (lam @ v.reshape(-1, 3, r)).reshape(-1, r)
 
+    def hessian(self, x, lam, v, qv) -> np.ndarray:
+        return 2.0 * self.project(x, qv - self.times(lam, v))
 
-def _inner(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.sum(a * b))
+    def diagonal(self, n: int, value: float) -> np.ndarray:
+        return np.broadcast_to(value * np.eye(3), (n, 3, 3))
 
+    def shift(self, lam: np.ndarray, sigma: float) -> np.ndarray:
+        return -lam - sigma * np.eye(3)
 
-def _trust_region(problem: _Problem, x: np.ndarray, max_iterations: int, grad_tol: float,
-                  deadline: float | None) -> tuple[np.ndarray, Status | None]:
-    """A local minimum of f(X) = tr(X^T Q X) on St(3, r)^n: Riemannian trust region with
-    truncated CG (the planar module's), preconditioned by (Q + delta I)^-1. Ends as the
-    planar one: None, ``ITERATION_LIMIT`` or ``TIME_LIMIT``."""
-    precon = None
-    qx = problem.apply(x)
-    f = _inner(x, qx)
-    radius = None
-    for _ in range(max_iterations):
-        lam = _lambda(x, qx)
-        grad = 2.0 * (qx - _times_blocks(lam, x))
-        if np.linalg.norm(grad) <= grad_tol:
-            return x, None
-        if deadline is not None and time.perf_counter() > deadline:
-            return x, Status.TIME_LIMIT
-        if precon is None:
-            precon = problem.factor(np.broadcast_to(
-                _PRECONDITIONER_SHIFT * problem.scale * np.eye(3), (problem.n, 3, 3)))
+    def trace(self, lam: np.ndarray) -> float:
+        return float(np.trace(lam, axis1=1, axis2=2).sum())
 
-        def hess(v: np.ndarray, x=x, lam=lam) -> np.ndarray:
-            return 2.0 * _project(x, problem.apply(v) - _times_blocks(lam, v))
+    def largest(self, lam: np.ndarray) -> float:
+        return float(np.linalg.eigvalsh(lam)[:, -1].max())
 
-        def pre(v: np.ndarray, x=x, precon=precon) -> np.ndarray:
-            return 0.5 * _project(x, problem.solve_shifted(precon, v))
-
-        if radius is None:
-            radius = _INITIAL_RADIUS * math.sqrt(max(_inner(grad, pre(grad)), 1e-300))
-        step, h_step, on_boundary = _truncated_cg(grad, hess, pre, radius)
-        model_decrease = -(_inner(grad, step) + 0.5 * _inner(step, h_step))
-        x_new = _retract(x + step)
-        qx_new = problem.apply(x_new)
-        f_new = _inner(x_new, qx_new)
-        actual = f - f_new
-        rho = actual / model_decrease if model_decrease > 0 else -1.0
-        if model_decrease <= 1e-15 * abs(f) and actual <= 1e-15 * abs(f):
-            return x, None
-        if rho < 0.25:
-            radius *= 0.25
-        elif rho > 0.75 and on_boundary:
-            radius *= 2.0
-        if rho > 0.1 or (actual > 0 and model_decrease <= 1e-12 * abs(f)):
-            x, qx, f = x_new, qx_new, f_new
-    return x, Status.ITERATION_LIMIT
-
-
-# --- verification, escape, rounding --------------------------------------------------------
-
-@dataclass(frozen=True)
-class _Check:
-    certified: bool  # lambda_min(S) >= -eta
-    min_eigenvalue: float  # a proven floor where imprecise; NaN where not verified
-    trace: float  # tr(Lambda) = f(X)
-    vector: np.ndarray | None  # eigenvector of lambda_min(S), where known
-    imprecise: bool = False
-
-
-def _verify(problem: _Problem, x: np.ndarray, eta: float) -> _Check:
-    """lambda_min(S), S = Q - Lambda(X), and whether S + eta I >= 0."""
-    lam = _lambda(x, problem.apply(x))
-    trace = float(np.trace(lam, axis1=1, axis2=2).sum())
-    size = 3 * problem.n
-    if size < _DENSE_BELOW:
-        s = problem.apply(np.eye(size))
+    def dense(self, problem: _Problem, lam: np.ndarray) -> np.ndarray:
+        s = problem.apply(np.eye(3 * problem.n))
         for k in range(problem.n):
             s[3 * k:3 * k + 3, 3 * k:3 * k + 3] -= lam[k]
-        values, vectors = np.linalg.eigh(0.5 * (s + s.T))
-        return _Check(bool(values[0] >= -eta), float(values[0]), trace, vectors[:, 0])
-    floor = -max(float(np.linalg.eigvalsh(lam)[:, -1].max()), 0.0)  # Q >= 0
-    try:  # S + eta I through its pivots; the same LU then serves shift-invert at -eta
-        lu = problem.factor(np.eye(3) * eta - lam)
-    except RuntimeError:  # an exact zero pivot
-        lu = None
-    negatives = _negative_pivots(lu)
-    if negatives == 0:
-        value, vector = _nearest_above(problem, lam, -eta, lu)
-        if vector is None:
-            return _Check(True, -eta, trace, None, imprecise=True)
-        return _Check(True, value, trace, vector)
-    value, vector = _nearest_above(problem, lam, floor - eta - 1e-3 * problem.scale)
-    if vector is None:
-        return _Check(False, floor, trace, None, imprecise=True)
-    return _Check(bool(value >= -eta), value, trace, vector)
+        return s
 
 
-def _negative_pivots(lu) -> int | None:
-    """Eigenvalues of Q + M that are <= 0 from the pivot-free LU of :meth:`_Problem.factor`
-    (Sylvester's law of inertia), or None when there is no LU (an exact zero pivot) or it
-    pivoted off the diagonal."""
-    if lu is None or not np.array_equal(lu.perm_r, lu.perm_c):
-        return None
-    return int(np.count_nonzero(lu.U.diagonal() <= 0))
+_STIEFEL = _Stiefel(dense_below=_DENSE_BELOW, preconditioner_shift=_PRECONDITIONER_SHIFT,
+                    initial_radius=_INITIAL_RADIUS)
 
 
-def _nearest_above(problem: _Problem, lam: np.ndarray, sigma: float,
-                   lu=None) -> tuple[float, np.ndarray | None]:
-    """The smallest eigenvalue of S when all lie above sigma (the largest of
-    (S - sigma I)^-1), with its eigenvector; (NaN, None) when ARPACK did not converge.
-    ``lu``: the factor of S - sigma I, if already made."""
-    lu = problem.factor(-lam - sigma * np.eye(3)) if lu is None else lu
-    size = 3 * problem.n
-    op = LinearOperator((size, size), dtype=float,
-                        matvec=lambda v: problem.solve_shifted(lu, v.reshape(-1, 1))[:, 0])
-    values, vectors, converged = _eigsh(op, k=1, which="LA", tol=1e-10)
-    if not converged or len(values) == 0:
-        return math.nan, None
-    return float(sigma + 1.0 / values[0]), vectors[:, 0]
-
-
-def _escape(problem: _Problem, x: np.ndarray, vector: np.ndarray) -> tuple[np.ndarray, bool]:
-    """X at rank r + 1, lower than X, along the eigenvector of lambda_min(S) in the new
-    column; and whether it descended."""
-    f0 = problem.cost(x)
-    v = vector / np.max(np.abs(vector))
-    alpha = 1.0
-    for _ in range(_ESCAPE_HALVINGS):
-        x_new = _retract(np.hstack([x, alpha * v[:, None]]))
-        if problem.cost(x_new) < f0:
-            return x_new, True
-        alpha *= 0.5
-    return _retract(np.hstack([x, alpha * v[:, None]])), False
-
+# --- rounding -------------------------------------------------------------------------------
 
 def _round(x: np.ndarray) -> np.ndarray:
     """(n, 3, 3) rotations: rank-3 SVD, reflection rule, projection onto SO(3)."""
@@ -440,19 +304,3 @@ def _round(x: np.ndarray) -> np.ndarray:
     if np.count_nonzero(np.linalg.det(blocks) > 0) < 0.5 * len(blocks):
         blocks = _REFLECT @ blocks
     return project_to_so3(blocks)
-
-
-def _certificate(problem: _Problem, check: _Check, estimate: float, eta: float, rank: int,
-                 started: float, stop: Status) -> Certificate:
-    size = 3 * problem.n
-    lower = check.trace + size * min(check.min_eigenvalue, 0.0)
-    gap = max(estimate - lower, 0.0)
-    if check.certified:
-        exact = gap <= size * eta + _GAP_TOLERANCE * abs(estimate)
-        status = Status.CERTIFIED if exact else Status.NOT_TIGHT
-    else:
-        status = stop
-    return Certificate(status=status, lower_bound=float(lower), estimate_cost=float(estimate),
-                       suboptimality_bound=float(gap), min_eigenvalue=float(check.min_eigenvalue),
-                       tolerance=float(eta), rank=int(rank),
-                       seconds=time.perf_counter() - started)

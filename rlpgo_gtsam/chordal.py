@@ -16,7 +16,7 @@ from rlpgo_gtsam.graph import PoseGraph2D, rotation_weights
 from rlpgo_gtsam.linear import solve_pairwise
 from rlpgo_gtsam.se2 import rotation_matrices
 
-__all__ = ["chordal_orientations"]
+__all__ = ["chordal_orientations", "chordal_blocks"]
 
 
 def chordal_orientations(pose_graph: PoseGraph2D) -> np.ndarray:
@@ -26,10 +26,18 @@ def chordal_orientations(pose_graph: PoseGraph2D) -> np.ndarray:
         SolverError: the rotation terms leave a pose undetermined (it is named).
     """
     g = pose_graph
-    root_w = np.sqrt(rotation_weights(g))[:, None, None]
-    a_i = -root_w * rotation_matrices(g.measured[:, 2])
-    a_j = root_w * np.broadcast_to(np.eye(2), a_i.shape)
+    a_i, a_j = chordal_blocks(rotation_weights(g), rotation_matrices(g.measured[:, 2]))
     held, held_poses = g.held
     held_z = np.column_stack([np.cos(held_poses[:, 2]), np.sin(held_poses[:, 2])])
     z = solve_pairwise(g.num_poses, g.edges, a_i, a_j, np.zeros((g.num_edges, 2)), held, held_z)
     return np.arctan2(z[:, 1], z[:, 0])
+
+
+def chordal_blocks(weights: np.ndarray, rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The blocks of the chordal rotation residuals ``sqrt(w_e) (x_j - M_e x_i)``, one per
+    edge, as :func:`~rlpgo_gtsam.linear.solve_pairwise` takes them: ``a_i = -sqrt(w) M``,
+    ``a_j = sqrt(w) I`` for (m,) ``weights`` and (m, d, d) ``rotations`` ``M`` (in 2D
+    ``R(theta~)`` acting on ``z``; in 3D ``R~^T`` acting on a row of ``R``)."""
+    root = np.sqrt(weights)[:, None, None]
+    a_i = -root * rotations
+    return a_i, root * np.broadcast_to(np.eye(rotations.shape[-1]), a_i.shape)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rlpgo_gtsam.chordal import chordal_blocks
 from rlpgo_gtsam.graph3d import PoseGraph3D, rotation_weights
 from rlpgo_gtsam.se3 import project_to_so3
 from rlpgo_gtsam.translations3d import solve_block_pairwise
@@ -21,15 +22,14 @@ __all__ = ["chordal_rotations"]
 
 
 def chordal_rotations(pose_graph: PoseGraph3D) -> np.ndarray:
-    """Rotations (n, 3, 3) from the chordal relaxation; held poses keep theirs.
+    """Rotations (n, 3, 3) from the chordal relaxation (:func:`chordal_blocks`, three
+    right-hand sides); held poses keep theirs.
 
     Raises:
         SolverError: the rotation terms leave a pose undetermined (it is named).
     """
     g = pose_graph
-    root = np.sqrt(rotation_weights(g))[:, None, None]
-    a_i = -root * np.transpose(g.measured_rotations, (0, 2, 1))
-    a_j = root * np.broadcast_to(np.eye(3), a_i.shape)
+    a_i, a_j = chordal_blocks(rotation_weights(g), np.transpose(g.measured_rotations, (0, 2, 1)))
     held, held_r, _ = g.held
     # unknown k holds the rows of R_k as columns: x[k][:, c] = row c of R_k
     x = solve_block_pairwise(g.num_poses, g.edges, a_i, a_j, np.zeros((g.num_edges, 3, 3)),

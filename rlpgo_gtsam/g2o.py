@@ -125,7 +125,7 @@ def read_g2o_lines(
     return graph, values, lines
 
 
-def _lines(path: Path) -> Iterator[tuple[int, str]]:
+def numbered_lines(path: Path) -> Iterator[tuple[int, str]]:
     try:
         handle = path.open("rb")
     except FileNotFoundError:
@@ -166,7 +166,7 @@ def _lines(path: Path) -> Iterator[tuple[int, str]]:
 
 def _parse(path: Path) -> _Parsed:
     parsed = _Parsed()
-    for number, text in _lines(path):
+    for number, text in numbered_lines(path):
         tokens = text.split()
         if not tokens or tokens[0].startswith("#"):
             continue
@@ -179,12 +179,12 @@ def _parse(path: Path) -> _Parsed:
         elif tag == "FIX":
             if not fields:
                 raise G2oFormatError(path, number, "FIX needs at least one vertex id")
-            parsed.fixed.extend((_id(path, number, f), number) for f in fields)
+            parsed.fixed.extend((parse_id(path, number, f), number) for f in fields)
         elif tag.upper().startswith(_3D_TAGS):
-            raise G2oFormatError(path, number, f"{_short(tag)}: 3D graphs are not supported")
+            raise G2oFormatError(path, number, f"{short_token(tag)}: 3D graphs are not supported")
         else:
             raise G2oFormatError(
-                path, number, f"unknown tag '{_short(tag)}' (this reader takes VERTEX_SE2, "
+                path, number, f"unknown tag '{short_token(tag)}' (this reader takes VERTEX_SE2, "
                 "EDGE_SE2 and FIX)"
             )
     if not parsed.vertices and not parsed.edges:
@@ -194,23 +194,23 @@ def _parse(path: Path) -> _Parsed:
     return parsed
 
 
-def _short(token: str, limit: int = 40) -> str:
+def short_token(token: str, limit: int = 40) -> str:
     printable = token.encode("unicode_escape").decode("ascii")
     return printable if len(printable) <= limit else printable[:limit] + "..."
 
 
-def _id(path: Path, line: int, token: str) -> int:
+def parse_id(path: Path, line: int, token: str) -> int:
     if not token.isascii() or not token.isdigit():
         raise G2oFormatError(
-            path, line, f"vertex id must be a non-negative integer, found '{_short(token)}'"
+            path, line, f"vertex id must be a non-negative integer, found '{short_token(token)}'"
         )
     # GTSAM keys are 64-bit; the length test first keeps int() off huge digit strings.
     if len(token.lstrip("0")) > 20 or int(token) >= 2**64:
-        raise G2oFormatError(path, line, f"vertex id {_short(token)} is too large")
+        raise G2oFormatError(path, line, f"vertex id {short_token(token)} is too large")
     return int(token)
 
 
-def _numbers(path: Path, line: int, tag: str, tokens: list[str], first: int) -> list[float]:
+def parse_numbers(path: Path, line: int, tag: str, tokens: list[str], first: int) -> list[float]:
     """Parse ``tokens`` as floats; ``first`` is the position of tokens[0] after the tag."""
     numbers = []
     for position, token in enumerate(tokens, start=first):
@@ -220,7 +220,7 @@ def _numbers(path: Path, line: int, tag: str, tokens: list[str], first: int) -> 
             number = float(token)
         except ValueError:
             raise G2oFormatError(
-                path, line, f"{tag} field {position} is not a number: '{_short(token)}'"
+                path, line, f"{tag} field {position} is not a number: '{short_token(token)}'"
             ) from None
         if not math.isfinite(number):
             raise G2oFormatError(path, line, f"{tag} field {position} is not finite: '{token}'")
@@ -234,8 +234,8 @@ def _parse_vertex(path: Path, line: int, fields: list[str], parsed: _Parsed) -> 
             path, line,
             f"VERTEX_SE2 needs {_VERTEX_NUMBERS} numbers after the tag, found {len(fields)}",
         )
-    key = _id(path, line, fields[0])
-    x, y, theta = _numbers(path, line, "VERTEX_SE2", fields[1:], first=2)
+    key = parse_id(path, line, fields[0])
+    x, y, theta = parse_numbers(path, line, "VERTEX_SE2", fields[1:], first=2)
     if key in parsed.vertices:
         raise G2oFormatError(
             path, line,
@@ -251,10 +251,10 @@ def _parse_edge(path: Path, line: int, fields: list[str], parsed: _Parsed) -> No
             path, line,
             f"EDGE_SE2 needs {_EDGE_NUMBERS} numbers after the tag, found {len(fields)}",
         )
-    i, j = _id(path, line, fields[0]), _id(path, line, fields[1])
+    i, j = parse_id(path, line, fields[0]), parse_id(path, line, fields[1])
     if i == j:
         raise G2oFormatError(path, line, f"EDGE_SE2 joins vertex {i} to itself")
-    numbers = _numbers(path, line, "EDGE_SE2", fields[2:], first=3)
+    numbers = parse_numbers(path, line, "EDGE_SE2", fields[2:], first=3)
     xx, xy, xt, yy, yt, tt = numbers[3:]
     information = np.array([[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]])
     problem = information_problem(information)
@@ -331,7 +331,7 @@ def _check_connected(path: Path, parsed: _Parsed) -> None:
         raise G2oFormatError(path, None, problem)
 
 
-def _format_15(value: float) -> str:
+def format_15(value: float) -> str:
     # GTSAM stores an angle as (cos, sin) and a noise model as its square-root information,
     # so theta() and R^T R come back within an ulp or so of what was read. Fifteen
     # significant digits undo that: a file's own decimals come back unchanged, and
@@ -373,7 +373,7 @@ def g2o_text_lines(
         if not all(math.isfinite(v) for v in numbers):
             raise OutputError(f"vertex {key} is not finite ({numbers[0]!r}, {numbers[1]!r}, "
                               f"{numbers[2]!r}): the file would not read back")
-        lines.append(f"VERTEX_SE2 {key} {pose.x()!r} {pose.y()!r} {_format_15(pose.theta())}")
+        lines.append(f"VERTEX_SE2 {key} {pose.x()!r} {pose.y()!r} {format_15(pose.theta())}")
     fixed = []
     for index in range(graph.size()):
         factor = graph.at(index)
@@ -400,8 +400,8 @@ def g2o_text_lines(
                 raise OutputError(f"edge {i}-{j}: {problem} (the reader would refuse it)")
             upper = (info[0, 0], info[0, 1], info[0, 2], info[1, 1], info[1, 2], info[2, 2])
             lines.append(
-                f"EDGE_SE2 {i} {j} {z.x()!r} {z.y()!r} {_format_15(z.theta())} "
-                + " ".join(_format_15(v) for v in upper)
+                f"EDGE_SE2 {i} {j} {z.x()!r} {z.y()!r} {format_15(z.theta())} "
+                + " ".join(format_15(v) for v in upper)
             )
             factor_lines.append(len(lines))
         elif isinstance(factor, gtsam.PriorFactorPose2):

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,7 +31,7 @@ import numpy as np
 
 from rlpgo_gtsam.errors import G2oFormatError, OutputError
 from rlpgo_gtsam.files import write_text
-from rlpgo_gtsam.g2o import _format_15, _id, _lines, _numbers, _short
+from rlpgo_gtsam.g2o import format_15, numbered_lines, parse_id, parse_numbers, short_token
 from rlpgo_gtsam.graph import disconnection
 from rlpgo_gtsam.graph3d import information_problem_6
 from rlpgo_gtsam.se3 import compose, inverse, quaternions_to_rotations, rotations_to_quaternions
@@ -106,17 +107,21 @@ def read_g2o3d(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph
     return graph, values
 
 
+def _records(path: Path) -> Iterator[tuple[int, str, list[str]]]:
+    """(line number, tag, fields) of each line that is neither blank nor a comment."""
+    for number, text in numbered_lines(path):
+        tokens = text.split()
+        if tokens and not tokens[0].startswith("#"):
+            yield number, tokens[0], tokens[1:]
+
+
 def _parse(path: Path) -> _Parsed:
     parsed = _Parsed()
-    for number, text in _lines(path):
-        tokens = text.split()
-        if not tokens or tokens[0].startswith("#"):
-            continue
-        tag, fields = tokens[0], tokens[1:]
+    for number, tag, fields in _records(path):
         if tag == VERTEX:
             _check_count(path, number, tag, fields, _VERTEX_FIELDS)
-            key = _id(path, number, fields[0])
-            numbers = _numbers(path, number, tag, fields[1:], first=2)
+            key = parse_id(path, number, fields[0])
+            numbers = parse_numbers(path, number, tag, fields[1:], first=2)
             if key in parsed.vertices:
                 raise G2oFormatError(path, number, f"{VERTEX} id {key} defined twice (first "
                                      f"on line {parsed.vertex_lines[key]})")
@@ -125,10 +130,10 @@ def _parse(path: Path) -> _Parsed:
             parsed.vertex_lines[key] = number
         elif tag == EDGE:
             _check_count(path, number, tag, fields, _EDGE_FIELDS)
-            i, j = _id(path, number, fields[0]), _id(path, number, fields[1])
+            i, j = parse_id(path, number, fields[0]), parse_id(path, number, fields[1])
             if i == j:
                 raise G2oFormatError(path, number, f"{EDGE} joins vertex {i} to itself")
-            numbers = _numbers(path, number, tag, fields[2:], first=3)
+            numbers = parse_numbers(path, number, tag, fields[2:], first=3)
             rotation = _rotation(path, number, tag, numbers[3:7])
             upper = np.zeros((6, 6))
             upper[_UPPER] = numbers[7:]
@@ -141,12 +146,12 @@ def _parse(path: Path) -> _Parsed:
         elif tag == "FIX":
             if not fields:
                 raise G2oFormatError(path, number, "FIX needs at least one vertex id")
-            parsed.fixed.extend((_id(path, number, f), number) for f in fields)
+            parsed.fixed.extend((parse_id(path, number, f), number) for f in fields)
         elif tag.upper().startswith(_2D_TAGS):
-            raise G2oFormatError(path, number, f"{_short(tag)}: a planar line in a 3D file "
+            raise G2oFormatError(path, number, f"{short_token(tag)}: a planar line in a 3D file "
                                  "(a file holds 2D or 3D lines, not both)")
         else:
-            raise G2oFormatError(path, number, f"unknown tag '{_short(tag)}' (this reader "
+            raise G2oFormatError(path, number, f"unknown tag '{short_token(tag)}' (this reader "
                                  f"takes {VERTEX}, {EDGE} and FIX)")
     if not parsed.edges:
         raise G2oFormatError(path, None, f"holds no {EDGE} line: a pose graph needs edges")
@@ -208,23 +213,17 @@ def g2o3d_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
     Raises:
         OutputError: a factor, value or information that a 3D g2o file cannot hold.
     """
-    lines = []
-    for key in sorted(values.keys()):
-        try:
-            pose = values.atPose3(key)
-        except RuntimeError:
-            raise OutputError(f"value of key {key} is not a Pose3: a 3D g2o file holds Pose3 "
-                              "vertices only") from None
-        lines.append(f"{VERTEX} {key} " + _pose_text(pose, f"vertex {key}"))
+    lines = [f"{VERTEX} {key} " + _pose_text(_pose3(values, key), f"vertex {key}")
+             for key in sorted(values.keys())]
     fixed = []
     for index in range(graph.size()):
         factor = graph.at(index)
         if factor is None:
             continue
-        for key in factor.keys():
-            if not values.exists(key):
-                raise OutputError(f"factor {index} refers to key {key}, which has no value: "
-                                  "the file would not read back")
+        missing = [key for key in factor.keys() if not values.exists(key)]
+        if missing:
+            raise OutputError(f"factor {index} refers to key {missing[0]}, which has no value: "
+                              "the file would not read back")
         if isinstance(factor, gtsam.BetweenFactorPose3):
             i, j = factor.keys()
             model = factor.noiseModel()
@@ -239,7 +238,7 @@ def g2o3d_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
             back = np.argsort(G2O_TO_GTSAM)  # GTSAM's order -> g2o's
             upper = information[back][:, back][_UPPER]
             lines.append(f"{EDGE} {i} {j} " + _pose_text(factor.measured(), f"edge {i}-{j}")
-                         + " " + " ".join(_format_15(v) for v in upper))
+                         + " " + " ".join(format_15(v) for v in upper))
         elif isinstance(factor, gtsam.PriorFactorPose3):
             if not isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
                 raise OutputError(f"prior on key {factor.keys()[0]}: a soft prior has no g2o "
@@ -252,6 +251,14 @@ def g2o3d_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _pose3(values: gtsam.Values, key: int) -> gtsam.Pose3:
+    try:
+        return values.atPose3(key)
+    except RuntimeError:
+        raise OutputError(f"value of key {key} is not a Pose3: a 3D g2o file holds Pose3 "
+                          "vertices only") from None
+
+
 def _pose_text(pose: gtsam.Pose3, name: str) -> str:
     # positions exactly; quaternions and (below) information with 15 significant digits, as
     # the planar writer: matrix -> quaternion and R^T R drift by an ulp, which 15 digits undo
@@ -259,7 +266,7 @@ def _pose_text(pose: gtsam.Pose3, name: str) -> str:
     quaternion = rotations_to_quaternions(pose.rotation().matrix())[0].tolist()
     if not all(math.isfinite(v) for v in position + quaternion):
         raise OutputError(f"{name} is not finite: the file would not read back")
-    return " ".join([repr(float(v)) for v in position] + [_format_15(v) for v in quaternion])
+    return " ".join([repr(float(v)) for v in position] + [format_15(v) for v in quaternion])
 
 
 def write_g2o3d(path: str | os.PathLike[str], graph: gtsam.NonlinearFactorGraph,

@@ -19,8 +19,9 @@ What the arrays keep of GTSAM's meaning:
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -39,11 +40,37 @@ __all__ = [
     "MAX_CONDITION",
     "disconnection",
     "format_ranges",
+    "PoseArrays",
+    "Factors",
+    "sort_factors",
+    "factor_information",
 ]
 
 
+class PoseArrays:
+    """What the planar and the 3D pose graph's arrays share: ``keys`` (n,) and ``edges``
+    (m, 2), their counts, and the connectivity check."""
+
+    keys: np.ndarray
+    edges: np.ndarray
+
+    @property
+    def num_poses(self) -> int:
+        return len(self.keys)
+
+    @property
+    def num_edges(self) -> int:
+        return len(self.edges)
+
+    def check_connected(self) -> None:
+        """Raise :class:`GraphError` naming the components if the graph is not connected."""
+        problem = disconnection(self.keys.tolist(), self.keys[self.edges].tolist())
+        if problem is not None:
+            raise GraphError(problem)
+
+
 @dataclass(frozen=True)
-class PoseGraph2D:
+class PoseGraph2D(PoseArrays):
     """The measurements of a planar pose graph as arrays; poses indexed 0..n-1.
 
     Attributes:
@@ -73,14 +100,6 @@ class PoseGraph2D:
     graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
 
     @property
-    def num_poses(self) -> int:
-        return len(self.keys)
-
-    @property
-    def num_edges(self) -> int:
-        return len(self.edges)
-
-    @property
     def held(self) -> tuple[np.ndarray, np.ndarray]:
         """Indices and poses the initializers keep: the anchor and every hard-prior pose."""
         anchor_pose = self.poses[self.anchor] if self.anchor_pose is None else self.anchor_pose
@@ -103,43 +122,16 @@ class PoseGraph2D:
             poses = _poses(values, keys.tolist())
         except RuntimeError as error:
             raise GraphError(f"values hold something other than Pose2: {error}") from None
-        edges, measured, information = [], [], []
-        hard: list[tuple[int, np.ndarray]] = []
-        soft: list[tuple[int, np.ndarray]] = []
-        for factor in _factors(graph):
-            if isinstance(factor, gtsam.BetweenFactorPose2):
-                i, j = factor.keys()
-                for key in (i, j):
-                    if key not in index:
-                        raise GraphError(f"between factor {i}-{j}: key {key} has no value")
-                edges.append((index[i], index[j]))
-                measured.append(_pose_array(factor.measured()))
-                information.append(_information(factor, f"between factor {i}-{j}"))
-            elif isinstance(factor, gtsam.PriorFactorPose2):
-                key = factor.keys()[0]
-                if key not in index:
-                    raise GraphError(f"prior factor on key {key}: the key has no value")
-                model = factor.noiseModel()
-                prior = (index[key], _pose_array(factor.prior()))
-                if isinstance(model, gtsam.noiseModel.Constrained):
-                    hard.append(prior)
-                else:
-                    _information(factor, f"prior factor on key {key}")
-                    soft.append(prior)
-            else:
-                raise GraphError(
-                    f"unsupported factor {type(factor).__name__}: a planar pose graph holds "
-                    "BetweenFactorPose2 and PriorFactorPose2 factors only"
-                )
-        if not edges:
-            raise GraphError("the graph has no BetweenFactorPose2 factors")
-        anchor, anchor_pose = (hard or soft or [(0, None)])[0]
+        factors = sort_factors(graph, index, gtsam.BetweenFactorPose2, gtsam.PriorFactorPose2,
+                               _pose_array, 3, "planar")
+        hard = factors.hard
+        anchor, anchor_pose = factors.anchor
         result = cls(
             keys=keys,
             poses=poses.reshape(-1, 3),
-            edges=np.array(edges, dtype=np.int64),
-            measured=np.array(measured),
-            information=np.array(information),
+            edges=np.array(factors.edges, dtype=np.int64),
+            measured=np.array(factors.measured),
+            information=np.array(factors.information),
             anchor=anchor,
             fixed=np.array([k for k, _ in hard], dtype=np.int64),
             fixed_poses=np.array([p for _, p in hard]).reshape(-1, 3),
@@ -148,12 +140,6 @@ class PoseGraph2D:
         )
         result.check_connected()
         return result
-
-    def check_connected(self) -> None:
-        """Raise :class:`GraphError` naming the components if the graph is not connected."""
-        problem = disconnection(self.keys.tolist(), self.keys[self.edges].tolist())
-        if problem is not None:
-            raise GraphError(problem)
 
     def to_values(self, poses: np.ndarray) -> gtsam.Values:
         """GTSAM values of the given (n, 3) poses under this graph's keys."""
@@ -249,7 +235,89 @@ def information_problem(information: np.ndarray, size: int = 3) -> str | None:
     return None
 
 
-def _information(factor, name: str) -> np.ndarray:
+@dataclass
+class Factors:
+    """A graph's factors sorted by :func:`sort_factors`.
+
+    Attributes:
+        edges: (i, j) pose indices of each between factor, in graph order.
+        measured: each between factor's measurement, as the caller's ``pose`` reads it.
+        information: each between factor's information matrix.
+        hard: (index, prior) of each prior with a constrained noise model (a FIX).
+        soft: (index, prior) of each prior with a Gaussian noise model.
+    """
+
+    edges: list[tuple[int, int]] = field(default_factory=list)
+    measured: list[Any] = field(default_factory=list)
+    information: list[np.ndarray] = field(default_factory=list)
+    hard: list[tuple[int, Any]] = field(default_factory=list)
+    soft: list[tuple[int, Any]] = field(default_factory=list)
+
+    @property
+    def anchor(self) -> tuple[int, Any]:
+        """(index, prior) of the pose that fixes the gauge: the first hard prior's, else the
+        first soft prior's, else (0, None)."""
+        return (self.hard or self.soft or [(0, None)])[0]
+
+
+def sort_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int], between: type,
+                 prior: type, pose: Callable[[Any], Any], size: int, kind: str,
+                 check_information: bool = True) -> Factors:
+    """The factors of ``graph`` as edges, hard and soft priors, in graph order (the one walk
+    of both pose graphs' extraction).
+
+    ``index`` maps a key to its pose index; ``between`` and ``prior`` are the factor classes
+    (``BetweenFactorPose2``, ``PriorFactorPose2`` or their Pose3 siblings); ``pose`` reads a
+    measurement or a prior; ``size`` is the information's (3 or 6); ``check_information``
+    as :func:`factor_information` for the edges (a soft prior's is always checked).
+
+    Raises:
+        GraphError: a factor of another class, a key without a value, a noise model the
+            initializers cannot use (:func:`factor_information`), or no between factor.
+    """
+    factors = Factors()
+    for position in range(graph.size()):
+        factor = graph.at(position)
+        if factor is None:
+            continue
+        if isinstance(factor, between):
+            i, j = factor.keys()
+            for key in (i, j):
+                if key not in index:
+                    raise GraphError(f"between factor {i}-{j}: key {key} has no value")
+            factors.edges.append((index[i], index[j]))
+            factors.measured.append(pose(factor.measured()))
+            factors.information.append(factor_information(
+                factor, f"between factor {i}-{j}", size, check_information))
+        elif isinstance(factor, prior):
+            key = factor.keys()[0]
+            if key not in index:
+                raise GraphError(f"prior factor on key {key}: the key has no value")
+            entry = (index[key], pose(factor.prior()))
+            if isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
+                factors.hard.append(entry)
+            else:
+                factor_information(factor, f"prior factor on key {key}", size)
+                factors.soft.append(entry)
+        else:
+            raise GraphError(
+                f"unsupported factor {type(factor).__name__}: a {kind} pose graph holds "
+                f"{between.__name__} and {prior.__name__} factors only"
+            )
+    if not factors.edges:
+        raise GraphError(f"the graph has no {between.__name__} factors")
+    return factors
+
+
+def factor_information(factor, name: str, size: int = 3, check: bool = True) -> np.ndarray:
+    """The information of ``factor``'s Gaussian, not constrained, noise model (``name`` in
+    the errors): usable by :func:`information_problem` at ``size``, or with
+    ``check=False`` only finite and positive semidefinite.
+
+    Raises:
+        GraphError: a model that is not Gaussian (robust models), a constrained one, or
+            information the rule refuses.
+    """
     model = factor.noiseModel()
     if not isinstance(model, gtsam.noiseModel.Gaussian):
         raise GraphError(
@@ -259,7 +327,13 @@ def _information(factor, name: str) -> np.ndarray:
     if isinstance(model, gtsam.noiseModel.Constrained):
         raise GraphError(f"{name} has a constrained noise model; only priors may be hard")
     information = model.information()
-    problem = information_problem(information)
+    if not check:
+        if not (np.all(np.isfinite(information)) and np.linalg.eigvalsh(information)[0]
+                >= -1e-12 * np.abs(information).max()):
+            raise GraphError(f"{name}: information matrix is not finite and positive "
+                             "semidefinite")
+        return information
+    problem = information_problem(information, size)
     if problem is not None:
         raise GraphError(f"{name}: {problem}")
     return information
@@ -272,10 +346,6 @@ def _poses(values: gtsam.Values, keys: list[int]) -> np.ndarray:
 
 def _pose_array(pose: gtsam.Pose2) -> np.ndarray:
     return np.array([pose.x(), pose.y(), pose.theta()])
-
-
-def _factors(graph: gtsam.NonlinearFactorGraph) -> list:
-    return [graph.at(i) for i in range(graph.size()) if graph.at(i) is not None]
 
 
 def chi2(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> float:

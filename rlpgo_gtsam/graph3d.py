@@ -18,7 +18,7 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
-from rlpgo_gtsam.graph import disconnection, information_problem
+from rlpgo_gtsam.graph import PoseArrays, information_problem, sort_factors
 from rlpgo_gtsam.se3 import between, logmap
 
 __all__ = [
@@ -31,7 +31,7 @@ __all__ = [
 
 
 @dataclass(frozen=True)
-class PoseGraph3D:
+class PoseGraph3D(PoseArrays):
     """The measurements of a 3D pose graph as arrays; poses indexed 0..n-1.
 
     Attributes:
@@ -68,14 +68,6 @@ class PoseGraph3D:
     graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
 
     @property
-    def num_poses(self) -> int:
-        return len(self.keys)
-
-    @property
-    def num_edges(self) -> int:
-        return len(self.edges)
-
-    @property
     def held(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Indices, rotations (k, 3, 3) and translations (k, 3) of the poses the initializers
         keep: the anchor first, then every other hard-prior pose."""
@@ -106,57 +98,26 @@ class PoseGraph3D:
         except RuntimeError as error:
             raise GraphError(f"values hold something other than Pose3: "
                              f"{' '.join(str(error).split())}") from None
-        edges, measured, information = [], [], []
-        hard: list[tuple[int, gtsam.Pose3]] = []
-        soft: list[tuple[int, gtsam.Pose3]] = []
-        for position in range(graph.size()):
-            factor = graph.at(position)
-            if factor is None:
-                continue
-            if isinstance(factor, gtsam.BetweenFactorPose3):
-                i, j = factor.keys()
-                for key in (i, j):
-                    if key not in index:
-                        raise GraphError(f"between factor {i}-{j}: key {key} has no value")
-                edges.append((index[i], index[j]))
-                measured.append(factor.measured())
-                information.append(_information(factor, f"between factor {i}-{j}",
-                                                check_information))
-            elif isinstance(factor, gtsam.PriorFactorPose3):
-                key = factor.keys()[0]
-                if key not in index:
-                    raise GraphError(f"prior factor on key {key}: the key has no value")
-                if isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
-                    hard.append((index[key], factor.prior()))
-                else:
-                    _information(factor, f"prior factor on key {key}")
-                    soft.append((index[key], factor.prior()))
-            else:
-                raise GraphError(
-                    f"unsupported factor {type(factor).__name__}: a 3D pose graph holds "
-                    "BetweenFactorPose3 and PriorFactorPose3 factors only"
-                )
-        if not edges:
-            raise GraphError("the graph has no BetweenFactorPose3 factors")
-        anchor, anchor_prior = (hard or soft or [(0, None)])[0]
+        factors = sort_factors(graph, index, gtsam.BetweenFactorPose3, gtsam.PriorFactorPose3,
+                               lambda pose: pose, 6, "3D", check_information)
+        hard = factors.hard
+        anchor, anchor_prior = factors.anchor
         fixed_r, fixed_t = _pose_arrays([pose for _, pose in hard])
-        measured_r, measured_t = _pose_arrays(measured)
+        measured_r, measured_t = _pose_arrays(factors.measured)
         if anchor_prior is None:
             anchor_r, anchor_t = rotations[anchor], translations[anchor]
         else:
             anchor_r, anchor_t = anchor_prior.rotation().matrix(), anchor_prior.translation()
         result = cls(
             keys=keys, rotations=rotations, translations=translations,
-            edges=np.array(edges, dtype=np.int64), measured_rotations=measured_r,
-            measured_translations=measured_t, information=np.array(information),
+            edges=np.array(factors.edges, dtype=np.int64), measured_rotations=measured_r,
+            measured_translations=measured_t, information=np.array(factors.information),
             anchor=anchor, fixed=np.array([k for k, _ in hard], dtype=np.int64),
             fixed_rotations=fixed_r, fixed_translations=fixed_t,
             anchor_rotation=np.asarray(anchor_r, float),
             anchor_translation=np.asarray(anchor_t, float), graph=graph,
         )
-        problem = disconnection(keys.tolist(), keys[result.edges].tolist())
-        if problem is not None:
-            raise GraphError(problem)
+        result.check_connected()
         return result
 
     def to_values(self, rotations: np.ndarray, translations: np.ndarray) -> gtsam.Values:
@@ -200,27 +161,6 @@ def information_problem_6(information: np.ndarray) -> str | None:
     """Why a 6x6 information matrix cannot be used, or None if it can: the planar rule
     (:func:`rlpgo_gtsam.graph.information_problem`) at size 6."""
     return information_problem(information, 6)
-
-
-def _information(factor, name: str, check: bool = True) -> np.ndarray:
-    model = factor.noiseModel()
-    if not isinstance(model, gtsam.noiseModel.Gaussian):
-        raise GraphError(f"{name} has a {type(model).__name__} noise model; the initializers "
-                         "need Gaussian models (wrap the graph's robust models after "
-                         "initialization)")
-    if isinstance(model, gtsam.noiseModel.Constrained):
-        raise GraphError(f"{name} has a constrained noise model; only priors may be hard")
-    information = model.information()
-    if not check:
-        if not (np.all(np.isfinite(information)) and np.linalg.eigvalsh(information)[0]
-                >= -1e-12 * np.abs(information).max()):
-            raise GraphError(f"{name}: information matrix is not finite and positive "
-                             "semidefinite")
-        return information
-    problem = information_problem_6(information)
-    if problem is not None:
-        raise GraphError(f"{name}: {problem}")
-    return information
 
 
 def _pose_arrays(poses: list[gtsam.Pose3]) -> tuple[np.ndarray, np.ndarray]:

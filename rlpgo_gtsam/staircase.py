@@ -1,0 +1,543 @@
+"""The Riemannian staircase of the synchronization relaxations, once for the planar one
+(:mod:`rlpgo_gtsam.certified`: unit-modulus complex rows) and the 3D one
+(:mod:`rlpgo_gtsam.certified3d`: Stiefel blocks); its :class:`Certificate` and
+:class:`Status`.
+
+The staircase is generic over two objects:
+
+- a *problem*, the relaxation's ``Q`` as an operator (a :class:`Relaxation`): ``n`` (poses),
+  ``scale`` (the mean of ``diag Q``'s weights), ``apply(Y)`` (``Q Y``), ``cost(Y)``
+  (``tr(Y^* Q Y)``), ``factor(shift)`` (a pivot-free sparse LU of a matrix whose Schur
+  complement is ``Q + shift``) and ``solve_shifted(factor, V)``;
+- a :class:`Manifold`: what depends on the blocks (inner product, tangent projection,
+  retraction, the multipliers ``Lambda`` and how they act, the dense ``S``, the block
+  diagonal a shift is made of) and the settings a module tunes (dense size, preconditioner
+  shift, first radius). A module builds it at each call, from its constants of that moment.
+
+What is here: :func:`climb` (the staircase: a trust region at each rank, the verification of
+``S = Q - Lambda``, the escape from a saddle into the next rank), :func:`trust_region` with
+:func:`truncated_cg`, :func:`verify` (dense below a size; else Sylvester's inertia from a
+pivot-free LU, then ARPACK's shift-invert), :func:`escape` and :func:`certificate` (the
+dual bound and the status from a :class:`Check`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, fields
+from enum import Enum
+from typing import Any, ClassVar
+
+import numpy as np
+from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator, eigsh
+
+from rlpgo_gtsam.errors import SolverError
+
+__all__ = ["Status", "Certificate", "Check", "Relaxation", "Manifold", "climb", "trust_region",
+           "truncated_cg", "verify", "unverified", "escape", "certificate", "check_start"]
+
+RELATIVE_TOLERANCE = 1e-7  # eta / scale (the mean of diag Q's weights)
+GAP_TOLERANCE = 1e-6  # relative gap between f(rounded) and tr(Lambda) still called exact
+ARPACK_OPTIONS = {"maxiter": 2000}  # ARPACK's settings besides k, which, v0 and tol
+ESCAPE_HALVINGS = 30  # step halvings an escape from a saddle tries before it gives up
+
+
+class Status(str, Enum):
+    """Why the staircase stopped (SE-Sync's GLOBAL_OPT, EIG_IMPRECISION, SADDLE_POINT,
+    RS_ITER_LIMIT, ELAPSED_TIME), as the string it compares equal to and is recorded as."""
+
+    CERTIFIED = "certified"
+    """``lambda_min(S) >= -eta`` and the rounded estimate attains the lower bound."""
+    NOT_TIGHT = "not_tight"
+    """The relaxation is solved at its rank (``lambda_min(S) >= -eta``) but the rounded
+    estimate does not attain its bound: the relaxation is not exact on this graph."""
+    EIGENVALUE_IMPRECISE = "eigenvalue_imprecise"
+    """ARPACK did not converge on the final rank's ``lambda_min(S)`` and ``S`` is not known
+    to be positive semidefinite: ``min_eigenvalue`` is the proven floor ``-max(Lambda)`` (as
+    ``Q >= 0``), not the eigenvalue, so ``lower_bound`` stays a bound."""
+    SADDLE_ESCAPE_FAILED = "saddle_escape_failed"
+    """The escape into the final rank found no descent along the eigenvector in
+    ``escape_halvings`` halvings, and the final rank is not certified either."""
+    RANK_LIMIT = "rank_limit"
+    """``max_rank`` was reached with ``S`` not positive semidefinite."""
+    ITERATION_LIMIT = "iteration_limit"
+    """The trust region at the final rank used ``max_iterations`` without meeting its
+    gradient tolerance, and ``S`` is not positive semidefinite there."""
+    TIME_LIMIT = "time_limit"
+    """``time_limit_s`` passed: the best ``Y`` so far was rounded. Stopped inside a trust
+    region, nothing was verified: ``min_eigenvalue``, ``lower_bound`` and
+    ``suboptimality_bound`` are NaN."""
+    NOT_OPTIMAL = "not_optimal"
+    """:func:`certify` only: ``S`` has an eigenvalue below ``-eta`` at the estimate given,
+    which is not the relaxation's optimum (no optimization was run)."""
+
+    def __str__(self) -> str:
+        return self.value
+
+
+# The human reason per status, after "NOT certified: " (certified has its own words).
+_REASONS = {
+    Status.NOT_TIGHT: "the relaxation is solved but not exact (the rounded estimate misses "
+                      "the lower bound)",
+    Status.EIGENVALUE_IMPRECISE: "the minimum-eigenvalue computation did not converge",
+    Status.SADDLE_ESCAPE_FAILED: "saddle escape failed",
+    Status.RANK_LIMIT: "rank limit reached with a negative eigenvalue",
+    Status.ITERATION_LIMIT: "trust-region iteration limit reached",
+    Status.TIME_LIMIT: "time limit reached",
+    Status.NOT_OPTIMAL: "the estimate is not the relaxation's optimum (negative eigenvalue)",
+}
+
+
+@dataclass(frozen=True)
+class Certificate:
+    """What the relaxation proves about an orientation estimate (costs in the relaxation's
+    own units, see the module docstring: about chi2 plus its rotational part near a good
+    estimate), and how the computation ended.
+
+    Attributes:
+        status: why the staircase stopped (:class:`Status`); ``certified`` is
+            ``status == "certified"``.
+        lower_bound: dual lower bound on the relaxation's optimum,
+            ``tr(Lambda) + n min(min_eigenvalue, 0)``.
+        estimate_cost: relaxation cost ``f(z)`` of the (rounded) estimate, translations
+            eliminated.
+        suboptimality_bound: ``estimate_cost - lower_bound`` (>= 0): how far, at most, the
+            estimate is from the rotation problem's global optimum in this cost.
+        min_eigenvalue: ``lambda_min(S)``, ``S = Q - Lambda``, at the final rank; where
+            ARPACK did not converge, a proven floor under it (``-tolerance`` when the LU's
+            pivots proved ``S + eta I > 0``, else ``-max(Lambda)``); NaN when ``time_limit``
+            stopped a trust region before any verification.
+        tolerance: eta: the relaxation counts as solved iff ``min_eigenvalue >= -tolerance``.
+        rank: the staircase's final (complex) rank; 1 for :func:`certify`.
+        seconds: wall time of the call.
+    """
+
+    status: Status
+    lower_bound: float
+    estimate_cost: float
+    suboptimality_bound: float
+    min_eigenvalue: float
+    tolerance: float
+    rank: int
+    seconds: float
+
+    @property
+    def certified(self) -> bool:
+        """The relaxation is exact and the rounded estimate is its global optimum
+        (``min_eigenvalue >= -tolerance`` and the estimate attains the lower bound)."""
+        return self.status == Status.CERTIFIED
+
+    def record(self) -> dict:
+        """The fields as a JSON-ready dict: ``status`` (a plain string), ``certified`` and
+        the numbers (NaN, where nothing was verified, as None)."""
+        record: dict = {"status": Status(self.status).value, "certified": self.certified}
+        for item in fields(self)[1:]:
+            value = getattr(self, item.name)
+            record[item.name] = value if isinstance(value, int) else \
+                (float(value) if math.isfinite(value) else None)
+        return record
+
+    def describe(self) -> str:
+        """One line: the verdict (the reason when not certified), the numbers, the time."""
+        if self.certified:
+            verdict, rank = "certified optimal", f"rank {self.rank}, "
+        else:
+            reason = _REASONS[Status(self.status)]
+            verdict, rank = f"NOT certified: {reason} at rank {self.rank}", ""
+        if math.isnan(self.min_eigenvalue):
+            bounds = "not verified"
+        else:
+            bounds = (f"lower bound {self.lower_bound:.6g}, suboptimality bound "
+                      f"{self.suboptimality_bound:.3g}; lambda_min {self.min_eigenvalue:.3g}")
+        return (f"{verdict} (relaxation cost {self.estimate_cost:.6g}, {bounds}, tolerance "
+                f"{self.tolerance:.3g}, {rank}{self.seconds:.2f} s)")
+
+
+# --- the two objects the staircase is generic over -----------------------------------------
+
+class Relaxation:
+    """The part of a relaxation's problem that does not depend on its blocks: the default
+    tolerance. A subclass sets ``n`` and ``scale`` and defines ``apply``, ``cost``, ``factor``
+    and ``solve_shifted`` (see the module docstring)."""
+
+    n: int
+    scale: float
+
+    def tolerance(self, tolerance: float | None) -> float:
+        if tolerance is None:
+            return RELATIVE_TOLERANCE * self.scale
+        if not (np.isfinite(tolerance) and tolerance >= 0):
+            raise SolverError(f"tolerance must be a finite number >= 0, got {tolerance}")
+        return float(tolerance)
+
+
+@dataclass(frozen=True)
+class Manifold:
+    """The blocks' operations (methods a subclass defines) and the staircase's settings.
+
+    Attributes:
+        dense_below: rows of ``Q`` below which ``S``'s eigenvalues are computed densely.
+        preconditioner_shift: delta / scale: ``(Q + delta I)^-1`` preconditions the Hessian.
+        initial_radius: the first trust-region radius, in units of the preconditioned
+            gradient's norm.
+        max_below: where ``S + eta I`` has at most this many non-positive pivots, their
+            eigenpairs are computed one by one; more (or 0 here): one shift below them all.
+        escape_halvings: step halvings an escape from a saddle tries before it gives up.
+        arpack_options: ARPACK's settings besides k, which, v0 and tol.
+    """
+
+    dense_below: int
+    preconditioner_shift: float
+    initial_radius: float
+    max_below: int = 0
+    escape_halvings: int = ESCAPE_HALVINGS
+    arpack_options: dict[str, Any] = field(default_factory=lambda: dict(ARPACK_OPTIONS))
+    dtype: ClassVar[type] = float
+    """The scalars of ``Y`` (and of the eigenvectors of ``S``)."""
+
+    def size(self, n: int) -> int:
+        """Rows of ``Q`` for ``n`` poses."""
+        raise NotImplementedError
+
+    def inner(self, a: np.ndarray, b: np.ndarray) -> float:
+        """The real inner product of the ambient space."""
+        raise NotImplementedError
+
+    def project(self, y: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """``v`` projected onto the tangent space at ``y``."""
+        raise NotImplementedError
+
+    def retract(self, y: np.ndarray) -> np.ndarray:
+        """``y`` moved back onto the manifold."""
+        raise NotImplementedError
+
+    def multipliers(self, y: np.ndarray, qy: np.ndarray) -> np.ndarray:
+        """``Lambda(Y)`` from ``Y`` and ``Q Y``."""
+        raise NotImplementedError
+
+    def times(self, lam: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """``Lambda V``."""
+        raise NotImplementedError
+
+    def hessian(self, y: np.ndarray, lam: np.ndarray, v: np.ndarray,
+                qv: np.ndarray) -> np.ndarray:
+        """The Riemannian Hessian of ``tr(Y^* Q Y)`` at ``y`` along ``v`` (``qv = Q v``)."""
+        raise NotImplementedError
+
+    def diagonal(self, n: int, value: float) -> np.ndarray:
+        """The shift ``value I`` as :meth:`factor` takes it."""
+        raise NotImplementedError
+
+    def shift(self, lam: np.ndarray, sigma: float) -> np.ndarray:
+        """The shift whose factor's Schur complement is ``S - sigma I = Q - Lambda - sigma I``."""
+        raise NotImplementedError
+
+    def trace(self, lam: np.ndarray) -> float:
+        """``tr(Lambda)``."""
+        raise NotImplementedError
+
+    def largest(self, lam: np.ndarray) -> float:
+        """The largest eigenvalue of ``Lambda``."""
+        raise NotImplementedError
+
+    def dense(self, problem: Any, lam: np.ndarray) -> np.ndarray:
+        """``S`` as a dense matrix."""
+        raise NotImplementedError
+
+    def start(self, y: np.ndarray) -> np.ndarray | None:
+        """ARPACK's start for ``lambda_min(S)`` when ``S + eta I`` is positive definite."""
+        return None
+
+    def superlu(self, factor: Any) -> Any:
+        """The ``SuperLU`` of a :meth:`factor`'s result (for its pivots)."""
+        return factor
+
+
+def check_start(started: float, initial_rank: int, max_rank: int, lowest: int,
+                time_limit_s: float | None) -> float | None:
+    """The deadline of a staircase started at ``started``, after checking its ranks
+    (``lowest <= initial_rank <= max_rank``) and time limit.
+
+    Raises:
+        SolverError: bad ranks or time limit.
+    """
+    if not lowest <= initial_rank <= max_rank:
+        raise SolverError(f"ranks must satisfy {lowest} <= initial_rank <= max_rank, got "
+                          f"initial_rank={initial_rank}, max_rank={max_rank}")
+    if time_limit_s is not None and not time_limit_s >= 0:
+        raise SolverError(f"time_limit_s must be a number >= 0 or None, got {time_limit_s}")
+    return None if time_limit_s is None else started + time_limit_s
+
+
+# --- the staircase ---------------------------------------------------------------------------
+
+def climb(problem: Any, manifold: Manifold, y: np.ndarray, eta: float, max_rank: int,
+          max_iterations: int, grad_tol: float,
+          deadline: float | None) -> tuple[np.ndarray, Check, Status]:
+    """The staircase from ``y``: a trust region at each rank, then the verification of ``S``;
+    a saddle is escaped into the next rank. Returns the last ``Y``, its check, and the
+    status told when ``S`` is not known to be positive semidefinite there: where more than
+    one reason holds, the first of ``eigenvalue_imprecise``, ``saddle_escape_failed`` (the
+    escape into the final rank), ``iteration_limit`` (at the final rank), ``rank_limit``."""
+    escaped = True  # whether the escape into the current rank descended
+    while True:
+        y, ended = trust_region(problem, manifold, y, max_iterations, grad_tol, deadline)
+        if ended is Status.TIME_LIMIT:
+            check, stop = unverified(problem, y), Status.TIME_LIMIT
+            break
+        check = verify(problem, manifold, y, eta)
+        if check.imprecise and check.vector is None and not check.certified:
+            stop = Status.EIGENVALUE_IMPRECISE  # no direction to escape along
+            break
+        if check.certified or y.shape[1] >= max_rank:
+            stop = (Status.EIGENVALUE_IMPRECISE if check.imprecise else
+                    Status.SADDLE_ESCAPE_FAILED if not escaped else ended or Status.RANK_LIMIT)
+            break
+        if deadline is not None and time.perf_counter() > deadline:
+            stop = Status.TIME_LIMIT
+            break
+        y, escaped = escape(problem, manifold, y, check.vector)
+    return y, check, stop
+
+
+# --- the Riemannian trust region -------------------------------------------------------------
+
+def _inner(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.real(np.vdot(a, b)))
+
+
+def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations: int,
+                 grad_tol: float,
+                 deadline: float | None = None) -> tuple[np.ndarray, Status | None]:
+    """A local minimum of f(Y) = tr(Y^* Q Y) on the manifold: Riemannian trust region with
+    truncated CG (Steihaug-Toint), preconditioned by (Q + delta I)^-1.
+
+    Returns Y and how it ended: None (gradient tolerance met, or no progress left above
+    round-off), ``ITERATION_LIMIT`` (``max_iterations`` used) or ``TIME_LIMIT``
+    (``time.perf_counter()`` passed ``deadline`` before an iteration)."""
+    m = manifold
+    precon = None
+    qy = problem.apply(y)
+    f = m.inner(y, qy)
+    radius = None
+    for _ in range(max_iterations):
+        lam = m.multipliers(y, qy)
+        grad = 2.0 * (qy - m.times(lam, y))
+        if np.linalg.norm(grad) <= grad_tol:
+            return y, None
+        if deadline is not None and time.perf_counter() > deadline:
+            return y, Status.TIME_LIMIT
+        if precon is None:
+            precon = problem.factor(m.diagonal(problem.n, m.preconditioner_shift * problem.scale))
+
+        def hess(v: np.ndarray, y=y, lam=lam) -> np.ndarray:
+            return m.hessian(y, lam, v, problem.apply(v))
+
+        def pre(v: np.ndarray, y=y, precon=precon) -> np.ndarray:
+            return 0.5 * m.project(y, problem.solve_shifted(precon, v))
+
+        if radius is None:
+            radius = m.initial_radius * np.sqrt(max(m.inner(grad, pre(grad)), 1e-300))
+        step, h_step, on_boundary = truncated_cg(grad, hess, pre, radius)
+        model_decrease = -(m.inner(grad, step) + 0.5 * m.inner(step, h_step))
+        y_new = m.retract(y + step)
+        qy_new = problem.apply(y_new)
+        f_new = m.inner(y_new, qy_new)
+        actual = f - f_new
+        rho = actual / model_decrease if model_decrease > 0 else -1.0
+        if model_decrease <= 1e-15 * abs(f) and actual <= 1e-15 * abs(f):
+            return y, None  # no progress left above round-off
+        if rho < 0.25:
+            radius *= 0.25
+        elif rho > 0.75 and on_boundary:
+            radius *= 2.0
+        if rho > 0.1 or (actual > 0 and model_decrease <= 1e-12 * abs(f)):
+            y, qy, f = y_new, qy_new, f_new
+    return y, Status.ITERATION_LIMIT
+
+
+def truncated_cg(grad, hess, pre, radius, theta=1.0, kappa=0.1, max_inner=200):
+    """Steihaug-Toint truncated CG for min <g, e> + <e, H e> / 2 in the preconditioner's
+    norm ball of ``radius``; returns (step, H step, whether it stopped on the boundary)."""
+    step = np.zeros_like(grad)
+    h_step = np.zeros_like(grad)
+    residual = grad.copy()
+    r0 = np.linalg.norm(grad)
+    z = pre(residual)
+    z_r = _inner(z, residual)
+    direction = -z
+    e_pe, e_pd, d_pd = 0.0, 0.0, z_r
+    for _ in range(max_inner):
+        h_dir = hess(direction)
+        curvature = _inner(direction, h_dir)
+        alpha = z_r / curvature if curvature > 0 else np.inf
+        e_pe_new = e_pe + 2.0 * alpha * e_pd + alpha * alpha * d_pd
+        if curvature <= 0 or e_pe_new >= radius * radius:
+            tau = (-e_pd + np.sqrt(e_pd * e_pd + d_pd * (radius * radius - e_pe))) / d_pd
+            return step + tau * direction, h_step + tau * h_dir, True
+        step = step + alpha * direction
+        h_step = h_step + alpha * h_dir
+        e_pe = e_pe_new
+        residual = residual + alpha * h_dir
+        if np.linalg.norm(residual) <= r0 * min(r0 ** theta, kappa):
+            break
+        z = pre(residual)
+        z_r_old, z_r = z_r, _inner(z, residual)
+        beta = z_r / z_r_old
+        e_pd = beta * (e_pd + alpha * d_pd)
+        d_pd = z_r + beta * beta * d_pd
+        direction = -z + beta * direction
+    return step, h_step, False
+
+
+
+# --- verification, escape, certificate ------------------------------------------------------
+
+@dataclass(frozen=True)
+class Check:
+    certified: bool  # lambda_min(S) >= -eta
+    min_eigenvalue: float  # a proven floor under it where imprecise, NaN where not verified
+    trace: float  # tr(Lambda) = f(Y)
+    vector: np.ndarray | None  # eigenvector of lambda_min(S) where known
+    imprecise: bool = False  # ARPACK did not converge on the eigenvalue(s) asked for
+
+
+def unverified(problem: Any, y: np.ndarray) -> Check:
+    """No verification (the time limit passed): lambda_min unknown, so no lower bound."""
+    return Check(False, math.nan, problem.cost(y), None)
+
+
+
+def verify(problem: Any, manifold: Manifold, y: np.ndarray, eta: float) -> Check:
+    """lambda_min(S), S = Q - Lambda(Y), and whether S + eta I >= 0."""
+    m = manifold
+    lam = m.multipliers(y, problem.apply(y))
+    trace = m.trace(lam)
+    if m.size(problem.n) < m.dense_below:
+        s = m.dense(problem, lam)
+        values, vectors = np.linalg.eigh(0.5 * (s + s.conj().T))
+        return Check(bool(values[0] >= -eta), float(values[0]), trace, vectors[:, 0])
+    floor = -max(m.largest(lam), 0.0)  # lambda_min(S) >= -max Lambda as Q >= 0
+    # S + eta I > 0  iff  the sparse matrix with Schur complement S + eta I has positive
+    # pivots; the same LU then serves shift-invert at -eta
+    factor = _factor(problem, m.shift(lam, -eta))
+    negatives = _negative_pivots(m, factor)
+    if negatives == 0:
+        value, vector = _nearest_above(problem, m, factor, -eta, m.start(y))
+        if vector is None:  # the pivots proved lambda_min > -eta: that is the floor kept
+            return Check(True, -eta, trace, None, imprecise=True)
+        return Check(True, value, trace, vector)
+    if negatives is not None and negatives <= m.max_below:
+        values, vectors, converged = _below(problem, m, factor, -eta, negatives)
+        if len(values) == 0:
+            return Check(False, floor, trace, None, imprecise=True)
+        k = int(np.argmin(values))
+        return Check(False, float(values[k]) if converged else floor, trace, vectors[:, k],
+                     imprecise=not converged)
+    # many negative eigenvalues: shift below them all
+    sigma = floor - eta - 1e-3 * problem.scale
+    value, vector = _nearest_above(problem, m, problem.factor(m.shift(lam, sigma)), sigma, None)
+    if vector is None:
+        return Check(False, floor, trace, None, imprecise=True)
+    return Check(bool(value >= -eta), value, trace, vector)
+
+
+def _factor(problem: Any, shift: np.ndarray) -> Any:
+    """``problem.factor(shift)``, or None where the LU met an exactly zero pivot (a zero
+    eigenvalue: not positive definite)."""
+    try:
+        return problem.factor(shift)
+    except RuntimeError:
+        return None
+
+
+def _negative_pivots(manifold: Manifold, factor: Any) -> int | None:
+    """Number of eigenvalues of the factored ``Q + shift`` that are <= 0, from its
+    pivot-free symmetric sparse LU (Sylvester's law of inertia; L is positive definite), or
+    None when there is no LU or it pivoted off the diagonal (the count would not be an
+    inertia)."""
+    if factor is None:
+        return None
+    lu = manifold.superlu(factor)
+    if not np.array_equal(lu.perm_r, lu.perm_c):
+        return None
+    return int(np.count_nonzero(np.real(lu.U.diagonal()) <= 0))
+
+
+def _shifted_inverse(problem: Any, manifold: Manifold, factor: Any) -> LinearOperator:
+    size = manifold.size(problem.n)
+    return LinearOperator((size, size), dtype=manifold.dtype,
+                          matvec=lambda v: problem.solve_shifted(factor, v.reshape(-1, 1))[:, 0])
+
+
+def _nearest_above(problem, manifold, factor, sigma, start) -> tuple[float, np.ndarray | None]:
+    """The smallest eigenvalue of S when all lie above sigma: the largest of (S - sigma)^-1
+    (``factor``: of S - sigma I); (NaN, None) when ARPACK did not converge."""
+    values, vectors, converged = _eigsh(_shifted_inverse(problem, manifold, factor),
+                                        manifold.arpack_options, k=1, which="LA", v0=start,
+                                        tol=1e-10)
+    if not converged or len(values) == 0:
+        return math.nan, None
+    return float(sigma + 1.0 / np.real(values[0])), vectors[:, 0]
+
+
+def _below(problem, manifold, factor, sigma, count) -> tuple[np.ndarray, np.ndarray, bool]:
+    """The ``count`` eigenvalues of S below sigma: the most negative of (S - sigma)^-1; and
+    whether ARPACK converged on all of them (if not, those it did converge on)."""
+    values, vectors, converged = _eigsh(_shifted_inverse(problem, manifold, factor),
+                                        manifold.arpack_options, k=count, which="SA", tol=1e-8)
+    return sigma + 1.0 / np.real(values), vectors, converged
+
+
+def _eigsh(op: LinearOperator, arpack_options: dict[str, Any],
+           **options) -> tuple[np.ndarray, np.ndarray, bool]:
+    """ARPACK's eigenpairs of ``op`` and whether all converged: a partial result (maybe
+    empty) comes back with False; a failure is a SolverError."""
+    try:
+        values, vectors = eigsh(op, **arpack_options, **options)
+    except ArpackNoConvergence as error:
+        return np.asarray(error.eigenvalues), np.asarray(error.eigenvectors), False
+    except ArpackError as error:
+        raise SolverError(f"the minimum-eigenvalue computation failed: {error}") from None
+    return values, vectors, True
+
+
+def escape(problem: Any, manifold: Manifold, y: np.ndarray,
+           vector: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Y at rank r + 1, lower than Y, along the eigenvector of lambda_min(S) in the new column
+    (a second-order descent direction from the saddle [Y, 0]); and whether it descended (if
+    not, after ``escape_halvings`` halvings, the last, shortest trial is returned)."""
+    f0 = problem.cost(y)
+    v = vector / np.max(np.abs(vector))
+    alpha = 1.0
+    for _ in range(manifold.escape_halvings):
+        y_new = manifold.retract(np.hstack([y, alpha * v[:, None]]))
+        if problem.cost(y_new) < f0:
+            return y_new, True
+        alpha *= 0.5
+    return manifold.retract(np.hstack([y, alpha * v[:, None]])), False
+
+
+def certificate(check: Check, estimate: float, eta: float, size: int, rank: int,
+                started: float, stop: Status) -> Certificate:
+    """The certificate of the rounded estimate (``size``: rows of ``Q``); ``stop``: the status
+    when ``S`` is not known to be positive semidefinite (NaN numbers where nothing was
+    verified)."""
+    lower = check.trace + size * min(check.min_eigenvalue, 0.0)  # NaN stays NaN
+    gap = max(estimate - lower, 0.0)
+    if check.certified:
+        exact = gap <= size * eta + GAP_TOLERANCE * abs(estimate)
+        status = Status.CERTIFIED if exact else Status.NOT_TIGHT
+    else:
+        status = stop
+    return Certificate(
+        status=status,
+        lower_bound=float(lower),
+        estimate_cost=float(estimate),
+        suboptimality_bound=float(gap),
+        min_eigenvalue=float(check.min_eigenvalue),
+        tolerance=float(eta),
+        rank=int(rank),
+        seconds=time.perf_counter() - started,
+    )
