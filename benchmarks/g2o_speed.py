@@ -11,9 +11,9 @@ repetition runs ``read_g2o`` and ``gtsam.readG2o(path, False)`` alternately, the
 best over the repetitions, in wall seconds and in CPU seconds (``time.process_time``, the
 fairer figure on a shared machine). Our read is split into parsing (the file's table) and
 building the GTSAM graph. Peak memory is the maximum resident set of a fresh process that
-imports, then reads the file once (each reader in its own process), and its growth over
-the same process before the read. Writes benchmarks/results/g2o_speed.json and prints a
-table.
+imports, then reads the file once (each reader in its own process; VmHWM, as
+ru_maxrss survives exec), and its growth over the same process before the read.
+Writes benchmarks/results/g2o_speed.json and prints a table.
 """
 
 from __future__ import annotations
@@ -33,6 +33,15 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _peak_mb() -> float:
+    """The process's peak resident set, MB. Linux keeps ru_maxrss across fork and exec, so
+    a child started by a large parent would report the parent's size: the high-water mark
+    of /proc/self/status (VmHWM, reset by exec) is taken where it exists."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
@@ -102,7 +111,7 @@ def _run(folder: Path, sizes: list[int], repeats: int) -> list[dict]:
     for size in sizes:
         path = _graph_file(size, folder)
         row = _measure(path, repeats, folder)
-        for reader in ("ours", "gtsam"):
+        for reader in ("ours", "gtsam"):  # each in a fresh process
             out = subprocess.run(
                 [sys.executable, __file__, "--peak", reader, "--file", str(path)],
                 capture_output=True, text=True, check=True, cwd=ROOT,
