@@ -1,0 +1,146 @@
+"""The fast g2o reader and writer agree with the careful, line-by-line ones.
+
+``read_g2o`` parses a regular file a chunk at a time and hands anything unusual to the
+careful reader; ``g2o_text_lines`` formats in bulk and hands anything unusual to the careful
+writer. On generated graphs, the shared datasets and files the fast reader declines, both
+paths must give the same graph, values and factor lines, and the same text.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+
+from rlpgo_gtsam import g2o
+from rlpgo_gtsam.synthetic import generate
+from tests.conftest import DATASETS
+
+
+def _rows(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[list, list]:
+    """Every factor and value as exact numbers (information as bytes: bit for bit)."""
+    factors = []
+    for index in range(graph.size()):
+        factor = graph.at(index)
+        model = factor.noiseModel()
+        if isinstance(factor, gtsam.BetweenFactorPose2):
+            z = factor.measured()
+            factors.append(("between", tuple(factor.keys()), (z.x(), z.y(), z.theta()),
+                            model.information().tobytes()))
+        else:
+            p = factor.prior()
+            factors.append(("prior", tuple(factor.keys()), (p.x(), p.y(), p.theta()),
+                            type(model).__name__))
+    poses = [(key, values.atPose2(key).x(), values.atPose2(key).y(), values.atPose2(key).theta())
+             for key in values.keys()]
+    return factors, poses
+
+
+def _careful_read(path: Path):
+    return g2o._build(path, g2o._read_table(path, fast=False))
+
+
+def _assert_same_read(path: Path) -> None:
+    graph, values, lines = g2o.read_g2o_lines(path)
+    graph2, values2, lines2 = _careful_read(path)
+    assert lines == lines2
+    assert _rows(graph, values) == _rows(graph2, values2)
+
+
+def _fast_scan_accepts(path: Path) -> bool:
+    with path.open("rb") as handle:
+        return g2o._scan(handle) is not None
+
+
+@pytest.mark.parametrize("n, seed, noisy, fixed", [
+    (200, 1, True, False), (1500, 2, False, True), (3000, 3, True, True),
+])
+def test_generated_graphs_read_and_write_the_same_both_ways(tmp_path, n, seed, noisy, fixed):
+    sample = generate(n, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(seed),
+                      noisy_measurements=noisy)
+    graph, values = sample.graph, sample.initial
+    if fixed:
+        for key in (0, n // 2):
+            graph.add(gtsam.PriorFactorPose2(key, values.atPose2(key),
+                                             gtsam.noiseModel.Constrained.All(3)))
+    # _text_fast must take this graph, and write what the careful writer writes
+    written = g2o._text_fast(graph, values)
+    assert written is not None
+    assert written == g2o._text_careful(graph, values)
+    path = tmp_path / "g.g2o"
+    path.write_text(written[0])
+    assert _fast_scan_accepts(path)  # the speed comes from here: it must not fall back
+    _assert_same_read(path)
+    # what was read writes the same text again, on both paths
+    graph2, values2 = g2o.read_g2o(path)
+    assert g2o._text_fast(graph2, values2) == g2o._text_careful(graph2, values2) == written
+
+
+def test_edge_only_file_chains_the_same_both_ways(tmp_path):
+    sample = generate(300, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(4),
+                      noisy_measurements=True)
+    text = g2o.g2o_text(sample.graph, sample.initial)
+    path = tmp_path / "edges.g2o"
+    path.write_text("".join(line + "\n" for line in text.splitlines()
+                            if line.startswith("EDGE_SE2")))
+    assert _fast_scan_accepts(path)
+    _assert_same_read(path)
+
+
+@pytest.mark.parametrize("name", ["M3500.g2o", "Intel.g2o", "MIT.g2o", "FR079.g2o"])
+def test_datasets_read_and_write_the_same_both_ways(name):
+    path = DATASETS / name
+    if not path.exists():
+        pytest.skip(f"{path} not found (set RLPGO_DATASETS)")
+    _assert_same_read(path)
+    graph, values = g2o.read_g2o(path)
+    assert g2o._text_fast(graph, values) == g2o._text_careful(graph, values)
+    # a graph from gtsam.readG2o: one noise model object per edge, no FIX
+    graph, values = gtsam.readG2o(str(path), False)
+    assert g2o._text_fast(graph, values) == g2o._text_careful(graph, values)
+
+
+BASE = [
+    "VERTEX_SE2 0 0 0 0",
+    "VERTEX_SE2 1 1 0 0.1",
+    "VERTEX_SE2 2 2 0.5 0.2",
+    "EDGE_SE2 0 1 1 0 0.1 500 0 0 500 0 2000",
+    "EDGE_SE2 1 2 1 0.5 0.1 400 10 0 500 0 2000",
+    "EDGE_SE2 0 2 2 0.5 0.2 500 0 0 500 0 2000",
+    "FIX 0",
+]
+
+
+@pytest.mark.parametrize("lines, fast", [
+    pytest.param(BASE, True, id="plain"),
+    pytest.param([" " + line.replace(" ", "\t") for line in BASE], True, id="tabs"),
+    pytest.param(["# caf\u00e9 \u00e9t\u00e9", *BASE], True, id="utf8_comment"),
+    pytest.param([line.replace(" ", "\u00a0", 1) for line in BASE], True, id="nbsp"),
+    pytest.param([*BASE[:3], "EDGE_SE2 0 1 1 0 0.1 500 0 0 500 0 2000\r\r", *BASE[4:]], False,
+                 id="two_crs"),
+    pytest.param(["VERTEX_SE2 " + "0" * 30 + " 0 0 0", *BASE[1:]], False, id="zero_padded_id"),
+    pytest.param(["VERTEX_SE2 18446744073709551615 3 0 0",
+                  "EDGE_SE2 2 18446744073709551615 1 -0.5 0 1 0 0 1 0 1", *BASE], True,
+                 id="largest_id"),
+])
+def test_unusual_but_valid_files_read_the_same(tmp_path, lines, fast):
+    path = tmp_path / "odd.g2o"
+    path.write_bytes(("\n".join(lines) + "\n").encode())
+    assert _fast_scan_accepts(path) == fast
+    _assert_same_read(path)
+
+
+def test_a_file_across_chunks_keeps_its_line_numbers(tmp_path, monkeypatch):
+    """Lines split over chunk boundaries (tiny chunks) still come back whole, numbered."""
+    sample = generate(120, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(5))
+    path = tmp_path / "g.g2o"
+    path.write_text("# header\n\n" + g2o.g2o_text(sample.graph, sample.initial))
+    whole = g2o.read_g2o_lines(path)
+    monkeypatch.setattr(g2o, "_CHUNK_BYTES", 97)
+    assert _fast_scan_accepts(path)
+    chunked = g2o.read_g2o_lines(path)
+    assert chunked[2] == whole[2]
+    assert _rows(*chunked[:2]) == _rows(*whole[:2])
+    _assert_same_read(path)
