@@ -26,7 +26,9 @@ from rlpgo_gtsam.errors import (
     SolverError,
 )
 from rlpgo_gtsam.g2o import read_g2o, read_g2o_lines, write_g2o
+from rlpgo_gtsam.g2o3d import read_g2o3d, write_g2o3d
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, rotation_weights
+from rlpgo_gtsam.graph3d import PoseGraph3D
 from rlpgo_gtsam.initializers import (
     CertifiedInitializer,
     ChordalInitializer,
@@ -92,6 +94,7 @@ __all__ = [
     "OrientationInitializer",
     "OutputError",
     "PoseGraph2D",
+    "PoseGraph3D",
     "PoseGraphEnv",
     "RLInitializer",
     "RefineResult",
@@ -111,10 +114,12 @@ __all__ = [
     "poses_with_orientations",
     "read_g2o",
     "read_g2o_lines",
+    "read_g2o3d",
     "refine",
     "register",
     "rotation_weights",
     "solve_translations",
     "trajectory_errors",
     "write_g2o",
+    "write_g2o3d",
 ]

@@ -451,7 +451,9 @@ def _parse(path: Path, handle: BinaryIO) -> _Table:
                 raise G2oFormatError(path, number, "FIX needs at least one vertex id")
             parsed.fixed.extend((parse_id(path, number, f), number) for f in fields)
         elif tag.upper().startswith(_3D_TAGS):
-            raise G2oFormatError(path, number, f"{short_token(tag)}: 3D graphs are not supported")
+            raise G2oFormatError(path, number, f"{short_token(tag)}: 3D graphs are not "
+                                 "supported by the planar reader (read them with "
+                                 "rlpgo_gtsam.read_g2o3d)")
         else:
             raise G2oFormatError(
                 path, number, f"unknown tag '{short_token(tag)}' (this reader takes VERTEX_SE2, "
