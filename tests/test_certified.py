@@ -90,6 +90,40 @@ def test_a_spent_time_limit_rounds_what_it_has_and_verifies_nothing(heavy):
                           synchronize(heavy, max_rank=1)[0])
 
 
+def test_progress_says_one_line_per_rank_and_changes_nothing(heavy):
+    lines: list[str] = []
+    theta, certificate = synchronize(heavy, progress=lines.append)
+    ranks = [line for line in lines if "iterations," in line]
+    assert [line.split(":")[0] for line in ranks] == \
+        [f"rank {r}" for r in range(1, certificate.rank + 1)]
+    assert all("cost" in line and "gradient" in line and line.endswith(" s") for line in ranks)
+    assert all("\n" not in line and len(line) < 120 for line in lines)
+    again, same = synchronize(heavy)
+    assert np.array_equal(theta, again) and same.estimate_cost == certificate.estimate_cost
+
+
+def test_the_initializer_passes_its_time_limit_and_progress_on(heavy):
+    from rlpgo_gtsam.initializers import make_initializer
+
+    lines: list[str] = []
+    initializer = make_initializer("certified", time_limit_s=0.0, progress=lines.append)
+    estimate = initializer.estimate(heavy, None)
+    _ended(estimate.certificate, Status.TIME_LIMIT)
+    assert lines and lines[-1].startswith("rank 1: 0 iterations")
+
+
+def test_the_block_factor_solves_and_counts_the_shifted_schur_complement():
+    graph = _graph(60, 0.5, 3)
+    problem = certified._Problem(graph)
+    q = problem.apply(np.eye(problem.n, dtype=complex))
+    shift = np.linspace(-2.0, 1.0, problem.n) * problem.scale * 1e-2
+    dense = q + np.diag(shift)
+    factor = problem.factor(shift)
+    v = np.random.default_rng(0).standard_normal((problem.n, 2)) + 0j
+    assert np.allclose(factor.solve(v), np.linalg.solve(dense, v), rtol=1e-8, atol=1e-12)
+    assert factor.negative_pivots() == int(np.sum(np.linalg.eigvalsh(dense) <= 0))
+
+
 def test_a_failed_saddle_escape_is_reported(monkeypatch):
     # This graph needs rank 3; with no step halvings the escape to rank 2 cannot descend.
     graph = _graph(30, 2.0, 2)
