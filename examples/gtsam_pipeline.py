@@ -3,7 +3,7 @@
     python examples/gtsam_pipeline.py [-i INPUT.g2o] [-o OUTPUT.g2o] [-m MAXITER]
 
 The shape of GTSAM's own ``Pose2SLAMExample_g2o.py``, with ``rlpgo_gtsam.staged_initialize``
-(certify, else search: what ``rlpgo-init`` runs) in place of the odometry guess. The input
+(the certified relaxation + LM: what ``rlpgo-init`` runs) in place of the odometry guess. The input
 defaults to ``../shared/datasets/MIT.g2o`` beside the repository; the output to a file in a
 new temporary folder.
 """
@@ -29,7 +29,8 @@ output = args.output or str(Path(tempfile.mkdtemp(prefix="rlpgo_")) / "optimized
 # Read: a gtsam.NonlinearFactorGraph and gtsam.Values (file:line errors on a bad file).
 graph, initial = rlpgo_gtsam.read_g2o(args.input)
 
-# Initialize: the certified relaxation, and searches only if its certificate fails.
+# Initialize: the certified relaxation refined by LM (no search after a failed certificate;
+# searches=rlpgo_gtsam.staged.SEARCHES adds them).
 run = rlpgo_gtsam.staged_initialize(graph, initial)
 print(f"initialized by {run.best.method}: certified {run.certified}, {run.seconds:.2f} s")
 
