@@ -55,7 +55,7 @@ def _fast_scan_accepts(path: Path) -> bool:
 
 
 @pytest.mark.parametrize("n, seed, noisy, fixed", [
-    (200, 1, True, False), (1500, 2, False, True), (3000, 3, True, True),
+    (200, 1, True, False), (1500, 2, False, True), (1000, 3, True, True),
 ])
 def test_generated_graphs_read_and_write_the_same_both_ways(tmp_path, n, seed, noisy, fixed):
     sample = generate(n, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(seed),
@@ -89,7 +89,7 @@ def test_edge_only_file_chains_the_same_both_ways(tmp_path):
     _assert_same_read(path)
 
 
-@pytest.mark.parametrize("name", ["M3500.g2o", "Intel.g2o", "MIT.g2o", "FR079.g2o"])
+@pytest.mark.parametrize("name", ["Intel.g2o", "MIT.g2o"])  # a distinct information per edge
 def test_datasets_read_and_write_the_same_both_ways(name):
     path = DATASETS / name
     if not path.exists():

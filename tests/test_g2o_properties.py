@@ -414,7 +414,7 @@ def _write_read(graph, values, folder: Path, name: str):
 # --------------------------------------------------------------------------- 2. round trip
 
 
-@settings(max_examples=150, suppress_health_check=[HealthCheck.too_slow], **COMMON)
+@settings(max_examples=60, suppress_health_check=[HealthCheck.too_slow], **COMMON)
 @given(planar_graphs())
 def test_write_read_round_trip(built):
     graph, values, source = built
@@ -475,7 +475,7 @@ def _extreme_graph():
     return graph, values, None
 
 
-@settings(max_examples=100, suppress_health_check=[HealthCheck.too_slow], **COMMON)
+@settings(max_examples=40, suppress_health_check=[HealthCheck.too_slow], **COMMON)
 @given(planar_graphs(wide=True))
 @example(_extreme_graph())
 def test_written_file_always_reads(built):

@@ -21,7 +21,9 @@ from tests.conftest import dataset
 LOWEST_KNOWN = {"M3500A.g2o": 912.2, "M3500B.g2o": 2055.4, "Intel.g2o": 212.7, "MIT.g2o": 41.21}
 
 
-@pytest.mark.parametrize("name", sorted(LOWEST_KNOWN))
+@pytest.mark.parametrize("name", [
+    pytest.param(name, marks=[pytest.mark.slow] if name.startswith("M3500") else [])
+    for name in sorted(LOWEST_KNOWN)])
 def test_chordal_then_lm30_reaches_lowest_known(name):
     graph, values = read_g2o(dataset(name))
     result = refine(graph, make_initializer("chordal").initialize(graph, values), "lm", 30)

@@ -158,9 +158,10 @@ def _describe_step(step: dict) -> str:
     if "kept" not in step:  # the all-edges check
         verdict = "every edge fits, nothing rejected" if step.get("passed") else \
             "not every edge fits"
-        return (f"step {step.get('step')}: certified {step.get('certified')}, worst edge chi2 "
-                f"{step.get('worst_edge_chi2', float('nan')):.4g}: {verdict}; "
-                f"{step.get('seconds', 0.0):.2f} s")
+        worst = step.get("worst_edge_chi2")
+        judged = "" if worst is None else f", worst edge chi2 {worst:.4g}"
+        return (f"step {step.get('step')}: certified {step.get('certified')}{judged}: "
+                f"{verdict}; {step.get('seconds', 0.0):.2f} s")
     text = (f"step {step.get('step')}: kept {step.get('kept')} of {step.get('judged')} edges "
             f"judged, rejected {step.get('rejected')}; {step.get('seconds', 0.0):.2f} s")
     return text + "".join(f"; {key.replace('_', ' ')} {value}" for key, value in step.items()

@@ -242,7 +242,7 @@ def _result(graph, factor_of_edge: np.ndarray, values: gtsam.Values, kept: np.nd
 class _AllEdges:
     values: gtsam.Values
     certified: bool
-    worst: float
+    worst: float | None  # None: not computed (no refined optimum to judge the edges at)
     passed: bool
 
 
@@ -253,12 +253,12 @@ def _all_edges(graph, g: PoseGraph2D, threshold: float) -> _AllEdges:
     init = make_initializer("certified").run(g)
     certified = bool(init.certificate is not None and init.certificate.certified)
     if not certified:
-        return _AllEdges(init.values, False, float("nan"), False)
+        return _AllEdges(init.values, False, None, False)
     params = solver_params("lm", _LM_ITERS)
     params.setRelativeErrorTol(_TOLERANCE)
     refined = refine(graph, init.values, params, pose_graph=g)
     if refined.failure is not None:
-        return _AllEdges(init.values, True, float("nan"), False)
+        return _AllEdges(init.values, True, None, False)
     worst = float(edge_chi2(g, g.poses_of(refined.values)).max())
     return _AllEdges(refined.values, True, worst, worst < threshold)
 
