@@ -1,0 +1,90 @@
+"""The robust path's consistency step on hand-made cycles (robust/consistency.py): a corridor
+walked twice whose loop closures are known true or wrong by construction."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from rlpgo_gtsam import PoseGraph2D
+from rlpgo_gtsam.graph import odometry_edges
+from rlpgo_gtsam.robust.consistency import ChainTree, pairwise_consistency
+from rlpgo_gtsam.se2 import adjoint, compose, inverse
+
+THRESHOLD = 21.1  # chi-square, 3 dof, 0.9999
+
+
+def _corridor(closures: list[tuple[int, int, tuple[float, float, float]]], n: int = 40,
+              sigma: float = 0.01):
+    """Poses 1 m apart along x, exact odometry, the given closures (i, j, measured)."""
+    values, graph = gtsam.Values(), gtsam.NonlinearFactorGraph()
+    noise = gtsam.noiseModel.Isotropic.Sigma(3, sigma)
+    for k in range(n):
+        values.insert(k, gtsam.Pose2(float(k), 0.0, 0.0))
+    for k in range(n - 1):
+        graph.add(gtsam.BetweenFactorPose2(k, k + 1, gtsam.Pose2(1.0, 0.0, 0.0), noise))
+    for i, j, z in closures:
+        graph.add(gtsam.BetweenFactorPose2(i, j, gtsam.Pose2(*z), noise))
+    g = PoseGraph2D.from_gtsam(graph, values)
+    return g, odometry_edges(g)
+
+
+def test_true_closures_agree_and_a_wrong_one_goes():
+    true = [(k, k + 10, (10.0, 0.0, 0.0)) for k in range(0, 20, 2)]
+    wrong = [(5, 30, (0.0, 0.0, 0.0))]  # "these two places are the same": 25 m off
+    g, chain = _corridor(true + wrong)
+    found = pairwise_consistency(g, chain, THRESHOLD)
+    closures = np.flatnonzero(~chain)
+    assert found.kept[closures].tolist() == [True] * len(true) + [False]
+    assert found.conflicts >= 1 and found.pairs >= len(closures)
+    assert not found.ambiguous
+
+
+def test_a_closure_nothing_contradicts_is_kept():
+    """Absence of support is not evidence: a lone closure with no neighbour to agree with
+    stays, on a graph where nothing else could test it."""
+    g, chain = _corridor([(3, 33, (30.0, 0.0, 0.0))])
+    found = pairwise_consistency(g, chain, THRESHOLD)
+    assert found.kept[~chain].all()
+
+
+def test_two_equal_exclusive_sets_are_reported_not_chosen():
+    """Three closures say 5 m, three say 15 m between the same stretch: nothing tells them
+    apart, and the result says so."""
+    first = [(k, k + 5, (5.0, 0.0, 0.0)) for k in (2, 3, 4)]
+    second = [(k, k + 5, (15.0, 0.0, 0.0)) for k in (2, 3, 4)]
+    g, chain = _corridor(first + second)
+    found = pairwise_consistency(g, chain, THRESHOLD)
+    assert found.conflicts >= 3
+    assert found.ambiguous, "two equally supported, mutually exclusive sets"
+
+
+def test_chain_segments_carry_their_propagated_covariance():
+    """D(a, b) along the chain and its covariance in b's frame: the steps' covariances moved
+    by the adjoint of what follows them, summed (first order), as computed step by step."""
+    rng = np.random.default_rng(4)
+    n = 12
+    steps = np.column_stack([rng.normal(1.0, 0.2, n - 1), rng.normal(0.0, 0.2, n - 1),
+                             rng.normal(0.0, 0.3, n - 1)])
+    values, graph = gtsam.Values(), gtsam.NonlinearFactorGraph()
+    pose = np.zeros(3)
+    values.insert(0, gtsam.Pose2(*pose))
+    sigmas = rng.uniform(0.01, 0.1, (n - 1, 3))
+    for k, step in enumerate(steps):
+        pose = compose(pose[None], step[None])[0]
+        values.insert(k + 1, gtsam.Pose2(*pose))
+        graph.add(gtsam.BetweenFactorPose2(k, k + 1, gtsam.Pose2(*step),
+                                           gtsam.noiseModel.Diagonal.Sigmas(sigmas[k])))
+    g = PoseGraph2D.from_gtsam(graph, values)
+    chain = odometry_edges(g)
+    tree = ChainTree.build(g, chain, np.linalg.inv(g.information))
+    a, b = 2, 9
+    relative, covariance = tree.between(np.array([a]), np.array([b]))
+    expected = np.zeros((3, 3))
+    after = np.zeros(3)  # the steps after step k, composed: the frame change to b
+    for k in range(b - 1, a - 1, -1):
+        move = adjoint(inverse(after[None]))[0]
+        expected += move @ np.diag(sigmas[k] ** 2) @ move.T
+        after = compose(steps[k][None], after[None])[0]
+    np.testing.assert_allclose(relative[0], after, atol=1e-12)
+    np.testing.assert_allclose(covariance[0], expected, rtol=1e-9, atol=1e-15)
