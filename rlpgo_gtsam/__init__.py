@@ -1,12 +1,12 @@
-"""rlpgo_gtsam: better initial guesses for planar pose-graph optimization in GTSAM.
+"""rlpgo_gtsam: better initial guesses for pose-graph optimization in GTSAM.
 
-The default is :func:`staged_initialize`: certify with the SE(2) synchronization relaxation,
-else search. Reading graphs, the classical initializers, the default and the robust path load
-GTSAM, numpy and scipy only; the agent's names (``RLInitializer``, ``PoseGraphEnv``,
-``EnvConfig``, ``PRESETS``) load on first use from :mod:`rlpgo_gtsam.rl` (torch or gymnasium
-where they need them). The environment id ``rlpgo/PoseGraph-v0`` registers when
-:mod:`rlpgo_gtsam.rl.env` is imported (``gymnasium.make("rlpgo_gtsam.rl.env:rlpgo/PoseGraph-v0")``
-does that itself).
+The default is :func:`staged_initialize`: certify with the SE(2) synchronization
+relaxation, then refine. Every name loads its module on first use: reading graphs, the
+classical initializers, the default and the robust path load GTSAM, numpy and scipy only;
+the agent's names (``RLInitializer``, ``PoseGraphEnv``, ``EnvConfig``, ``PRESETS``) load
+torch or gymnasium from :mod:`rlpgo_gtsam.rl` where they need them. The environment id
+``rlpgo/PoseGraph-v0`` registers when :mod:`rlpgo_gtsam.rl.env` is imported
+(``gymnasium.make("rlpgo_gtsam.rl.env:rlpgo/PoseGraph-v0")`` does that itself).
 """
 
 from __future__ import annotations
@@ -14,60 +14,76 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from rlpgo_gtsam.accuracy import TrajectoryErrors, trajectory_errors
-from rlpgo_gtsam.certified import Certificate, Status
-from rlpgo_gtsam.errors import (
-    G2oFormatError,
-    GraphError,
-    InputNotFoundError,
-    ModelError,
-    OutputError,
-    RlpgoError,
-    SolverError,
-)
-from rlpgo_gtsam.g2o import read_g2o, read_g2o_lines, write_g2o
-from rlpgo_gtsam.g2o3d import read_g2o3d, write_g2o3d
-from rlpgo_gtsam.graph import PoseGraph2D, chi2, rotation_weights
-from rlpgo_gtsam.graph3d import PoseGraph3D
-from rlpgo_gtsam.initializers import (
-    CertifiedInitializer,
-    ChordalInitializer,
-    FastSyncInitializer,
-    Initializer,
-    InitResult,
-    LagoInitializer,
-    OdometryInitializer,
-    OrientationInitializer,
-    ShonanInitializer,
-    initializer_names,
-    make_initializer,
-    register,
-)
-from rlpgo_gtsam.ranking import MethodResult, best_of, compare_methods
-from rlpgo_gtsam.robust import RobustResult, robust_initialize
-from rlpgo_gtsam.solvers import RefineResult, refine
-from rlpgo_gtsam.staged import StagedResult, staged_initialize
-from rlpgo_gtsam.synthetic import SyntheticGraph, add_outliers, generate
-from rlpgo_gtsam.translations import poses_with_orientations, solve_translations
-
 __version__ = "0.1.0"
 
-# Names whose modules import torch or gymnasium: loaded when first used.
-_LAZY = {
-    "RLInitializer": "rlpgo_gtsam.rl.initializer",
-    "PoseGraphEnv": "rlpgo_gtsam.rl.env",
+# Every public name and the module that defines it, imported on first use: `import
+# rlpgo_gtsam.errors` (what a command's --help needs) loads nothing else, and the agent's
+# names load torch or gymnasium only when used.
+_WHERE = {
+    "TrajectoryErrors": "rlpgo_gtsam.accuracy",
+    "trajectory_errors": "rlpgo_gtsam.accuracy",
+    "Certificate": "rlpgo_gtsam.certified",
+    "Status": "rlpgo_gtsam.certified",
+    "G2oFormatError": "rlpgo_gtsam.errors",
+    "GraphError": "rlpgo_gtsam.errors",
+    "InputNotFoundError": "rlpgo_gtsam.errors",
+    "ModelError": "rlpgo_gtsam.errors",
+    "OutputError": "rlpgo_gtsam.errors",
+    "RlpgoError": "rlpgo_gtsam.errors",
+    "SolverError": "rlpgo_gtsam.errors",
+    "read_g2o": "rlpgo_gtsam.g2o",
+    "read_g2o_lines": "rlpgo_gtsam.g2o",
+    "write_g2o": "rlpgo_gtsam.g2o",
+    "read_g2o3d": "rlpgo_gtsam.g2o3d",
+    "write_g2o3d": "rlpgo_gtsam.g2o3d",
+    "PoseGraph2D": "rlpgo_gtsam.graph",
+    "chi2": "rlpgo_gtsam.graph",
+    "rotation_weights": "rlpgo_gtsam.graph",
+    "PoseGraph3D": "rlpgo_gtsam.graph3d",
+    "CertifiedInitializer": "rlpgo_gtsam.initializers",
+    "ChordalInitializer": "rlpgo_gtsam.initializers",
+    "FastSyncInitializer": "rlpgo_gtsam.initializers",
+    "InitResult": "rlpgo_gtsam.initializers",
+    "Initializer": "rlpgo_gtsam.initializers",
+    "LagoInitializer": "rlpgo_gtsam.initializers",
+    "OdometryInitializer": "rlpgo_gtsam.initializers",
+    "OrientationInitializer": "rlpgo_gtsam.initializers",
+    "ShonanInitializer": "rlpgo_gtsam.initializers",
+    "initializer_names": "rlpgo_gtsam.initializers",
+    "make_initializer": "rlpgo_gtsam.initializers",
+    "register": "rlpgo_gtsam.initializers",
+    "MethodResult": "rlpgo_gtsam.ranking",
+    "best_of": "rlpgo_gtsam.ranking",
+    "compare_methods": "rlpgo_gtsam.ranking",
     "ENV_ID": "rlpgo_gtsam.rl.env",
+    "PoseGraphEnv": "rlpgo_gtsam.rl.env",
     "EnvConfig": "rlpgo_gtsam.rl.episode",
     "PRESETS": "rlpgo_gtsam.rl.episode",
+    "RLInitializer": "rlpgo_gtsam.rl.initializer",
+    "RobustResult": "rlpgo_gtsam.robust",
+    "robust_initialize": "rlpgo_gtsam.robust",
+    "RefineResult": "rlpgo_gtsam.solvers",
+    "refine": "rlpgo_gtsam.solvers",
+    "StagedResult": "rlpgo_gtsam.staged",
+    "staged_initialize": "rlpgo_gtsam.staged",
+    "SyntheticGraph": "rlpgo_gtsam.synthetic",
+    "add_outliers": "rlpgo_gtsam.synthetic",
+    "generate": "rlpgo_gtsam.synthetic",
+    "poses_with_orientations": "rlpgo_gtsam.translations",
+    "solve_translations": "rlpgo_gtsam.translations",
 }
 
 
 def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name]), name)
+    if name in _WHERE:
+        value = getattr(importlib.import_module(_WHERE[name]), name)
         globals()[name] = value
         return value
     raise AttributeError(f"module 'rlpgo_gtsam' has no attribute '{name}'")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_WHERE))
 
 
 __all__ = [

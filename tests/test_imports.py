@@ -83,6 +83,14 @@ def test_light_entry_points_load_neither_torch_nor_gymnasium(code):
     assert not {"torch", "gymnasium", "matplotlib"} & loaded
 
 
+def test_the_commands_help_loads_no_scipy():
+    """What --help needs (the command modules and the package's errors) stays off scipy,
+    the solvers' heavy import: --help answers in under half a second here."""
+    loaded = _loaded_after("import rlpgo_cli.init, rlpgo_cli.compare, rlpgo_cli.generate, "
+                           "rlpgo_cli.train, rlpgo_cli.evaluate, rlpgo_gtsam.errors")
+    assert not {"scipy", "threadpoolctl", "evo"} & loaded
+
+
 def test_the_environment_registers_on_first_use():
     loaded = _loaded_after("import gymnasium, rlpgo_gtsam; assert rlpgo_gtsam.ENV_ID in "
                            "gymnasium.registry")
