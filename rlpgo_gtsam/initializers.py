@@ -54,7 +54,6 @@ __all__ = [
     "register",
     "make_initializer",
     "initializer_names",
-    "initializer_options",
     "start_names",
     "check_method",
 ]
@@ -383,12 +382,6 @@ def register(name: str, factory: Callable[..., Initializer], takes_start: bool =
 def initializer_names() -> list[str]:
     """Names of the registered initializers, in registration order."""
     return list(_REGISTRY)
-
-
-def initializer_options(name: str) -> list[str]:
-    """The options a registered initializer's factory takes (its keyword names)."""
-    check_method(name)
-    return list(inspect.signature(_factory(name.partition("@")[0])).parameters)
 
 
 def start_names() -> list[str]:

@@ -14,7 +14,7 @@ import numpy as np
 
 from rlpgo_gtsam.errors import RlpgoError, one_line
 from rlpgo_gtsam.graph import PoseGraph2D
-from rlpgo_gtsam.initializers import InitResult, initializer_options, make_initializer
+from rlpgo_gtsam.initializers import InitResult, make_initializer
 from rlpgo_gtsam.solvers import RefineResult, refine
 
 __all__ = ["MethodResult", "compare_methods", "best_of", "tied_best", "run_method",
@@ -223,10 +223,9 @@ _LINE_PROGRESS = ("certified", "shonan")
 
 def line_progress_options(report: Callable[[str, str], None]) -> dict[str, dict[str, Any]]:
     """Options (for :func:`compare_methods`, ``staged_initialize``) that make each
-    initializer able to report progress lines call ``report(method, line)``; one that
-    takes no ``progress`` option is left out."""
+    initializer able to report progress lines call ``report(method, line)``."""
     return {method: {"progress": functools.partial(report, method)}
-            for method in _LINE_PROGRESS if "progress" in initializer_options(method)}
+            for method in _LINE_PROGRESS}
 
 
 def compare_methods(

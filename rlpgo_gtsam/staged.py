@@ -49,7 +49,7 @@ import gtsam
 
 from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import PoseGraph2D
-from rlpgo_gtsam.initializers import InitResult, initializer_options
+from rlpgo_gtsam.initializers import InitResult
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.ranking import MethodResult, best_of, initialize_row, refine_row, start_from
 from rlpgo_gtsam.residuals import outlier_suspicion
@@ -190,12 +190,9 @@ def staged_initialize(
 
 
 def _certified_options(given: dict[str, Any] | None, limit_s: float) -> dict[str, Any]:
-    """The certified stage's options: ``time_limit_s`` at most ``limit_s``. Where the
-    initializer takes no ``time_limit_s`` or ``progress`` (an older one), those two are
-    left out; any other option goes to its factory as given."""
+    """The certified stage's options: ``time_limit_s`` at most ``limit_s``; any other option
+    goes to its factory as given."""
     chosen = dict(given or {})
     limit = chosen.get("time_limit_s")
     chosen["time_limit_s"] = limit_s if limit is None else min(limit, limit_s)
-    takes = initializer_options("certified")
-    return {key: value for key, value in chosen.items()
-            if key in takes or key not in ("time_limit_s", "progress")}
+    return chosen

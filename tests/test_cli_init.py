@@ -32,17 +32,11 @@ from rlpgo_gtsam import (
     refine,
     write_g2o,
 )
-from rlpgo_gtsam.initializers import initializer_options
 from rlpgo_gtsam.rl.agent.checkpoint import save_model
 from rlpgo_gtsam.rl.agent.networks import Actor
 from rlpgo_gtsam.synthetic import generate
 from tests.conftest import assert_same_edges, cli_error, cli_ok
 
-# The certified stage's time limit is CertifiedInitializer(time_limit_s=...) (issue 20's
-# relaxation side); where it is not there yet, --budget cannot cut that stage.
-needs_time_limit = pytest.mark.skipif(
-    "time_limit_s" not in initializer_options("certified"),
-    reason="CertifiedInitializer takes no time_limit_s yet")
 SUMMARY = re.compile(
     r"^input chi2 (?P<input>\S+); (?P<method>\S+)(?: \+ (?P<step>[A-Z]+\d+))?: chi2 "
     r"(?P<result>\S+); \d+\.\d\d s; wrote (?P<output>.+)$"
@@ -157,7 +151,6 @@ def hard_1000(tmp_path_factory) -> Path:
     return path
 
 
-@needs_time_limit
 def test_init_budget_cuts_the_certified_stage_and_writes_its_estimate(tmp_path, hard_1000):
     output = tmp_path / "out.g2o"
     began = time.perf_counter()

@@ -12,15 +12,8 @@ from rlpgo_cli.compare import main as compare_main
 from rlpgo_cli.init import main as init_main
 
 from rlpgo_gtsam import PoseGraph2D, chi2, generate, make_initializer, read_g2o, refine, write_g2o
-from rlpgo_gtsam.initializers import initializer_options
 from rlpgo_gtsam.ranking import refine_until, run_method
 from rlpgo_gtsam.staged import DEFAULT_SEARCHES, SEARCHES, staged_initialize
-
-# The certified stage's time limit is CertifiedInitializer(time_limit_s=...) (issue 20's
-# relaxation side); where it is not there yet, the budget cannot cut that stage.
-needs_time_limit = pytest.mark.skipif(
-    "time_limit_s" not in initializer_options("certified"),
-    reason="CertifiedInitializer takes no time_limit_s yet")
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +59,6 @@ def test_the_budget_stops_the_searches(heavy):
     assert "time budget of 0 s spent" in run.stopped
 
 
-@needs_time_limit
 def test_a_budget_cut_in_the_certified_stage_hands_over_its_estimate(heavy):
     lines = []
     run = staged_initialize(heavy.graph, heavy.initial, budget_s=0.0,
