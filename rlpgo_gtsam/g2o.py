@@ -447,9 +447,7 @@ def _parse(path: Path, handle: BinaryIO) -> _Table:
         elif tag == "EDGE_SE2":
             _parse_edge(path, number, fields, parsed)
         elif tag == "FIX":
-            if not fields:
-                raise G2oFormatError(path, number, "FIX needs at least one vertex id")
-            parsed.fixed.extend((parse_id(path, number, f), number) for f in fields)
+            parsed.fixed.extend(parse_fix(path, number, fields))
         elif tag.upper().startswith(_3D_TAGS):
             raise G2oFormatError(path, number, f"{short_token(tag)}: 3D graphs are not "
                                  "supported by the planar reader (read them with "
@@ -510,6 +508,21 @@ def parse_numbers(path: Path, line: int, tag: str, tokens: list[str], first: int
             raise G2oFormatError(path, line, f"{tag} field {position} is not finite: '{token}'")
         numbers.append(number)
     return numbers
+
+
+def parse_fix(path: Path, line: int, fields: list[str]) -> list[tuple[int, int]]:
+    """(id, line) of each id of a ``FIX`` line (2D and 3D files alike)."""
+    if not fields:
+        raise G2oFormatError(path, line, "FIX needs at least one vertex id")
+    return [(parse_id(path, line, field), line) for field in fields]
+
+
+def fix_lines(keys: list[int]) -> list[tuple[str, slice]]:
+    """The ``FIX`` lines (without line ends) that hold ``keys``, each with the slice of
+    ``keys`` it holds: at most :data:`_FIX_PER_LINE` ids a line, since one line for every
+    FIXed id would outgrow the reader's line limit (15 001 ids made 78 899 bytes)."""
+    parts = [slice(start, start + _FIX_PER_LINE) for start in range(0, len(keys), _FIX_PER_LINE)]
+    return [("FIX " + " ".join(map(str, keys[part])), part) for part in parts]
 
 
 def _parse_vertex(path: Path, line: int, fields: list[str], parsed: _Parsed) -> None:
@@ -789,10 +802,10 @@ def _text_fast(
         if kind is between:
             line += 1
             factor_lines[index] = line
-    for start in range(0, len(fixed), _FIX_PER_LINE):
-        text.append("FIX " + " ".join(map(str, fixed[start:start + _FIX_PER_LINE])) + "\n")
+    for fix, part in fix_lines(fixed):
+        text.append(fix + "\n")
         line += 1
-        for index in priors[start:start + _FIX_PER_LINE]:
+        for index in priors[part]:
             factor_lines[index] = line
     return "".join(text), factor_lines
 
@@ -872,11 +885,9 @@ def _text_careful(
             raise OutputError(f"cannot write a {type(factor).__name__} as a planar g2o line")
         else:
             factor_lines.append(None)
-    # FIX lines of at most _FIX_PER_LINE ids: one line for every FIXed id would outgrow the
-    # reader's line limit (15 001 ids made 78 899 bytes)
-    for start in range(0, len(fixed), _FIX_PER_LINE):
-        lines.append("FIX " + " ".join(str(key) for key in fixed[start:start + _FIX_PER_LINE]))
-        for index in priors[start:start + _FIX_PER_LINE]:
+    for fix, part in fix_lines(fixed):
+        lines.append(fix)
+        for index in priors[part]:
             factor_lines[index] = len(lines)
     return "\n".join(lines) + "\n", factor_lines
 

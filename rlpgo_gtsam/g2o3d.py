@@ -31,7 +31,15 @@ import numpy as np
 
 from rlpgo_gtsam.errors import G2oFormatError, OutputError
 from rlpgo_gtsam.files import write_text
-from rlpgo_gtsam.g2o import format_15, numbered_lines, parse_id, parse_numbers, short_token
+from rlpgo_gtsam.g2o import (
+    fix_lines,
+    format_15,
+    numbered_lines,
+    parse_fix,
+    parse_id,
+    parse_numbers,
+    short_token,
+)
 from rlpgo_gtsam.graph import disconnection
 from rlpgo_gtsam.graph3d import information_problem_6
 from rlpgo_gtsam.se3 import compose, inverse, quaternions_to_rotations, rotations_to_quaternions
@@ -43,7 +51,6 @@ EDGE = "EDGE_SE3:QUAT"
 _VERTEX_FIELDS = 8
 _EDGE_FIELDS = 30
 _2D_TAGS = ("VERTEX_SE2", "EDGE_SE2", "VERTEX2", "EDGE2")
-_FIX_PER_LINE = 1000
 # g2o's tangent order (x y z, then rotation) -> GTSAM's (rotation, then x y z): the
 # information in GTSAM's order is info_g2o[G2O_TO_GTSAM][:, G2O_TO_GTSAM]
 G2O_TO_GTSAM = np.array([3, 4, 5, 0, 1, 2])
@@ -144,9 +151,7 @@ def _parse(path: Path) -> _Parsed:
                 raise G2oFormatError(path, number, f"{EDGE} {problem}")
             parsed.edges.append((number, i, j, rotation, np.array(numbers[:3]), information))
         elif tag == "FIX":
-            if not fields:
-                raise G2oFormatError(path, number, "FIX needs at least one vertex id")
-            parsed.fixed.extend((parse_id(path, number, f), number) for f in fields)
+            parsed.fixed.extend(parse_fix(path, number, fields))
         elif tag.upper().startswith(_2D_TAGS):
             raise G2oFormatError(path, number, f"{short_token(tag)}: a planar line in a 3D file "
                                  "(a file holds 2D or 3D lines, not both)")
@@ -246,8 +251,7 @@ def g2o3d_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
             fixed.append(factor.keys()[0])
         else:
             raise OutputError(f"cannot write a {type(factor).__name__} as a 3D g2o line")
-    for start in range(0, len(fixed), _FIX_PER_LINE):
-        lines.append("FIX " + " ".join(str(key) for key in fixed[start:start + _FIX_PER_LINE]))
+    lines.extend(fix for fix, _ in fix_lines(fixed))
     return "\n".join(lines) + "\n"
 
 
