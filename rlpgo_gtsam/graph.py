@@ -36,6 +36,7 @@ __all__ = [
     "rotation_weights",
     "odometry_edges",
     "information_problem",
+    "information_problems",
     "INFORMATION_RANGE",
     "MAX_CONDITION",
     "disconnection",
@@ -216,23 +217,44 @@ def information_problem(information: np.ndarray, size: int = 3) -> str | None:
     and a condition number at most :data:`MAX_CONDITION`.
     """
     matrix = np.asarray(information, dtype=float)
-    if matrix.shape != (size, size) or not np.all(np.isfinite(matrix)):
+    if matrix.shape != (size, size):
         return f"information matrix is not a finite {size}x{size} matrix"
-    if not np.allclose(matrix, matrix.T, rtol=1e-9, atol=0.0):
-        return "information matrix is not symmetric"
-    low, high = INFORMATION_RANGE
+    return information_problems(matrix[None])[0]
+
+
+def information_problems(matrices: np.ndarray) -> list[str | None]:
+    """:func:`information_problem` for a stack of (k, s, s) matrices at once (one batched
+    eigenvalue computation: extraction checks every edge)."""
+    matrices = np.asarray(matrices, dtype=float)
+    size = matrices.shape[-1]
+    problems: list[str | None] = [None] * len(matrices)
+    finite = np.all(np.isfinite(matrices), axis=(1, 2))
+    transposed = np.transpose(matrices, (0, 2, 1))
     with np.errstate(all="ignore"):
-        eigenvalues = np.linalg.eigvalsh(matrix)
-    if not eigenvalues[0] > 0:
-        return "information matrix is not positive definite"
-    if eigenvalues[0] < low or eigenvalues[-1] > high:
-        return (f"information matrix has eigenvalues {eigenvalues[0]:.3g} .. "
-                f"{eigenvalues[-1]:.3g}, outside the usable {low:g} .. {high:g}")
-    if eigenvalues[-1] > MAX_CONDITION * eigenvalues[0]:
-        return (f"information matrix is too ill-conditioned (condition number "
-                f"{eigenvalues[-1] / eigenvalues[0]:.3g} > {MAX_CONDITION:g}): an axis is "
-                "all but unmeasured")
-    return None
+        symmetric = np.all(np.abs(matrices - transposed) <= 1e-9 * np.abs(transposed),
+                           axis=(1, 2))
+        eigenvalues = np.zeros((len(matrices), size))
+        usable = finite & symmetric
+        eigenvalues[usable] = np.linalg.eigvalsh(matrices[usable])
+        low, high = INFORMATION_RANGE
+        bad = ~usable | ~(eigenvalues[:, 0] > 0) | (eigenvalues[:, 0] < low) | \
+            (eigenvalues[:, -1] > high) | (eigenvalues[:, -1] > MAX_CONDITION * eigenvalues[:, 0])
+    for k in np.flatnonzero(bad).tolist():
+        smallest, largest = eigenvalues[k, 0], eigenvalues[k, -1]
+        if not finite[k]:
+            problems[k] = f"information matrix is not a finite {size}x{size} matrix"
+        elif not symmetric[k]:
+            problems[k] = "information matrix is not symmetric"
+        elif not smallest > 0:
+            problems[k] = "information matrix is not positive definite"
+        elif smallest < low or largest > high:
+            problems[k] = (f"information matrix has eigenvalues {smallest:.3g} .. "
+                           f"{largest:.3g}, outside the usable {low:g} .. {high:g}")
+        else:
+            problems[k] = (f"information matrix is too ill-conditioned (condition number "
+                           f"{largest / smallest:.3g} > {MAX_CONDITION:g}): an axis is all "
+                           "but unmeasured")
+    return problems
 
 
 @dataclass
@@ -276,6 +298,14 @@ def sort_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int], betwe
             initializers cannot use (:func:`factor_information`), or no between factor.
     """
     factors = Factors()
+    names: list[str] = []
+
+    def refuse(message: str) -> GraphError:
+        # the edges' information is checked in one batch; an edge before this factor whose
+        # information is refused is still the error reported, as in a factor-by-factor walk
+        _check_information(factors.information, names, size, check_information)
+        return GraphError(message)
+
     for position in range(graph.size()):
         factor = graph.at(position)
         if factor is None:
@@ -284,29 +314,77 @@ def sort_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int], betwe
             i, j = factor.keys()
             for key in (i, j):
                 if key not in index:
-                    raise GraphError(f"between factor {i}-{j}: key {key} has no value")
+                    raise refuse(f"between factor {i}-{j}: key {key} has no value")
+            name = f"between factor {i}-{j}"
+            information = _gaussian_information(factor, name, refuse)
             factors.edges.append((index[i], index[j]))
             factors.measured.append(pose(factor.measured()))
-            factors.information.append(factor_information(
-                factor, f"between factor {i}-{j}", size, check_information))
+            factors.information.append(information)
+            names.append(name)
         elif isinstance(factor, prior):
             key = factor.keys()[0]
             if key not in index:
-                raise GraphError(f"prior factor on key {key}: the key has no value")
+                raise refuse(f"prior factor on key {key}: the key has no value")
             entry = (index[key], pose(factor.prior()))
             if isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
                 factors.hard.append(entry)
             else:
+                _check_information(factors.information, names, size, check_information)
                 factor_information(factor, f"prior factor on key {key}", size)
                 factors.soft.append(entry)
         else:
-            raise GraphError(
+            raise refuse(
                 f"unsupported factor {type(factor).__name__}: a {kind} pose graph holds "
                 f"{between.__name__} and {prior.__name__} factors only"
             )
+    _check_information(factors.information, names, size, check_information)
     if not factors.edges:
         raise GraphError(f"the graph has no {between.__name__} factors")
     return factors
+
+
+def _check_information(informations: list[np.ndarray], names: list[str], size: int,
+                       check: bool) -> None:
+    """Raise the error of the first of the edges' information matrices that
+    :func:`factor_information` would refuse (all checked at once)."""
+    if not informations:
+        return
+    stack = np.array(informations).reshape(-1, size, size)
+    if check:
+        problems = information_problems(stack)
+        first = next((k for k, problem in enumerate(problems) if problem is not None), None)
+        if first is not None:
+            raise GraphError(f"{names[first]}: {problems[first]}")
+        return
+    bad = np.flatnonzero(~_semidefinite(stack))
+    if len(bad):
+        raise GraphError(f"{names[bad[0]]}: information matrix is not finite and positive "
+                         "semidefinite")
+
+
+def _semidefinite(stack: np.ndarray) -> np.ndarray:
+    """(k,) whether each matrix is finite and positive semidefinite (to round-off)."""
+    finite = np.all(np.isfinite(stack), axis=(1, 2))
+    result = finite.copy()
+    if finite.any():
+        smallest = np.linalg.eigvalsh(stack[finite])[:, 0]
+        result[finite] = smallest >= -1e-12 * np.abs(stack[finite]).max(axis=(1, 2))
+    return result
+
+
+def _gaussian_information(factor, name: str, refuse: Callable[[str], Exception] = GraphError
+                          ) -> np.ndarray:
+    """The information of ``factor``'s noise model, which must be Gaussian and not
+    constrained (``refuse(message)`` makes the error)."""
+    model = factor.noiseModel()
+    if not isinstance(model, gtsam.noiseModel.Gaussian):
+        raise refuse(
+            f"{name} has a {type(model).__name__} noise model; the initializers need Gaussian "
+            "models (wrap the graph's robust models after initialization)"
+        )
+    if isinstance(model, gtsam.noiseModel.Constrained):
+        raise refuse(f"{name} has a constrained noise model; only priors may be hard")
+    return model.information()
 
 
 def factor_information(factor, name: str, size: int = 3, check: bool = True) -> np.ndarray:
@@ -318,24 +396,8 @@ def factor_information(factor, name: str, size: int = 3, check: bool = True) -> 
         GraphError: a model that is not Gaussian (robust models), a constrained one, or
             information the rule refuses.
     """
-    model = factor.noiseModel()
-    if not isinstance(model, gtsam.noiseModel.Gaussian):
-        raise GraphError(
-            f"{name} has a {type(model).__name__} noise model; the initializers need Gaussian "
-            "models (wrap the graph's robust models after initialization)"
-        )
-    if isinstance(model, gtsam.noiseModel.Constrained):
-        raise GraphError(f"{name} has a constrained noise model; only priors may be hard")
-    information = model.information()
-    if not check:
-        if not (np.all(np.isfinite(information)) and np.linalg.eigvalsh(information)[0]
-                >= -1e-12 * np.abs(information).max()):
-            raise GraphError(f"{name}: information matrix is not finite and positive "
-                             "semidefinite")
-        return information
-    problem = information_problem(information, size)
-    if problem is not None:
-        raise GraphError(f"{name}: {problem}")
+    information = _gaussian_information(factor, name)
+    _check_information([information], [name], size, check)
     return information
 
 
