@@ -19,7 +19,7 @@ from rlpgo_gtsam.solvers import RefineResult, refine
 
 __all__ = ["MethodResult", "compare_methods", "best_of", "tied_best", "run_method",
            "initialize_row", "refine_row", "refine_until", "start_from", "line_progress_options",
-           "FROM_BEST", "TIE_RELATIVE"]
+           "FROM_BEST", "TIE_RELATIVE", "usable_rows", "ties"]
 
 
 @dataclass
@@ -286,11 +286,22 @@ def compare_methods(
 TIE_RELATIVE = 1e-6
 
 
+def usable_rows(results: list[MethodResult]) -> list[MethodResult]:
+    """The rows that did not fail and have a finite refined chi2, in their order."""
+    return [r for r in results if r.failure is None and r.refined_chi2 is not None
+            and math.isfinite(r.refined_chi2)]
+
+
+def ties(chi2: float, lowest: float) -> bool:
+    """Whether a refined ``chi2`` is the same minimum as ``lowest`` (within a relative
+    :data:`TIE_RELATIVE`)."""
+    return chi2 <= lowest + TIE_RELATIVE * abs(lowest)
+
+
 def best_of(results: list[MethodResult]) -> MethodResult:
     """The row with the lowest refined chi2 among those that did not fail; rows within a
     relative 1e-6 of the lowest are a tie, won by the earliest (the cheaper method)."""
-    usable = [r for r in results if r.failure is None and r.refined_chi2 is not None
-              and math.isfinite(r.refined_chi2)]
+    usable = usable_rows(results)
     if not usable:
         raise RlpgoError("every method failed: " + "; ".join(
             f"{r.method}: {r.failure or f'chi2 {r.refined_chi2}'}" for r in results))
@@ -300,9 +311,8 @@ def best_of(results: list[MethodResult]) -> MethodResult:
 def tied_best(results: list[MethodResult]) -> list[MethodResult]:
     """The rows tied for the lowest finite refined chi2 (within a relative
     :data:`TIE_RELATIVE`), in their order; empty if no row has one."""
-    finite = [r for r in results if r.failure is None and r.refined_chi2 is not None
-              and math.isfinite(r.refined_chi2)]
+    finite = usable_rows(results)
     if not finite:
         return []
     lowest = min(r.refined_chi2 for r in finite)
-    return [r for r in finite if r.refined_chi2 <= lowest + TIE_RELATIVE * abs(lowest)]
+    return [r for r in finite if ties(r.refined_chi2, lowest)]

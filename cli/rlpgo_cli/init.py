@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from pathlib import Path
@@ -17,11 +16,12 @@ from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text, g2o_text, read_g2o, 
 from rlpgo_gtsam.graph import PoseGraph2D, chi2
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
 from rlpgo_gtsam.ranking import (
-    TIE_RELATIVE,
     MethodResult,
     best_of,
     compare_methods,
     line_progress_options,
+    ties,
+    usable_rows,
 )
 from rlpgo_gtsam.rl.models import DEFAULT_MODEL, model_path
 from rlpgo_gtsam.robust import robust_initialize
@@ -69,16 +69,14 @@ def _method_list(method: str, start: str) -> list[str]:
 
 
 def _ranking(results: list[MethodResult]) -> list[tuple[str, MethodResult]]:
-    """Rows by refined chi2 with their rank; rows within a relative TIE_RELATIVE of each
-    other share a rank, shown as ``=k``, in the order they ran (the first is the one
+    """Rows by refined chi2 with their rank; rows that tie (:func:`~rlpgo_gtsam.ranking.ties`)
+    share a rank, shown as ``=k``, in the order they ran (the first is the one
     written); failed rows last, unranked."""
-    usable = [r for r in results if r.failure is None and r.refined_chi2 is not None
-              and math.isfinite(r.refined_chi2)]
+    usable = usable_rows(results)
     ordered = sorted(usable, key=lambda r: r.refined_chi2)
     groups: list[list[MethodResult]] = []
     for r in ordered:
-        lowest = groups[-1][0].refined_chi2 if groups else None
-        if lowest is not None and r.refined_chi2 <= lowest + TIE_RELATIVE * abs(lowest):
+        if groups and ties(r.refined_chi2, groups[-1][0].refined_chi2):
             groups[-1].append(r)
         else:
             groups.append([r])
@@ -104,19 +102,21 @@ def _print_progress(method: str, line: str) -> None:
     click.echo(f"  {method}: {line}")
 
 
+def _given(ctx: click.Context, name: str) -> bool:
+    """Whether the user gave option ``name`` (not its default)."""
+    return ctx.get_parameter_source(name) not in (
+        None, click.core.ParameterSource.DEFAULT, click.core.ParameterSource.DEFAULT_MAP)
+
+
 def _check_method_options(ctx: click.Context, methods: list[str], method: str) -> None:
     """A usage error for options that would change nothing: agent options when no method
     of the run is the agent, --start without --method rl, --budget without --method auto."""
 
-    def given(name: str) -> bool:
-        return ctx.get_parameter_source(name) not in (
-            None, click.core.ParameterSource.DEFAULT, click.core.ParameterSource.DEFAULT_MAP)
-
     unused = [] if any(m.partition("@")[0] == "rl" for m in methods) else \
-        [f"--{name}" for name in AGENT_OPTIONS if given(name)]
-    if method != "rl" and given("start"):
+        [f"--{name}" for name in AGENT_OPTIONS if _given(ctx, name)]
+    if method != "rl" and _given(ctx, "start"):
         unused.append("--start")
-    if method != "auto" and given("budget"):
+    if method != "auto" and _given(ctx, "budget"):
         raise click.UsageError(f"--budget bounds --method auto; --method {method} runs "
                                "every method it names to its end")
     if unused:
@@ -129,23 +129,18 @@ def _check_robust_options(ctx: click.Context, robust: bool, method: str, refine:
                           outliers_out: Path | None) -> None:
     """Usage errors for options that do not go with --robust, or need it."""
 
-    def given(name: str) -> bool:
-        source = ctx.get_parameter_source(name)
-        return source not in (None, click.core.ParameterSource.DEFAULT,
-                              click.core.ParameterSource.DEFAULT_MAP)
-
     if not robust:
         if outliers_out is not None:
             raise click.UsageError("--outliers-out lists the edges --robust rejects: give "
                                    "--robust too")
-        if given("trust_odometry"):
+        if _given(ctx, "trust_odometry"):
             raise click.UsageError("--trust-odometry/--no-trust-odometry apply only with --robust")
         return
     if method != "auto":
         raise click.UsageError(f"--robust is its own method: it does not combine with --method "
                                f"{method}")
-    refused = [f"--{name}" for name in NOT_ROBUST if given(name)]
-    if refine != "none" and given("refine"):
+    refused = [f"--{name}" for name in NOT_ROBUST if _given(ctx, name)]
+    if refine != "none" and _given(ctx, "refine"):
         refused.append(f"--refine {refine}")
     if refused:
         raise click.UsageError(f"{', '.join(refused)}: not used with --robust (it writes "
