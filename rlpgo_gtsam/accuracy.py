@@ -30,7 +30,7 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
-from rlpgo_gtsam.se2 import rotation_matrices, wrap
+from rlpgo_gtsam.se2 import between, rotation_matrices, wrap
 
 __all__ = ["TrajectoryErrors", "trajectory_errors", "align_positions"]
 
@@ -158,14 +158,9 @@ def _relative_errors(estimate: np.ndarray, truth: np.ndarray,
     first = np.arange(0, len(estimate), delta)
     i, j = first[:-1], first[1:]
 
-    def motion(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        # P_i^-1 P_j: translation in the frame of pose i, and the angle turned
-        step = np.einsum("pba,pb->pa", rotation_matrices(poses[i, 2]),
-                         poses[j, :2] - poses[i, :2])
-        return step, poses[j, 2] - poses[i, 2]
-
-    (step_p, turn_p), (step_q, turn_q) = motion(estimate), motion(truth)
-    return np.linalg.norm(step_p - step_q, axis=1), np.abs(wrap(turn_p - turn_q))
+    moved, true = between(estimate[i], estimate[j]), between(truth[i], truth[j])  # P_i^-1 P_j
+    return (np.linalg.norm(moved[:, :2] - true[:, :2], axis=1),
+            np.abs(wrap(moved[:, 2] - true[:, 2])))
 
 
 def _rmse(errors: np.ndarray) -> float:
