@@ -64,7 +64,8 @@ _VERTEX_NUMBERS = 4
 # A line of an edge list (:func:`edge_list_text`): L is the edge's line in its g2o file.
 EDGE_LIST_LINE = "line <L> EDGE_SE2 <id_i> <id_j>"
 _FIX_PER_LINE = 1000  # 21-byte ids: at most 22 KB a line, well inside MAX_LINE_BYTES
-_3D_TAGS = ("VERTEX_SE3", "EDGE_SE3", "VERTEX3", "EDGE3", "VERTEX_TRACKXYZ", "EDGE_SE3_")
+# A line whose tag starts so is a 3D one.
+TAGS_3D = ("VERTEX_SE3", "EDGE_SE3", "VERTEX3", "EDGE3", "VERTEX_TRACKXYZ", "EDGE_SE3_")
 # The fast reader's chunk (2 MiB: about 10 000 edge lines) and the longest line it takes;
 # a longer one, or anything near MAX_LINE_BYTES, is the careful reader's to judge.
 _CHUNK_BYTES = 1 << 21
@@ -448,10 +449,13 @@ def _parse(path: Path, handle: BinaryIO) -> _Table:
             _parse_edge(path, number, fields, parsed)
         elif tag == "FIX":
             parsed.fixed.extend(parse_fix(path, number, fields))
-        elif tag.upper().startswith(_3D_TAGS):
+        elif tag.upper().startswith(TAGS_3D):
+            if parsed.vertices or parsed.edges:
+                raise G2oFormatError(path, number, f"{short_token(tag)}: a 3D line in a planar "
+                                     "file (a file holds 2D or 3D lines, not both)")
             raise G2oFormatError(path, number, f"{short_token(tag)}: 3D graphs are not "
                                  "supported by the planar reader (read them with "
-                                 "rlpgo_gtsam.read_g2o3d)")
+                                 "rlpgo_gtsam.read_g2o3d or read_pose_graph)")
         else:
             raise G2oFormatError(
                 path, number, f"unknown tag '{short_token(tag)}' (this reader takes VERTEX_SE2, "

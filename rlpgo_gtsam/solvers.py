@@ -1,4 +1,5 @@
-"""GTSAM Gauss-Newton and Levenberg-Marquardt on the whole graph, with a chi2 trace."""
+"""GTSAM Gauss-Newton and Levenberg-Marquardt on the whole graph (planar or 3D), with a chi2
+trace."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ from dataclasses import dataclass, field
 import gtsam
 
 from rlpgo_gtsam.errors import SolverError, one_line
-from rlpgo_gtsam.graph import PoseGraph2D, chi2
+from rlpgo_gtsam.graph import chi2
+from rlpgo_gtsam.graph3d import AnyPoseGraph, extract_pose_graph
 
 __all__ = ["RefineResult", "refine", "solver_params", "SOLVERS"]
 
@@ -63,9 +65,9 @@ def refine(
     values: gtsam.Values,
     solver: str | Params = "lm",
     iters: int = 30,
-    pose_graph: PoseGraph2D | None = None,
+    pose_graph: AnyPoseGraph | None = None,
 ) -> RefineResult:
-    """Run GTSAM's GN or LM on ``graph`` from ``values``.
+    """Run GTSAM's GN or LM on ``graph`` (Pose2 or Pose3) from ``values``.
 
     The graph is optimized as it is, every prior included. If it has no prior, the gauge
     is fixed by a tight prior on the anchor pose (the first key), which adds nothing to the
@@ -87,11 +89,12 @@ def refine(
 
     Raises:
         SolverError: an unknown solver name or a negative iteration cap.
-        GraphError: a graph the package cannot work on (see :class:`PoseGraph2D`).
+        GraphError: a graph the package cannot work on (see
+            :func:`~rlpgo_gtsam.graph3d.extract_pose_graph`).
     """
     params = solver if isinstance(solver, Params) else solver_params(solver, iters)
     name = "GN" if isinstance(params, gtsam.GaussNewtonParams) else "LM"
-    g = pose_graph if pose_graph is not None else PoseGraph2D.from_gtsam(graph, values)
+    g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
     start_chi2 = chi2(graph, values)
     if params.getMaxIterations() == 0:
         return RefineResult(gtsam.Values(values), start_chi2, 0, [start_chi2])
@@ -99,8 +102,14 @@ def refine(
     if not _has_prior(graph):
         optimized = gtsam.NonlinearFactorGraph(graph)
         anchor_key = int(g.keys[g.anchor])
-        optimized.add(gtsam.PriorFactorPose2(anchor_key, values.atPose2(anchor_key),
-                                             gtsam.noiseModel.Isotropic.Sigma(3, _ANCHOR_SIGMA)))
+        if g.dimension == 3:
+            optimized.add(gtsam.PriorFactorPose3(
+                anchor_key, values.atPose3(anchor_key),
+                gtsam.noiseModel.Isotropic.Sigma(6, _ANCHOR_SIGMA)))
+        else:
+            optimized.add(gtsam.PriorFactorPose2(
+                anchor_key, values.atPose2(anchor_key),
+                gtsam.noiseModel.Isotropic.Sigma(3, _ANCHOR_SIGMA)))
     after_iteration: dict[int, float] = {}  # GTSAM's LM may report an iteration twice
     caller_hook = params.iterationHook  # the caller's params get their own hook back
     params.iterationHook = lambda k, _before, after: after_iteration.__setitem__(k, 2.0 * after)
@@ -143,5 +152,6 @@ def _iterate_through_increases(optimizer, iters: int, after_iteration: dict) -> 
 
 
 def _has_prior(graph: gtsam.NonlinearFactorGraph) -> bool:
-    return any(isinstance(graph.at(i), gtsam.PriorFactorPose2) for i in range(graph.size()))
+    return any(isinstance(graph.at(i), gtsam.PriorFactorPose2 | gtsam.PriorFactorPose3)
+               for i in range(graph.size()))
 
