@@ -8,8 +8,9 @@ Per file: ``certified3d`` (status, rank, CPU seconds) and chi2 after LM30 from i
 ``InitializePose3`` (with a prior on the first pose) + LM30: chi2 and seconds; the in-process
 CPU seconds (``time.process_time``) of certified + LM30 against SE-Sync's wall seconds + LM30.
 Graphs are read by ``gtsam.readG2o(path, True)``: the graph SE-Sync's figures were refined on
-(cubicle's indefinite informations, which :func:`rlpgo_gtsam.g2o3d.read_g2o3d` refuses, are
-GTSAM's conversion of them, so the extraction skips the usability check there). chi2 =
+(cubicle's indefinite informations, which :func:`rlpgo_gtsam.g2o3d.read_g2o3d` reads without
+their rotation-translation coupling, are GTSAM's conversion of them here, so the extraction
+skips the usability check there; docs/pose3.md has the rule). chi2 =
 2 x GTSAM error, first pose fixed. Prints a markdown table, writes
 ``benchmarks/results/pose3.json`` and ``.md``.
 """
