@@ -16,7 +16,13 @@ from click.testing import CliRunner, Result
 from rlpgo_cli.compare import main as compare_main
 from rlpgo_cli.init import main as init_main
 
-from rlpgo_gtsam import InformationWarning, RlpgoError, read_g2o3d, staged_initialize
+from rlpgo_gtsam import (
+    InformationWarning,
+    RlpgoError,
+    read_g2o3d,
+    staged_initialize,
+    write_g2o,
+)
 from rlpgo_gtsam.g2o3d import G2O_TO_GTSAM, g2o_dimension, read_pose_graph
 from rlpgo_gtsam.graph import information_problem
 from rlpgo_gtsam.graph3d import (
@@ -30,6 +36,7 @@ from rlpgo_gtsam.initializers3d import COMPARISON_3D, INITIALIZERS_3D
 from rlpgo_gtsam.residuals import outlier_suspicion
 from rlpgo_gtsam.solvers import refine
 from rlpgo_gtsam.staged import SEARCHES, SEARCHES_3D
+from rlpgo_gtsam.synthetic import add_outliers, generate
 from tests.conftest import cli_error, cli_ok, dataset
 
 # SE-Sync's rounded estimate + GTSAM LM30 on these files (datasets/3d/README.md)
@@ -147,6 +154,27 @@ def test_json_record_of_a_3d_run(tmp_path):
     [row] = data["rows"]
     assert row["certificate"]["status"] == "certified" and row["certificate"]["rank"] == 3
     assert row["refined_chi2"] == data["chi2"]
+
+
+def test_json_record_of_planar_and_robust_runs(tmp_path):
+    """--json is the same record on a planar graph; a --robust run records what it rejected."""
+    sample = generate(60, 0.2, 0.05, 3.0, 0.5, np.random.default_rng(3), noisy_measurements=True)
+    path = tmp_path / "in.g2o"
+    write_g2o(path, sample.graph, sample.initial)
+    cli_ok(run_init(path, "-o", tmp_path / "out.g2o", "--json", tmp_path / "run.json"))
+    data = json.loads((tmp_path / "run.json").read_text())
+    assert (data["dimension"], data["poses"], data["result"]) == (2, 60, "certified")
+    assert data["certified"] is True and data["rows"][0]["certificate"]["rank"] >= 1
+    wrong, _ = add_outliers(sample.graph, sample.ground_truth, 0.1, np.random.default_rng(4))
+    write_g2o(path, wrong, sample.initial)
+    result = run_init(path, "-o", tmp_path / "robust.g2o", "--robust", "--json",
+                      tmp_path / "robust.json")
+    cli_ok(result)
+    data = json.loads((tmp_path / "robust.json").read_text())
+    assert data["method"] == "robust" and data["dimension"] == 2
+    assert f"rejected {len(data['rejected'])} of {data['judged']} loop closures" in result.stdout
+    assert data["chi2"] == pytest.approx(float(re.search(r"; chi2 (\S+) on the edges kept",
+                                                         result.stdout)[1]), rel=1e-5)
 
 
 def test_budget_cuts_the_certified_stage_and_still_writes(tmp_path):
