@@ -1,11 +1,11 @@
 """rlpgo_gtsam: better initial guesses for pose-graph optimization in GTSAM.
 
-The default is :func:`staged_initialize`: certify with the SE(d) synchronization
-relaxation (planar or 3D graphs), then refine. Every name loads its module on first use: reading graphs, the
-classical initializers, the default and the robust path load GTSAM, numpy and scipy only;
-the agent's names (``RLInitializer``, ``PoseGraphEnv``, ``EnvConfig``, ``PRESETS``) load
-torch or gymnasium from :mod:`rlpgo_gtsam.rl` where they need them. The environment id
-``rlpgo/PoseGraph-v0`` registers when :mod:`rlpgo_gtsam.rl.env` is imported
+The default is :func:`staged_initialize`: certify with the SE(d) synchronization relaxation
+(planar or 3D graphs), then refine. Every name loads its module on first use: reading
+graphs, the classical initializers, the default and the robust path load GTSAM, numpy and
+scipy only; the agent's names (``RLInitializer``, ``PoseGraphEnv``, ``EnvConfig``,
+``PRESETS``) load torch or gymnasium from :mod:`rlpgo_gtsam.rl` where they need them. The
+environment id ``rlpgo/PoseGraph-v0`` registers when :mod:`rlpgo_gtsam.rl.env` is imported
 (``gymnasium.make("rlpgo_gtsam.rl.env:rlpgo/PoseGraph-v0")`` does that itself).
 """
 

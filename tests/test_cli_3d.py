@@ -229,7 +229,7 @@ def test_robust_on_3d_is_one_line_or_a_3d_guess(tmp_path):
     source, output = dataset("3d/tinyGrid3D.g2o"), tmp_path / "out.g2o"
     result = run_init(source, "-o", output, "--robust")
     if result.exit_code:
-        cli_error(result)
+        assert cli_error(result).startswith(f"--robust on {source} (a 3D pose graph): ")
         assert not output.exists()
     else:
         cli_ok(result)

@@ -226,7 +226,10 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
     began = time.perf_counter()
     pose_graph = extract_pose_graph(graph, values)
     if pose_graph.dimension == 3:  # the robust path takes what it can: its error otherwise
-        result = robust_initialize(graph, values, trust_odometry=trust_odometry)
+        try:
+            result = robust_initialize(graph, values, trust_odometry=trust_odometry)
+        except RlpgoError as error:
+            raise RlpgoError(f"--robust on {input_path} (a 3D pose graph): {error}") from None
     else:
         result = robust_initialize(graph, values, trust_odometry=trust_odometry,
                                    pose_graph=pose_graph)
