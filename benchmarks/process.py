@@ -33,7 +33,8 @@ the exit, peak resident set from ``wait4``):
   baseline there (no LM30, no chi2): a ratio against less work than ours does. ``rlpgo-init``
   refuses 3D files until its 3D command lands; those rows show its one-line error.
 
-Each case and load runs ``--repeats`` times, the two sides alternating; a figure is the
+Each case and load runs ``--repeats`` times, the two sides in turn (which goes first
+alternates from one repeat to the next); a figure is the
 median over the repeats, the baseline's of each repeat's sum; ratio = ours / (SE-Sync +
 LM30). ``busy``: one Python busy loop runs from half a second before each measured run
 (for the baseline: before SE-Sync, until LM30 exits) and is killed after it.
@@ -202,14 +203,17 @@ def _measure(case: dict, load: str, folder: Path, args) -> dict:
     busy = load == "busy"
     ours_runs, base_runs = [], []
     has_baseline = bool(args.sesync if case["dim"] == 2 else args.sesync_example)
-    for _ in range(args.repeats):
-        with processes.competing(busy):
-            ours_runs.append(run_ours(case["path"], folder / "ours.g2o", args.timeout))
-        if has_baseline:
-            base_runs.append(
-                run_baseline(case["path"], folder, args.sesync, args.sesync_threads,
-                             args.timeout, busy) if case["dim"] == 2
-                else _baseline_3d(case, args, busy))
+    for repeat in range(args.repeats):
+        sides = ["ours", "baseline"] if has_baseline else ["ours"]
+        for side in sides if repeat % 2 == 0 else sides[::-1]:  # who goes first alternates
+            if side == "ours":
+                with processes.competing(busy):
+                    ours_runs.append(run_ours(case["path"], folder / "ours.g2o", args.timeout))
+            elif case["dim"] == 2:
+                base_runs.append(run_baseline(case["path"], folder, args.sesync,
+                                              args.sesync_threads, args.timeout, busy))
+            else:
+                base_runs.append(_baseline_3d(case, args, busy))
     graph, _ = gtsam.readG2o(str(case["path"]), case["dim"] == 3)
     last = ours_runs[-1]
     row = {"case": case["case"], "dim": case["dim"], "load": load, "repeats": args.repeats,
