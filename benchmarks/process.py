@@ -300,35 +300,47 @@ def _phase_table(phases: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_common_options(parser: argparse.ArgumentParser, name: str) -> None:
+    """The options process.py and scale.py share: the SE-Sync driver and its threads, the
+    cache of generated graphs, the time limit per process, the results' name."""
     parser.add_argument("--sesync", help="the sesync_rounded driver (default: "
                         "$RLPGO_SESYNC_BINARY; without one the 2D baseline is left out)")
-    parser.add_argument("--sesync-example", help="SE-Sync's example binary, for 3D "
-                        f"(default: ${EXAMPLE_ENV}; without one the 3D baseline is left out)")
     parser.add_argument("--sesync-threads", default="1",
                         help="BLAS/OpenMP threads of the SE-Sync driver, or 'default'")
+    parser.add_argument("--cache", type=Path,
+                        default=Path(tempfile.gettempdir()) / "rlpgo_benchmark_graphs",
+                        help="generated graphs are kept here and reused")
+    parser.add_argument("--timeout", type=float, default=600.0, help="seconds per process")
+    parser.add_argument("--name", default=name, help="results file name")
+
+
+def check_binaries(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                   options: tuple[str, ...]) -> None:
+    """``--sesync`` defaults to ``$RLPGO_SESYNC_BINARY``; a binary given must exist."""
+    from benchmarks.sesync.runner import default_binary
+
+    args.sesync = args.sesync or default_binary()
+    for option in options:
+        path = getattr(args, option)
+        if path is not None and not Path(path).is_file():
+            parser.error(f"--{option.replace('_', '-')}: {path} not found")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_common_options(parser, "process")
+    parser.add_argument("--sesync-example", help="SE-Sync's example binary, for 3D "
+                        f"(default: ${EXAMPLE_ENV}; without one the 3D baseline is left out)")
     parser.add_argument("--sets", default="2d,3d,generated")
     parser.add_argument("--files", help="only these shared files (2D and 3D names)")
     parser.add_argument("--sigmas", default="0.3,0.5")
     parser.add_argument("--seeds", default="1,2,3")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--loads", default="idle,busy")
-    parser.add_argument("--cache", type=Path,
-                        default=Path(tempfile.gettempdir()) / "rlpgo_benchmark_graphs",
-                        help="generated graphs are kept here and reused")
-    parser.add_argument("--timeout", type=float, default=600.0, help="seconds per process")
     parser.add_argument("--no-phases", action="store_true")
-    parser.add_argument("--name", default="process", help="results file name")
     args = parser.parse_args()
-    from benchmarks.sesync.runner import default_binary
-
-    args.sesync = args.sesync or default_binary()
     args.sesync_example = args.sesync_example or os.environ.get(EXAMPLE_ENV)
-    for option in ("sesync", "sesync_example"):
-        path = getattr(args, option)
-        if path is not None and not Path(path).is_file():
-            parser.error(f"--{option.replace('_', '-')}: {path} not found")
+    check_binaries(parser, args, ("sesync", "sesync_example"))
     print(f"SE-Sync driver: {args.sesync or 'none (2D baseline left out)'}; example binary: "
           f"{args.sesync_example or 'none (3D baseline left out)'}", flush=True)
     rows, phases = [], []

@@ -39,7 +39,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks import processes  # noqa: E402
 from benchmarks.common import RESULTS, write_result  # noqa: E402
 from benchmarks.process import (  # noqa: E402
+    add_common_options,
     cell,
+    check_binaries,
     chi2_of,
     graph_size,
     median,
@@ -157,26 +159,14 @@ def _tables(rows: list[dict], growth: list[dict], budgets: list[dict]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_common_options(parser, "scale")
     parser.add_argument("--sizes", default="10000,100000,200000")
     parser.add_argument("--repeats", type=int, default=1)
-    parser.add_argument("--sesync", help="the sesync_rounded driver (default: "
-                        "$RLPGO_SESYNC_BINARY; without one SE-Sync is left out)")
-    parser.add_argument("--sesync-threads", default="1",
-                        help="BLAS/OpenMP threads of the SE-Sync driver, or 'default'")
     parser.add_argument("--budget", type=float, default=30.0)
     parser.add_argument("--hard-n", type=int, default=2000)
     parser.add_argument("--no-budget", action="store_true")
-    parser.add_argument("--cache", type=Path,
-                        default=Path(tempfile.gettempdir()) / "rlpgo_benchmark_graphs",
-                        help="generated graphs are kept here and reused")
-    parser.add_argument("--timeout", type=float, default=600.0, help="seconds per process")
-    parser.add_argument("--name", default="scale", help="results file name")
     args = parser.parse_args()
-    from benchmarks.sesync.runner import default_binary
-
-    args.sesync = args.sesync or default_binary()
-    if args.sesync is not None and not Path(args.sesync).is_file():
-        parser.error(f"--sesync: {args.sesync} not found")
+    check_binaries(parser, args, ("sesync",))
     print(f"SE-Sync driver: {args.sesync or 'none (left out)'}", flush=True)
     sizes = [int(s) for s in args.sizes.split(",")]
     rows, budgets = [], []
