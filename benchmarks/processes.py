@@ -27,7 +27,10 @@ the name the command module calls, so a step that a later version calls under an
 falls into "other". The peak resident set (VmHWM) is read after each step. The probe runs
 under ``-X importtime`` and marks each step's begin and end on stderr, so the modules
 imported lazily (SciPy's, for instance) are attributed to the step that imported them, their
-time being part of that step's.
+time being part of that step's. "start-up" runs from the fork to the probe's first line: it
+includes this module's own standard-library imports (json, subprocess, tempfile, ...),
+which the command imports anyway, so its "import" step is that much shorter than a plain
+run's.
 """
 
 from __future__ import annotations
