@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SesyncRun", "run_sesync", "default_binary", "BINARY_ENV"]
+__all__ = ["SesyncRun", "run_sesync", "default_binary", "reanchor", "BINARY_ENV",
+           "THREAD_VARIABLES"]
 
 BINARY_ENV = "RLPGO_SESYNC_BINARY"
 """Environment variable naming the ``sesync_rounded`` binary (see :func:`default_binary`)."""
@@ -91,7 +92,8 @@ def default_binary() -> Path | None:
     return None
 
 
-_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+"""The BLAS / OpenMP thread variables that ``threads`` sets for a run."""
 
 
 def run_sesync(binary: str | os.PathLike[str], g2o_path: str | os.PathLike[str],
@@ -124,7 +126,7 @@ def run_sesync(binary: str | os.PathLike[str], g2o_path: str | os.PathLike[str],
         out = Path(tmp) / "result.json"
         env = dict(os.environ)
         if threads is not None:
-            env.update({name: str(int(threads)) for name in _THREAD_VARIABLES})
+            env.update({name: str(int(threads)) for name in THREAD_VARIABLES})
         try:
             proc = subprocess.run([str(binary.resolve()), str(g2o_path.resolve()), str(out)],
                                   cwd=tmp, env=env, capture_output=True, text=True,
