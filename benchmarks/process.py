@@ -2,7 +2,7 @@
 as a user runs it, on an idle machine and beside one competing CPU-bound process; and where
 the time of ``rlpgo-init`` goes, step by step.
 
-    python benchmarks/process.py [--sesync BIN] [--sesync-example BIN]
+    python benchmarks/process.py [--sesync BIN]
         [--sets 2d,3d,generated] [--files Intel.g2o,...] [--sigmas 0.3,0.5] [--seeds 1,2,3]
         [--repeats 3] [--loads idle,busy] [--cache DIR] [--timeout 600] [--no-phases]
         [--name process]
@@ -23,15 +23,14 @@ the exit, peak resident set from ``wait4``):
   with its default options, BLAS pinned to ``--sesync-threads`` threads, 1 by default as
   ``benchmarks/sesync/runner.py`` does: the faster and steadier setting for SE-Sync), then
   ``python benchmarks/sesync/lm30.py FILE REC.json OUT`` (import GTSAM, ``gtsam.readG2o``,
-  LM30 from SE-Sync's estimate with our LM settings, ``gtsam.writeG2o``). The driver reads
-  the file itself and, after SE-Sync's call, computes the certificate matrix's smallest
-  eigenvalue for its record, work SE-Sync alone does not do, counted against the baseline:
+  LM30 from SE-Sync's estimate with our LM settings, ``gtsam.writeG2o``), on 2D and 3D
+  files alike (the driver reads ``EDGE_SE3:QUAT`` files too). The driver reads the file
+  itself and, after SE-Sync's call, computes the certificate matrix's smallest eigenvalue
+  for its record, work SE-Sync alone does not do, counted against the baseline:
   the column "SE-Sync call s" is the driver's own timing of the ``SESync()`` call alone, and
   ``ratio_call`` in the JSON divides by that call + the LM30 process instead.
-- 3D: no 2D driver applies, and SE-Sync's example binary (``--sesync-example``: ``SE-Sync
-  FILE``, 4 threads as its ``main.cpp`` sets) writes no estimate, so its process alone is the
-  baseline there (no LM30, no chi2): a ratio against less work than ours does. ``rlpgo-init``
-  refuses 3D files until its 3D command lands; those rows show its one-line error.
+- 3D: ``rlpgo-init`` refuses 3D files until its 3D command lands; those rows show its
+  one-line error.
 
 Each case and load runs ``--repeats`` times, the two sides in turn (which goes first
 alternates from one repeat to the next); a figure is the
@@ -51,8 +50,7 @@ for the modules imported lazily inside the steps). Its total is one run, not a m
 carries the probe's small overhead.
 
 Prints the tables, writes ``benchmarks/results/<name>.json`` and ``.md``. SE-Sync is left
-out, its columns empty, when no binary is given or found (``$RLPGO_SESYNC_BINARY``,
-``$RLPGO_SESYNC_EXAMPLE``).
+out, its columns empty, when no binary is given or found (``$RLPGO_SESYNC_BINARY``).
 """
 
 from __future__ import annotations
@@ -74,7 +72,6 @@ FILES_2D = ["M3500.g2o", "M3500A.g2o", "M3500B.g2o", "M3500C.g2o", "Intel.g2o", 
             "City10K.g2o", "FR079.g2o"]
 FILES_3D = ["tinyGrid3D.g2o", "smallGrid3D.g2o", "parking-garage.g2o", "sphere2500.g2o",
             "torus3D.g2o", "cubicle.g2o", "sphere_bignoise_vertex3.g2o"]
-EXAMPLE_ENV = "RLPGO_SESYNC_EXAMPLE"
 LM30 = Path(__file__).resolve().parent / "sesync" / "lm30.py"
 
 
@@ -138,7 +135,7 @@ def _sesync_env(threads: str) -> dict[str, str]:
 
 def run_baseline(path: Path, folder: Path, sesync: str, threads: str, timeout: float,
                  busy: bool) -> dict:
-    """The 2D baseline as two processes (module docstring): ``sesync_rounded`` with BLAS at
+    """The baseline as two processes (module docstring): ``sesync_rounded`` with BLAS at
     ``threads``, then ``lm30.py`` writing ``folder/sesync_lm30.g2o``; with ``busy``, beside one
     competing process."""
     record, out = folder / "sesync.json", folder / "sesync_lm30.g2o"
@@ -165,33 +162,6 @@ def run_baseline(path: Path, folder: Path, sesync: str, threads: str, timeout: f
     return row
 
 
-def _example_outcome(stdout: str) -> dict:
-    """SE-Sync's example binary's verdict from its printed lines: certified when it found
-    the global optimum and its suboptimality bound is 0 (up to 1e-6 x max(1, |tr Lambda|),
-    the driver's rule)."""
-    bound = lower = None
-    for line in stdout.splitlines():
-        if line.startswith("Suboptimality bound"):
-            bound = float(line.rsplit(":", 1)[1])
-        elif line.startswith("Value of primal SDP solution tr(Lambda)"):
-            lower = float(line.rsplit(":", 1)[1])
-    optimum = "Found global optimum!" in stdout
-    certified = (optimum and bound is not None and lower is not None
-                 and bound <= 1e-6 * max(1.0, abs(lower)))
-    return {"sesync_certified": certified, "sesync_bound": bound,
-            "sesync_status": "GlobalOpt" if optimum else "not verified"}
-
-
-def _baseline_3d(case: dict, args, busy: bool) -> dict:
-    with processes.competing(busy):
-        done = processes.run([args.sesync_example, case["path"]], args.timeout)
-    row = {"sesync_seconds": done.seconds, "sesync_peak_mb": done.peak_mb,
-           "sesync_failure": done.failure}
-    if done.failure is None:
-        row.update(_example_outcome(done.stdout))
-    return row
-
-
 def median(values: list) -> float | None:
     values = [v for v in values if v is not None]
     return statistics.median(values) if values else None
@@ -202,18 +172,16 @@ def _measure(case: dict, load: str, folder: Path, args) -> dict:
 
     busy = load == "busy"
     ours_runs, base_runs = [], []
-    has_baseline = bool(args.sesync if case["dim"] == 2 else args.sesync_example)
+    has_baseline = bool(args.sesync)
     for repeat in range(args.repeats):
         sides = ["ours", "baseline"] if has_baseline else ["ours"]
         for side in sides if repeat % 2 == 0 else sides[::-1]:  # who goes first alternates
             if side == "ours":
                 with processes.competing(busy):
                     ours_runs.append(run_ours(case["path"], folder / "ours.g2o", args.timeout))
-            elif case["dim"] == 2:
+            else:
                 base_runs.append(run_baseline(case["path"], folder, args.sesync,
                                               args.sesync_threads, args.timeout, busy))
-            else:
-                base_runs.append(_baseline_3d(case, args, busy))
     graph, _ = gtsam.readG2o(str(case["path"]), case["dim"] == 3)
     last = ours_runs[-1]
     row = {"case": case["case"], "dim": case["dim"], "load": load, "repeats": args.repeats,
@@ -227,22 +195,23 @@ def _measure(case: dict, load: str, folder: Path, args) -> dict:
            else None}
     if base_runs:
         complete = [r for r in base_runs if r["sesync_failure"] is None and
-                    (case["dim"] == 3 or r.get("lm30_failure", "no run") is None)]
+                    r.get("lm30_failure", "no run") is None]
         for key in ("sesync_seconds", "sesync_call_seconds", "lm30_seconds", "sesync_peak_mb",
                     "lm30_peak_mb"):
             row[key] = median([r.get(key) for r in complete])
-        row["baseline_seconds_all"] = [r["sesync_seconds"] + r.get("lm30_seconds", 0.0)
+        row["baseline_seconds_all"] = [r["sesync_seconds"] + r["lm30_seconds"]
                                        for r in complete]
         row["baseline_seconds"] = median(row["baseline_seconds_all"])
         final = base_runs[-1]
         for key in ("sesync_failure", "lm30_failure", "sesync_certified", "sesync_status",
                     "sesync_bound", "lm30_chi2", "lm30_iterations", "lm30_steps"):
             row[key] = final.get(key)
-        if case["dim"] == 2 and final.get("lm30_failure", "no run") is None:
-            row["lm30_chi2_as_written"] = chi2_of(graph, folder / "sesync_lm30.g2o", 2)
+        if final.get("lm30_failure", "no run") is None:
+            row["lm30_chi2_as_written"] = chi2_of(graph, folder / "sesync_lm30.g2o",
+                                                  case["dim"])
         if row["ours_seconds"] is not None and row["baseline_seconds"]:
             row["ratio"] = row["ours_seconds"] / row["baseline_seconds"]
-            if case["dim"] == 2 and row.get("sesync_call_seconds") is not None:
+            if row.get("sesync_call_seconds") is not None:
                 row["ratio_call"] = row["ours_seconds"] / (
                     median([r["sesync_call_seconds"] + r["lm30_seconds"] for r in complete]))
     return row
@@ -304,7 +273,7 @@ def add_common_options(parser: argparse.ArgumentParser, name: str) -> None:
     """The options process.py and scale.py share: the SE-Sync driver and its threads, the
     cache of generated graphs, the time limit per process, the results' name."""
     parser.add_argument("--sesync", help="the sesync_rounded driver (default: "
-                        "$RLPGO_SESYNC_BINARY; without one the 2D baseline is left out)")
+                        "$RLPGO_SESYNC_BINARY; without one the baseline is left out)")
     parser.add_argument("--sesync-threads", default="1",
                         help="BLAS/OpenMP threads of the SE-Sync driver, or 'default'")
     parser.add_argument("--cache", type=Path,
@@ -329,8 +298,6 @@ def check_binaries(parser: argparse.ArgumentParser, args: argparse.Namespace,
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_common_options(parser, "process")
-    parser.add_argument("--sesync-example", help="SE-Sync's example binary, for 3D "
-                        f"(default: ${EXAMPLE_ENV}; without one the 3D baseline is left out)")
     parser.add_argument("--sets", default="2d,3d,generated")
     parser.add_argument("--files", help="only these shared files (2D and 3D names)")
     parser.add_argument("--sigmas", default="0.3,0.5")
@@ -339,10 +306,8 @@ def main() -> None:
     parser.add_argument("--loads", default="idle,busy")
     parser.add_argument("--no-phases", action="store_true")
     args = parser.parse_args()
-    args.sesync_example = args.sesync_example or os.environ.get(EXAMPLE_ENV)
-    check_binaries(parser, args, ("sesync", "sesync_example"))
-    print(f"SE-Sync driver: {args.sesync or 'none (2D baseline left out)'}; example binary: "
-          f"{args.sesync_example or 'none (3D baseline left out)'}", flush=True)
+    check_binaries(parser, args, ("sesync",))
+    print(f"SE-Sync driver: {args.sesync or 'none (baseline left out)'}", flush=True)
     rows, phases = [], []
     with tempfile.TemporaryDirectory(prefix="rlpgo_process_") as name:
         folder = Path(name)
@@ -369,7 +334,6 @@ def main() -> None:
     (RESULTS / f"{args.name}.md").write_text(text)
     result = {"command": command.strip(), "rows": rows, "phases": phases,
               "peak_floor_mb": processes.launcher_floor_mb(), "sesync": str(args.sesync),
-              "sesync_example": str(args.sesync_example),
               "sesync_threads": args.sesync_threads}
     print(f"wrote {write_result(args.name, result)}")
 
