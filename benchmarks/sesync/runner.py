@@ -1,5 +1,5 @@
 """Run the SE-Sync driver (``sesync_rounded``: ``benchmarks/sesync/sesync_rounded.cpp`` built
-with SE-Sync) on a planar g2o file and read its result back.
+with SE-Sync) on a planar or 3D g2o file and read its result back.
 
 SE-Sync (Rosen, Carlone, Bandeira, Leonard, IJRR 2019) is the project's certified anchor:
 when it certifies, its rounded estimate is the global optimum of *its* cost (isotropic
@@ -12,8 +12,9 @@ benchmarks compare against. The binary is optional: nothing in the package needs
 
 The poses come in the order of the file's sorted vertex ids (``run.ids``), moved by one
 rigid transform so that the first of them equals the file's first vertex (its
-``VERTEX_SE2`` line; the origin if the file has none): SE-Sync returns its estimate in an
-arbitrary gauge. ``run.raw_poses`` is the estimate as SE-Sync returned it.
+``VERTEX_SE2`` / ``VERTEX_SE3:QUAT`` line; the origin if the file has none): SE-Sync returns
+its estimate in an arbitrary gauge. ``run.raw_poses`` is the estimate as SE-Sync returned
+it. A 3D file's poses are rows ``x y z qx qy qz qw`` (``run.dimension`` is 3).
 """
 
 from __future__ import annotations
@@ -53,7 +54,8 @@ class SesyncRun:
             cost when the certificate is PSD.
         suboptimality_bound: objective - lower_bound (SE-Sync's bound; about 0 when certified).
         rank: final level of the Riemannian staircase.
-        poses: (n, 3) array of x, y, theta, re-anchored (see the module docstring).
+        poses: (n, 3) array of x, y, theta, re-anchored (see the module docstring); (n, 7)
+            x, y, z, qx, qy, qz, qw for a 3D file.
         ids: the file's vertex ids, sorted; row k of ``poses`` is vertex ``ids[k]``.
         verification_passed: SE-Sync's test passed (status ``GlobalOpt``): the certificate
             matrix at the final rank is PSD up to SE-Sync's tolerance eta = 1e-3, i.e. the
@@ -62,8 +64,9 @@ class SesyncRun:
             MaxRank, ElapsedTime).
         sdp_value: F(Y'Y), the relaxation's value at SE-Sync's solution.
         sesync_seconds: SE-Sync's own total_computation_time (problem construction excluded).
-        raw_poses: (n, 3) rounded estimate in SE-Sync's own gauge.
+        raw_poses: (n, 3) or (n, 7) rounded estimate in SE-Sync's own gauge.
         record: the driver's whole JSON record, poses and ids left out.
+        dimension: 2 or 3.
     """
 
     seconds: float
@@ -81,6 +84,7 @@ class SesyncRun:
     sesync_seconds: float
     raw_poses: np.ndarray
     record: dict
+    dimension: int = 2
 
 
 def default_binary() -> Path | None:
@@ -146,9 +150,10 @@ def run_sesync(binary: str | os.PathLike[str], g2o_path: str | os.PathLike[str],
 
 
 def _parse_record(record: dict, g2o_path: Path,
-                  first_vertex: tuple[int, tuple[float, float, float]] | None) -> SesyncRun:
+                  first_vertex: tuple[int, tuple[float, ...]] | None) -> SesyncRun:
     try:
-        raw = np.asarray(record["poses"], dtype=float).reshape(-1, 3)
+        dimension = int(record.get("dimension", 2))
+        raw = np.asarray(record["poses"], dtype=float).reshape(-1, 3 if dimension == 2 else 7)
         ids = np.asarray(record["ids"], dtype=np.int64)
         n = int(record["num_poses"])
 
@@ -172,6 +177,7 @@ def _parse_record(record: dict, g2o_path: Path,
             sesync_seconds=number("sesync_reported_seconds"),
             raw_poses=raw,
             record={k: v for k, v in record.items() if k not in ("poses", "ids")},
+            dimension=dimension,
         )
     except (KeyError, TypeError, ValueError) as error:
         raise RuntimeError(
@@ -184,6 +190,10 @@ def _parse_record(record: dict, g2o_path: Path,
     if first_vertex is not None and first_vertex[0] != int(ids[0]):
         raise RuntimeError(f"SE-Sync's first pose is vertex {int(ids[0])}, the file's first "
                            f"vertex is {first_vertex[0]} ({g2o_path})")
+    if dimension == 3:
+        anchor3d = (0.0,) * 6 + (1.0,) if first_vertex is None else first_vertex[1]
+        run.poses = reanchor3d(raw, np.asarray(anchor3d, float))
+        return run
     anchor = (0.0, 0.0, 0.0) if first_vertex is None else first_vertex[1]
     run.poses = reanchor(raw, anchor)
     return run
@@ -207,17 +217,40 @@ def reanchor(poses: np.ndarray, anchor: tuple[float, float, float]) -> np.ndarra
     return out
 
 
-def _first_vertex(path: Path) -> tuple[int, tuple[float, float, float]] | None:
-    """The VERTEX_SE2 with the smallest id and its pose, or None if the file has none."""
-    best: tuple[int, tuple[float, float, float]] | None = None
+def reanchor3d(poses: np.ndarray, anchor: np.ndarray) -> np.ndarray:
+    """:func:`reanchor` for 3D rows ``x y z qx qy qz qw``: T = anchor * poses[0]^-1 applied
+    to every pose (quaternions with qw >= 0)."""
+    from rlpgo_gtsam.se3 import (
+        compose,
+        inverse,
+        quaternions_to_rotations,
+        rotations_to_quaternions,
+    )
+
+    poses = np.asarray(poses, dtype=float)
+    r, t = quaternions_to_rotations(poses[:, 3:]), poses[:, :3]
+    r_a, t_a = quaternions_to_rotations(anchor[3:]), anchor[None, :3]
+    r_t, t_t = compose(r_a, t_a, *inverse(r[:1], t[:1]))
+    r, t = compose(np.repeat(r_t, len(r), 0), np.repeat(t_t, len(t), 0), r, t)
+    return np.hstack([t, rotations_to_quaternions(r)])
+
+
+_VERTEX_FIELDS = {"VERTEX_SE2": 3, "VERTEX_SE3:QUAT": 7}  # numbers after the id
+
+
+def _first_vertex(path: Path) -> tuple[int, tuple[float, ...]] | None:
+    """The VERTEX_SE2 (or VERTEX_SE3:QUAT) with the smallest id and its pose, or None if
+    the file has none."""
+    best: tuple[int, tuple[float, ...]] | None = None
     try:
         with path.open("r", encoding="utf-8", errors="replace") as handle:
             for line in handle:
                 tokens = line.split()
-                if len(tokens) >= 5 and tokens[0] == "VERTEX_SE2":
+                width = _VERTEX_FIELDS.get(tokens[0], 0) if tokens else 0
+                if width and len(tokens) >= 2 + width:
                     try:
                         key = int(tokens[1])
-                        pose = (float(tokens[2]), float(tokens[3]), float(tokens[4]))
+                        pose = tuple(float(v) for v in tokens[2:2 + width])
                     except ValueError:
                         continue  # the driver reports malformed lines itself
                     if best is None or key < best[0]:

@@ -1,5 +1,5 @@
 // sesync_rounded: run SE-Sync (Rosen, Carlone, Bandeira, Leonard; IJRR 2019) on a
-// planar g2o pose graph and write its rounded estimate plus its certificate data.
+// planar or 3D g2o pose graph and write its rounded estimate plus its certificate data.
 //
 //   usage: sesync_rounded INPUT.g2o OUTPUT.json
 //
@@ -43,16 +43,21 @@
 //   suboptimality_bound     objective - lower_bound (SE-Sync's definition)
 //   rank                    rows of Yopt (final staircase level)
 //   num_poses, num_measurements
+//   dimension               2 (EDGE_SE2 file) or 3 (EDGE_SE3:QUAT file)
 //   ids                     the file's vertex ids, sorted ascending
-//   poses                   [[x, y, theta], ...] in that order: SE-Sync's rounded
+//   poses                   [[x, y, theta], ...] (2D) or [[x, y, z, qx, qy, qz, qw],
+//                           ...] (3D, qw >= 0) in that order: SE-Sync's rounded
 //                           estimate exactly as returned, i.e. in SE-Sync's
 //                           arbitrary gauge (NOT anchored to the file's vertices)
 //
-// The g2o file is parsed here (EDGE_SE2 only; VERTEX_SE2 lines only contribute
-// ids; FIX lines, comments and blank lines are ignored; anything else is an error)
-// into SE-Sync's RelativePoseMeasurement with exactly the precisions that SE-Sync's
-// own read_g2o_file assigns: tau = 2 / tr(inverse translational information),
-// kappa = rotational information I33.  Unlike read_g2o_file (which uses the raw
+// The g2o file is parsed here (EDGE_SE2, or EDGE_SE3:QUAT with g2o's information
+// order, translation first; VERTEX_SE2 / VERTEX_SE3:QUAT lines only contribute
+// ids; FIX lines, comments and blank lines are ignored; anything else, or both
+// kinds in one file, is an error) into SE-Sync's RelativePoseMeasurement with
+// exactly the precisions that SE-Sync's own read_g2o_file assigns: 2D tau = 2 /
+// tr(inverse translational information), kappa = rotational information I33; 3D
+// tau = 3 / tr(inverse translational block), kappa = 3 / (2 tr(inverse rotational
+// block)).  Unlike read_g2o_file (which uses the raw
 // ids as indices and silently re-uses the previous line on unknown tokens or
 // blank lines), ids are mapped to 0..n-1 in sorted order and malformed input is
 // rejected.
@@ -96,19 +101,37 @@ using SESync::Vector;
 struct Graph {
   SESync::measurements_t measurements;
   std::vector<long long> ids; // sorted file ids; index = SE-Sync pose index
+  size_t d = 0;               // 2 or 3
 };
 
-Graph read_planar_g2o(const std::string &path) {
+// A 3x3 symmetric block of g2o's upper-triangular information (row-major upper
+// entries `upper`, size k x k), rows/columns first .. first + 2.
+Eigen::Matrix<Scalar, 3, 3> info_block(const std::vector<double> &upper, int k,
+                                       int first) {
+  auto at = [&](int r, int c) {
+    if (r > c)
+      std::swap(r, c);
+    return upper[r * k - r * (r - 1) / 2 + (c - r)];
+  };
+  Eigen::Matrix<Scalar, 3, 3> block;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c)
+      block(r, c) = at(first + r, first + c);
+  return block;
+}
+
+Graph read_g2o(const std::string &path) {
   std::ifstream in(path);
   if (!in)
     throw std::runtime_error("cannot open " + path);
 
   struct RawEdge {
     long long i, j;
-    double dx, dy, dth, I11, I12, I13, I22, I23, I33;
+    SESync::RelativePoseMeasurement m;
   };
   std::vector<RawEdge> edges;
   std::vector<long long> ids;
+  size_t d = 0;
 
   std::string line;
   size_t lineno = 0;
@@ -119,30 +142,73 @@ Graph read_planar_g2o(const std::string &path) {
     if (!(ss >> tok) || tok[0] == '#')
       continue;
     auto where = [&]() { return path + ":" + std::to_string(lineno); };
-    if (tok == "EDGE_SE2") {
-      RawEdge e;
-      if (!(ss >> e.i >> e.j >> e.dx >> e.dy >> e.dth >> e.I11 >> e.I12 >>
-            e.I13 >> e.I22 >> e.I23 >> e.I33))
-        throw std::runtime_error("malformed EDGE_SE2 at " + where());
-      if (e.i == e.j)
-        throw std::runtime_error("self-loop edge at " + where());
-      edges.push_back(e);
-      ids.push_back(e.i);
-      ids.push_back(e.j);
-    } else if (tok == "VERTEX_SE2") {
+    const size_t kind = (tok == "EDGE_SE2" || tok == "VERTEX_SE2")             ? 2
+                        : (tok == "EDGE_SE3:QUAT" || tok == "VERTEX_SE3:QUAT") ? 3
+                                                                               : 0;
+    if (tok == "FIX")
+      continue;
+    if (kind == 0)
+      throw std::runtime_error("unsupported g2o token '" + tok + "' at " +
+                               where());
+    if (d != 0 && kind != d)
+      throw std::runtime_error("'" + tok + "' at " + where() +
+                               " in a file of " + std::to_string(d) +
+                               "D lines");
+    d = kind;
+    if (tok == "VERTEX_SE2" || tok == "VERTEX_SE3:QUAT") {
       long long id;
       if (!(ss >> id))
-        throw std::runtime_error("malformed VERTEX_SE2 at " + where());
+        throw std::runtime_error("malformed " + tok + " at " + where());
       ids.push_back(id);
-    } else if (tok == "FIX") {
       continue;
-    } else {
-      throw std::runtime_error("unsupported g2o token '" + tok + "' at " +
-                               where() + " (planar EDGE_SE2 graphs only)");
     }
+    RawEdge e;
+    bool positive;
+    if (d == 2) {
+      double dx, dy, dth, I11, I12, I13, I22, I23, I33;
+      if (!(ss >> e.i >> e.j >> dx >> dy >> dth >> I11 >> I12 >> I13 >> I22 >>
+            I23 >> I33))
+        throw std::runtime_error("malformed EDGE_SE2 at " + where());
+      e.m.t = Eigen::Matrix<Scalar, 2, 1>(dx, dy);
+      e.m.R = Eigen::Rotation2D<Scalar>(dth).toRotationMatrix();
+      Eigen::Matrix<Scalar, 2, 2> tran_info;
+      tran_info << I11, I12, I12, I22;
+      Eigen::LLT<Eigen::Matrix<Scalar, 2, 2>> llt(tran_info);
+      positive = llt.info() == Eigen::Success && I33 > 0;
+      e.m.tau = 2 / tran_info.inverse().trace(); // as SESync::read_g2o_file
+      e.m.kappa = I33;                           // as SESync::read_g2o_file
+    } else {
+      double x, y, z, qx, qy, qz, qw;
+      std::vector<double> upper(21);
+      if (!(ss >> e.i >> e.j >> x >> y >> z >> qx >> qy >> qz >> qw))
+        throw std::runtime_error("malformed EDGE_SE3:QUAT at " + where());
+      for (double &v : upper)
+        if (!(ss >> v))
+          throw std::runtime_error("malformed EDGE_SE3:QUAT at " + where());
+      const Eigen::Quaternion<Scalar> q(qw, qx, qy, qz);
+      if (!(q.norm() > 0))
+        throw std::runtime_error("zero quaternion at " + where());
+      e.m.t = Eigen::Matrix<Scalar, 3, 1>(x, y, z);
+      e.m.R = q.normalized().toRotationMatrix();
+      const Eigen::Matrix<Scalar, 3, 3> tran_info = info_block(upper, 6, 0);
+      const Eigen::Matrix<Scalar, 3, 3> rot_info = info_block(upper, 6, 3);
+      Eigen::LLT<Eigen::Matrix<Scalar, 3, 3>> tran_llt(tran_info), rot_llt(rot_info);
+      positive = tran_llt.info() == Eigen::Success && rot_llt.info() == Eigen::Success;
+      e.m.tau = 3 / tran_info.inverse().trace();         // as SESync::read_g2o_file
+      e.m.kappa = 3 / (2 * rot_info.inverse().trace()); // as SESync::read_g2o_file
+    }
+    if (e.i == e.j)
+      throw std::runtime_error("self-loop edge at " + where());
+    if (!positive)
+      throw std::runtime_error("edge " + std::to_string(e.i) + "-" +
+                               std::to_string(e.j) + " at " + where() +
+                               " has a non-positive-definite information matrix");
+    edges.push_back(e);
+    ids.push_back(e.i);
+    ids.push_back(e.j);
   }
   if (edges.empty())
-    throw std::runtime_error("no EDGE_SE2 in " + path);
+    throw std::runtime_error("no EDGE_SE2 or EDGE_SE3:QUAT in " + path);
 
   std::sort(ids.begin(), ids.end());
   ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
@@ -162,25 +228,13 @@ Graph read_planar_g2o(const std::string &path) {
 
   Graph g;
   g.ids = ids;
+  g.d = d;
   g.measurements.reserve(edges.size());
-  for (const RawEdge &e : edges) {
-    SESync::RelativePoseMeasurement m;
-    m.i = index.at(e.i);
-    m.j = index.at(e.j);
-    m.t = Eigen::Matrix<Scalar, 2, 1>(e.dx, e.dy);
-    m.R = Eigen::Rotation2D<Scalar>(e.dth).toRotationMatrix();
-    Eigen::Matrix<Scalar, 2, 2> tran_info;
-    tran_info << e.I11, e.I12, e.I12, e.I22;
-    Eigen::LLT<Eigen::Matrix<Scalar, 2, 2>> llt(tran_info);
-    if (llt.info() != Eigen::Success || !(e.I33 > 0))
-      throw std::runtime_error("edge " + std::to_string(e.i) + "-" +
-                               std::to_string(e.j) +
-                               " has a non-positive-definite information matrix");
-    m.tau = 2 / tran_info.inverse().trace(); // as SESync::read_g2o_file
-    m.kappa = e.I33;                         // as SESync::read_g2o_file
-    g.measurements.push_back(m);
-
-    size_t a = find(m.i), b = find(m.j);
+  for (RawEdge &e : edges) {
+    e.m.i = index.at(e.i);
+    e.m.j = index.at(e.j);
+    g.measurements.push_back(e.m);
+    size_t a = find(e.m.i), b = find(e.m.j);
     if (a != b) {
       parent[a] = b;
       --components;
@@ -289,7 +343,7 @@ int main(int argc, char **argv) {
     return 2;
   }
   try {
-    const Graph g = read_planar_g2o(argv[1]);
+    const Graph g = read_g2o(argv[1]);
     const size_t n = g.ids.size();
 
     SESync::SESyncOpts opts; // defaults throughout
@@ -300,7 +354,7 @@ int main(int argc, char **argv) {
     const auto t1 = std::chrono::steady_clock::now();
     const double seconds = std::chrono::duration<double>(t1 - t0).count();
 
-    const size_t d = 2;
+    const size_t d = g.d;
     if (static_cast<size_t>(res.xhat.rows()) != d ||
         static_cast<size_t>(res.xhat.cols()) != (d + 1) * n)
       throw std::runtime_error("unexpected shape of SE-Sync's rounded estimate");
@@ -366,16 +420,29 @@ int main(int argc, char **argv) {
     out << "  \"rank\": " << res.Yopt.rows() << ",\n";
     out << "  \"num_poses\": " << n << ",\n";
     out << "  \"num_measurements\": " << g.measurements.size() << ",\n";
+    out << "  \"dimension\": " << d << ",\n";
     out << "  \"ids\": [";
     for (size_t i = 0; i < n; ++i)
       out << (i ? ", " : "") << g.ids[i];
     out << "],\n";
     out << "  \"poses\": [\n";
     for (size_t i = 0; i < n; ++i) {
-      const Eigen::Matrix<Scalar, 2, 2> R = res.xhat.block(0, n + d * i, d, d);
-      const double theta = std::atan2(R(1, 0), R(0, 0));
-      out << "    [" << num(res.xhat(0, i)) << ", " << num(res.xhat(1, i))
-          << ", " << num(theta) << "]" << (i + 1 < n ? ",\n" : "\n");
+      out << "    [";
+      for (size_t r = 0; r < d; ++r)
+        out << num(res.xhat(r, i)) << ", ";
+      if (d == 2) {
+        const Eigen::Matrix<Scalar, 2, 2> R = res.xhat.block(0, n + d * i, d, d);
+        out << num(std::atan2(R(1, 0), R(0, 0)));
+      } else {
+        const Eigen::Matrix<Scalar, 3, 3> R = res.xhat.block(0, n + d * i, d, d);
+        Eigen::Quaternion<Scalar> q(R);
+        q.normalize();
+        if (q.w() < 0)
+          q.coeffs() *= -1;
+        out << num(q.x()) << ", " << num(q.y()) << ", " << num(q.z()) << ", "
+            << num(q.w());
+      }
+      out << "]" << (i + 1 < n ? ",\n" : "\n");
     }
     out << "  ]\n}\n";
     out.close();
