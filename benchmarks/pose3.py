@@ -1,8 +1,10 @@
 """The SE(3) certified relaxation and GTSAM's InitializePose3 on SE-Sync's seven 3D files,
 each refined by GTSAM LM30, against SE-Sync + LM30 (figures measured here, see
-``datasets/3d/README.md``).
+``datasets/3d/README.md``); with ``--generated``, on the project's hard 3D graphs instead.
 
     python benchmarks/pose3.py [--files tinyGrid3D,...] [--time-limit 120]
+    python benchmarks/pose3.py --generated [--n 500,1000] [--sigma-r 0.3,0.4] [--seeds 0,1,2]
+        [--sesync PATH]
 
 Per file: ``certified3d`` (status, rank, CPU seconds) and chi2 after LM30 from its estimate;
 ``InitializePose3`` (with a prior on the first pose) + LM30: chi2 and seconds; the in-process
@@ -12,6 +14,15 @@ Graphs are read by ``gtsam.readG2o(path, True)``: the graph SE-Sync's figures we
 GTSAM's conversion of them, so the extraction skips the usability check there). chi2 =
 2 x GTSAM error, first pose fixed. Prints a markdown table, writes
 ``benchmarks/results/pose3.json`` and ``.md``.
+
+``--generated``: :func:`rlpgo_gtsam.synthetic.generate3d` graphs with noisy measurements
+(``sigma_t`` 0.1 m, ``d`` 1 m, ``lc`` 0.5) and heavy rotation noise, where the relaxation is
+not certified (sigma_R 0.25 rad: certified on 3 of 3 seeds at 1000 poses; 0.3: not tight,
+rank 4; 0.4: not tight, rank 6-8; 0.6: rank limit). Each is written as a 3D g2o file and run
+through SE-Sync's driver (``benchmarks/sesync``: ``--sesync`` or ``$RLPGO_SESYNC_BINARY``;
+without one the SE-Sync columns are empty), its re-anchored estimate refined by the same
+LM30; seconds are ours in CPU time, SE-Sync's its own wall time of one thread plus LM30's
+CPU time. Writes ``benchmarks/results/pose3_generated.json`` and ``.md`` (``--name``).
 """
 
 from __future__ import annotations
@@ -19,16 +30,21 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import gtsam
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from rlpgo_gtsam.errors import RlpgoError, one_line  # noqa: E402
+from rlpgo_gtsam.g2o3d import write_g2o3d  # noqa: E402
 from rlpgo_gtsam.graph3d import PoseGraph3D, information_problem_6  # noqa: E402
 from rlpgo_gtsam.initializers3d import Certified3D, InitializePose3  # noqa: E402
+from rlpgo_gtsam.se3 import quaternions_to_rotations  # noqa: E402
+from rlpgo_gtsam.synthetic import generate3d  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -44,6 +60,8 @@ SESYNC = {
     "sphere_bignoise_vertex3": (2.91, True, 2.98834e6),
 }
 MARGIN = 1e-4  # chi2 at or below SE-Sync + LM30 (+0.01%)
+# The generated family: sigma_t (m), d (m), lc; noisy measurements
+GENERATED = (0.1, 1.0, 0.5)
 
 
 def _lm30(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[float | None, float,
@@ -70,6 +88,20 @@ def _case(name: str, time_limit: float) -> dict:
     pose_graph = PoseGraph3D.from_gtsam(graph, values, check_information=usable)
     row: dict = {"file": name, "poses": pose_graph.num_poses, "edges": pose_graph.num_edges,
                  "information_usable": usable}
+    row.update(_ours(graph, pose_graph, time_limit))
+    sesync_seconds, sesync_certified, sesync_chi2 = SESYNC[name]
+    row.update(sesync_seconds=sesync_seconds, sesync_certified=sesync_certified,
+               sesync_lm30_chi2=sesync_chi2)
+    ours = row["certified_lm30_chi2"]
+    row["chi2_target_met"] = ours is not None and ours <= sesync_chi2 * (1 + MARGIN)
+    row["certified_target_met"] = row["certificate"]["certified"] or not sesync_certified
+    return row
+
+
+def _ours(graph: gtsam.NonlinearFactorGraph, pose_graph: PoseGraph3D,
+          time_limit: float) -> dict:
+    """certified3d + LM30 and InitializePose3 + LM30: chi2, CPU seconds, certificate."""
+    row: dict = {}
     start = time.process_time()
     certified = Certified3D(time_limit_s=time_limit).run(pose_graph)
     row["certified_seconds"] = time.process_time() - start
@@ -89,13 +121,75 @@ def _case(name: str, time_limit: float) -> dict:
     except RlpgoError as error:
         row.update(initialize_pose3_seconds=time.process_time() - start,
                    initialize_pose3_lm30_chi2=None, initialize_pose3_failure=str(error))
-    sesync_seconds, sesync_certified, sesync_chi2 = SESYNC[name]
-    row.update(sesync_seconds=sesync_seconds, sesync_certified=sesync_certified,
-               sesync_lm30_chi2=sesync_chi2)
-    ours = row["certified_lm30_chi2"]
-    row["chi2_target_met"] = ours is not None and ours <= sesync_chi2 * (1 + MARGIN)
-    row["certified_target_met"] = row["certificate"]["certified"] or not sesync_certified
     return row
+
+
+def _generated_case(n: int, sigma_r: float, seed: int, time_limit: float,
+                    binary: str | None, folder: Path) -> dict:
+    """One generated graph: ours (:func:`_ours`), SE-Sync + LM30 on its g2o file, and LM30
+    from the ground truth (a reference: the lowest chi2 known for the graph)."""
+    sigma_t, d, lc = GENERATED
+    sample = generate3d(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
+                        noisy_measurements=True)
+    graph = sample.graph
+    pose_graph = PoseGraph3D.from_gtsam(graph, sample.initial)
+    name = f"gen3d_n{n}_r{sigma_r:g}_s{seed}"
+    row: dict = {"file": name, "poses": n, "edges": pose_graph.num_edges, "sigma_r": sigma_r,
+                 "sigma_t": sigma_t, "d": d, "lc": lc, "seed": seed,
+                 "command": f"generate3d({n}, {sigma_r:g}, {sigma_t:g}, {d:g}, {lc:g}, "
+                            f"default_rng({seed}), noisy_measurements=True)"}
+    row.update(_ours(graph, pose_graph, time_limit))
+    row["truth_lm30_chi2"] = _lm30(graph, sample.ground_truth)[0]
+    row.update(sesync_seconds=None, sesync_certified=None, sesync_status=None,
+               sesync_rank=None, sesync_bound=None, sesync_lm30_chi2=None,
+               sesync_lm30_seconds=None, sesync_failure="no SE-Sync binary")
+    if binary is None:
+        return row
+    from benchmarks.sesync.runner import run_sesync
+
+    path = folder / f"{name}.g2o"
+    write_g2o3d(path, graph, sample.initial)
+    try:
+        run = run_sesync(binary, path, timeout=max(time_limit, 60.0))
+    except RuntimeError as error:
+        row["sesync_failure"] = one_line(error)
+        return row
+    estimate = pose_graph.to_values(quaternions_to_rotations(run.poses[:, 3:]), run.poses[:, :3])
+    chi2, seconds, failure = _lm30(graph, estimate)
+    row.update(sesync_seconds=run.seconds, sesync_certified=run.certified,
+               sesync_status=run.status, sesync_rank=run.rank,
+               sesync_bound=run.suboptimality_bound, sesync_lm30_chi2=chi2,
+               sesync_lm30_seconds=seconds, sesync_failure=failure)
+    return row
+
+
+def _generated_table(rows: list[dict]) -> str:
+    def number(value) -> str:
+        return "-" if value is None else f"{value:.6g}"
+
+    head = ("| graph | edges | certified3d (rank, bound, CPU s) | + LM30 chi2 | CPU s (+ LM30) "
+            "| SE-Sync (rank, bound, s) | + LM30 chi2 | s (+ LM30) | InitializePose3 + LM30 "
+            "chi2 (CPU s) | truth + LM30 chi2 |\n|---|---|---|---|---|---|---|---|---|---|")
+    lines = [head]
+    for r in rows:
+        cert = r["certificate"]
+        if r["sesync_status"] is None:
+            sesync, sesync_s = r["sesync_failure"], "-"
+        else:
+            sesync = (f"{'certified' if r['sesync_certified'] else r['sesync_status']} "
+                      f"({r['sesync_rank']}, {r['sesync_bound']:.3g}, "
+                      f"{r['sesync_seconds']:.2f})")
+            sesync_s = f"{r['sesync_seconds'] + (r['sesync_lm30_seconds'] or 0.0):.2f}"
+        init = r["initialize_pose3_lm30_chi2"]
+        init = number(init) if init is not None else \
+            f"fails: {r['initialize_pose3_failure'][:40]}"
+        lines.append(
+            f"| {r['file']} | {r['edges']} | {cert['status']} ({cert['rank']}, "
+            f"{cert['suboptimality_bound']:.3g}, {r['certified_seconds']:.2f}) | "
+            f"{number(r['certified_lm30_chi2'])} | {r['in_process_seconds']:.2f} | {sesync} | "
+            f"{number(r['sesync_lm30_chi2'])} | {sesync_s} | {init} "
+            f"({r['initialize_pose3_seconds']:.2f}) | {number(r['truth_lm30_chi2'])} |")
+    return "\n".join(lines) + "\n"
 
 
 def _table(rows: list[dict]) -> str:
@@ -122,18 +216,46 @@ def main() -> None:
     parser.add_argument("--files", default=",".join(SESYNC))
     parser.add_argument("--time-limit", type=float, default=120.0,
                         help="the staircase's time limit per file, seconds")
+    parser.add_argument("--generated", action="store_true",
+                        help="run the generated hard 3D graphs instead of SE-Sync's files")
+    parser.add_argument("--n", default="500,1000", help="--generated: poses, a list")
+    parser.add_argument("--sigma-r", default="0.3,0.4",
+                        help="--generated: rotation noise per axis, radians, a list")
+    parser.add_argument("--seeds", default="0,1,2", help="--generated: seeds, a list")
+    parser.add_argument("--sesync", default=None,
+                        help="--generated: the sesync_rounded driver (default: "
+                             "$RLPGO_SESYNC_BINARY; none: no SE-Sync columns)")
+    parser.add_argument("--name", default=None,
+                        help="results file name (default pose3, pose3_generated)")
     args = parser.parse_args()
     rows = []
-    for name in args.files.split(","):
-        rows.append(_case(name, args.time_limit))
-        print(json.dumps({k: v for k, v in rows[-1].items() if k != "certificate"}), flush=True)
-    table = _table(rows)
+    if args.generated:
+        from benchmarks.sesync.runner import default_binary
+
+        binary = args.sesync or (None if default_binary() is None else str(default_binary()))
+        with tempfile.TemporaryDirectory(prefix="pose3_generated_") as folder:
+            for n in map(int, args.n.split(",")):
+                for sigma_r in map(float, args.sigma_r.split(",")):
+                    for seed in map(int, args.seeds.split(",")):
+                        rows.append(_generated_case(n, sigma_r, seed, args.time_limit, binary,
+                                                    Path(folder)))
+                        _print_row(rows[-1])
+        table, name = _generated_table(rows), args.name or "pose3_generated"
+    else:
+        for name in args.files.split(","):
+            rows.append(_case(name, args.time_limit))
+            _print_row(rows[-1])
+        table, name = _table(rows), args.name or "pose3"
     print(table)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "pose3.json").write_text(json.dumps(
+    (RESULTS / f"{name}.json").write_text(json.dumps(
         {"command": "python benchmarks/pose3.py " + " ".join(sys.argv[1:]), "rows": rows},
         indent=2) + "\n")
-    (RESULTS / "pose3.md").write_text(table)
+    (RESULTS / f"{name}.md").write_text(table)
+
+
+def _print_row(row: dict) -> None:
+    print(json.dumps({k: v for k, v in row.items() if k != "certificate"}), flush=True)
 
 
 if __name__ == "__main__":
