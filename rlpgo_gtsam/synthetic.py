@@ -141,14 +141,12 @@ def _lattice_path(n: int) -> np.ndarray:
 def _true_poses3d(n: int, d: float) -> list[gtsam.Pose3]:
     cells = _lattice_path(n)
     moves = np.diff(cells, axis=0).astype(float)
-    facing = np.vstack([moves, moves[-1:]])  # the last pose keeps the last motion's direction
-    up = np.array([0.0, 0.0, 1.0])
-    poses = []
-    for cell, x_axis in zip(cells, facing, strict=True):
-        z_axis = up if x_axis[2] == 0 else np.cross(x_axis, [0.0, 1.0, 0.0])
-        rotation = np.column_stack([x_axis, np.cross(z_axis, x_axis), z_axis])
-        poses.append(gtsam.Pose3(gtsam.Rot3(rotation), d * cell.astype(float)))
-    return poses
+    x_axis = np.vstack([moves, moves[-1:]])  # the last pose keeps the last motion's direction
+    # z up; for a climb (x up) the z axis is x cross the world's y
+    z_axis = np.where(x_axis[:, 2:] == 0, [0.0, 0.0, 1.0], np.cross(x_axis, [0.0, 1.0, 0.0]))
+    rotations = np.stack([x_axis, np.cross(z_axis, x_axis), z_axis], axis=2)
+    positions = d * cells.astype(float)
+    return [gtsam.Pose3(gtsam.Rot3(r), t) for r, t in zip(rotations, positions, strict=True)]
 
 
 def _candidates3d(n: int) -> list[tuple[int, int]]:
