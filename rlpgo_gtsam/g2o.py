@@ -898,28 +898,30 @@ def _text_careful(
 
 def edge_list_text(
     graph: gtsam.NonlinearFactorGraph, indices: list[int], lines: list[int | None], *,
-    title: str, g2o_name: str,
+    title: str, g2o_name: str, tag: str = "EDGE_SE2",
 ) -> str:
-    """A list of some edges of a g2o file, one a line: ``line <L> EDGE_SE2 <id_i> <id_j>``.
+    """A list of some edges of a g2o file, one a line: ``line <L> EDGE_SE2 <id_i> <id_j>``
+    (``tag="EDGE_SE3:QUAT"``: the ``BetweenFactorPose3`` edges of a 3D file).
 
     ``L`` is the edge's line in the g2o file ``g2o_name`` (``lines[k]`` for factor ``k``, as
-    :func:`read_g2o_lines` or :func:`g2o_text_lines` give them), ``id_i`` and ``id_j`` its
-    vertex ids, in the order of ``indices``. One comment line opens the list: ``# <title>:``
-    and the format. Lines that start with ``#`` are comments; every other line has those five
-    fields.
+    :func:`read_g2o_lines`, :func:`g2o_text_lines` or
+    :func:`rlpgo_gtsam.g2o3d.g2o3d_text_lines` give them), ``id_i`` and ``id_j`` its vertex
+    ids, in the order of ``indices``. One comment line opens the list: ``# <title>:`` and the
+    format. Lines that start with ``#`` are comments; every other line has those five fields.
 
     Raises:
         OutputError: an index that is not an edge with a line.
     """
-    header = f"{title}: {EDGE_LIST_LINE}, L the edge's line in {g2o_name}"
+    edge = gtsam.BetweenFactorPose3 if tag == "EDGE_SE3:QUAT" else gtsam.BetweenFactorPose2
+    header = f"{title}: {EDGE_LIST_LINE.replace('EDGE_SE2', tag)}, L the edge's line in {g2o_name}"
     rows = ["# " + " ".join(header.splitlines())]  # one line, whatever the name holds
     for index in indices:
         factor = graph.at(index) if 0 <= index < graph.size() else None
         line = lines[index] if 0 <= index < len(lines) else None
-        if not isinstance(factor, gtsam.BetweenFactorPose2) or line is None:
+        if not isinstance(factor, edge) or line is None:
             raise OutputError(f"factor {index} is not an edge of the g2o file")
         i, j = factor.keys()
-        rows.append(f"line {line} EDGE_SE2 {i} {j}")
+        rows.append(f"line {line} {tag} {i} {j}")
     return "\n".join(rows) + "\n"
 
 

@@ -62,8 +62,8 @@ from rlpgo_gtsam.graph3d import (
 )
 from rlpgo_gtsam.se3 import compose, inverse, quaternions_to_rotations, rotations_to_quaternions
 
-__all__ = ["read_g2o3d", "write_g2o3d", "g2o3d_text", "G2O_TO_GTSAM", "TAGS_2D",
-           "g2o_dimension", "read_pose_graph", "write_pose_graph", "pose_graph_text"]
+__all__ = ["read_g2o3d", "write_g2o3d", "g2o3d_text", "g2o3d_text_lines", "G2O_TO_GTSAM",
+           "TAGS_2D", "g2o_dimension", "read_pose_graph", "write_pose_graph", "pose_graph_text"]
 
 VERTEX = "VERTEX_SE3:QUAT"
 EDGE = "EDGE_SE3:QUAT"
@@ -263,6 +263,20 @@ def g2o3d_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
     Raises:
         OutputError: a factor, value or information that a 3D g2o file cannot hold.
     """
+    return g2o3d_text_lines(graph, values)[0]
+
+
+def g2o3d_text_lines(graph: gtsam.NonlinearFactorGraph,
+                     values: gtsam.Values) -> tuple[str, list[int | None]]:
+    """:func:`g2o3d_text`, and the line (1-based) of that text which holds each factor:
+    its ``EDGE_SE3:QUAT`` line, or the ``FIX`` line of a prior, or None for an empty slot
+    (as :func:`rlpgo_gtsam.g2o.g2o_text_lines` for planar files).
+
+    Raises:
+        OutputError: a factor, value or information that a 3D g2o file cannot hold.
+    """
+    factor_lines: list[int | None] = [None] * graph.size()
+    priors: list[int] = []
     lines = [f"{VERTEX} {key} " + _pose_text(_pose3(values, key), f"vertex {key}")
              for key in sorted(values.keys())]
     fixed = []
@@ -289,15 +303,20 @@ def g2o3d_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
             upper = information[back][:, back][_UPPER]
             lines.append(f"{EDGE} {i} {j} " + _pose_text(factor.measured(), f"edge {i}-{j}")
                          + " " + " ".join(format_15(v) for v in upper))
+            factor_lines[index] = len(lines)
         elif isinstance(factor, gtsam.PriorFactorPose3):
             if not isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
                 raise OutputError(f"prior on key {factor.keys()[0]}: a soft prior has no g2o "
                                   "line (FIX holds a pose exactly)")
             fixed.append(factor.keys()[0])
+            priors.append(index)
         else:
             raise OutputError(f"cannot write a {type(factor).__name__} as a 3D g2o line")
-    lines.extend(fix for fix, _ in fix_lines(fixed))
-    return "\n".join(lines) + "\n"
+    for fix, part in fix_lines(fixed):
+        lines.append(fix)
+        for index in priors[part]:
+            factor_lines[index] = len(lines)
+    return "\n".join(lines) + "\n", factor_lines
 
 
 def _pose3(values: gtsam.Values, key: int) -> gtsam.Pose3:
