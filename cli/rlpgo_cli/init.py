@@ -132,6 +132,14 @@ def _print_row(row: MethodResult, width: int = 14) -> None:
     click.echo(f"{row.method:<{width}}{guess:>14}{result:>14}{row.seconds:>9.2f}{tail}")
 
 
+def _stages_budget(budget: float, command_began: float) -> float:
+    """What --budget leaves the stages: the whole budget less the time spent so far (options,
+    reading, extraction) and as much again for writing the guess, which costs about what
+    reading did; at least a tenth of the budget, so that a run always has a guess."""
+    spent = time.perf_counter() - command_began
+    return max(budget - 2.0 * spent, 0.1 * budget)
+
+
 def _print_progress(method: str, line: str) -> None:
     click.echo(f"  {method}: {line}")
 
@@ -333,6 +341,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
     writes the guess from the edges kept. A 3D file (VERTEX_SE3:QUAT, EDGE_SE3:QUAT) is
     told from its lines and written back as one.
     """
+    command_began = time.perf_counter()
     _check_robust_options(ctx, robust, method, refine, outliers_out)
     if robust:
         _run_robust(input_path, output, outliers_out, trust_odometry, json_path)
@@ -362,11 +371,16 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
     options["rl"] = {"model": model, "cycles": cycles, "episodes": episodes, "seed": seed,
                      "progress": _progress_bar()}
     if method == "auto":
+        stages_budget = _stages_budget(budget, command_began)
         staged = staged_initialize(graph, values, solver=solver or "lm",
-                                   iters=iters if solver else 0, budget_s=budget,
+                                   iters=iters if solver else 0,
+                                   budget_s=stages_budget,
                                    options=options, dataset=input_path.name,
                                    pose_graph=pose_graph, on_stage=_print_stage)
-        click.echo(f"stopped: {staged.stopped}")
+        share = "" if "budget" not in staged.stopped else (
+            f" (the stages' share of --budget {budget:g} s after reading {input_path.name},"
+            " with as much again kept for writing)")
+        click.echo(f"stopped: {staged.stopped}{share}")
         if staged.hint is not None:
             click.echo(f"hint: {staged.hint}")
         results, chosen = staged.rows, staged.best
