@@ -444,21 +444,31 @@ def edge_chi2(pose_graph: PoseGraph2D, poses: np.ndarray) -> np.ndarray:
     return np.einsum("ea,eab,eb->e", error, g.information, error)
 
 
-def disconnection(keys: Iterable[int], pairs: Iterable[tuple[int, int]]) -> str | None:
-    """None if ``pairs`` join all ``keys`` into one component, else a message naming them."""
+def disconnection(keys: Iterable[int] | np.ndarray,
+                  pairs: Iterable[tuple[int, int]] | np.ndarray) -> str | None:
+    """None if ``pairs`` join all ``keys`` into one component, else a message naming them.
+
+    Keys are GTSAM keys (below 2**64); arrays (keys, (m, 2) pairs) are taken as they are.
+    """
     from scipy.sparse import coo_matrix  # scipy loads in 0.2 s: not for a command's --help
     from scipy.sparse.csgraph import connected_components
 
-    keys = sorted(set(keys))
-    index = {key: k for k, key in enumerate(keys)}
-    pairs = np.array([(index[i], index[j]) for i, j in pairs], dtype=np.int64).reshape(-1, 2)
-    adjacency = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+    keys = np.sort(np.fromiter(keys, np.uint64) if not isinstance(keys, np.ndarray)
+                   else keys.astype(np.uint64))
+    keys = keys[np.concatenate(([True], keys[1:] != keys[:-1]))] if len(keys) else keys
+    pairs = np.asarray(pairs if isinstance(pairs, np.ndarray) else list(pairs),
+                       dtype=np.uint64).reshape(-1, 2)
+    index = np.searchsorted(keys, pairs)
+    if len(pairs) and (not len(keys)
+                       or not (keys[np.minimum(index, len(keys) - 1)] == pairs).all()):
+        raise KeyError("a pair names a key that is not in keys")
+    adjacency = coo_matrix((np.ones(len(pairs)), (index[:, 0], index[:, 1])),
                            shape=(len(keys), len(keys)))
     count, labels = connected_components(adjacency, directed=False)
     if count <= 1:
         return None
     parts: dict[int, list[int]] = {}
-    for key, label in zip(keys, labels.tolist(), strict=True):
+    for key, label in zip(keys.tolist(), labels.tolist(), strict=True):
         parts.setdefault(label, []).append(key)
     ordered = sorted(parts.values(), key=lambda part: part[0])
     shown = " and ".join(f"keys {format_ranges(part)}" for part in ordered[:3])
