@@ -791,10 +791,19 @@ def format_15(value: float) -> str:
     return repr(float(f"{value:.15g}"))
 
 
-def _round_15(values: list[float]) -> list[float]:
-    """``float(f"{v:.15g}")`` of each value, formatted in one call: what :func:`format_15`
-    writes is the ``repr`` of these."""
-    return list(map(float, (("%.15g " * len(values)) % tuple(values)).split()))
+def texts_15(values: list[float]) -> list[str]:
+    """:func:`format_15` of each value, with one formatting call for them all.
+
+    For a normal double, ``'%.15g'`` writes the digits that ``repr`` writes of the double
+    those digits name (any two decimals of 15 significant digits are distinct doubles, so
+    none shorter names it), in the same style (an exponent below 1e-4) but for two things:
+    ``repr`` adds '.0' to a whole number, and writes 1e15 .. 1e16 in full. Values from 1e15
+    on (or rounded up to it) and subnormal ones are written by :func:`format_15` itself.
+    """
+    texts = (("%.15g " * len(values)) % tuple(values)).split()
+    return [(text if "." in text or "e" in text else text + ".0")
+            if value == 0 or (1e-300 < abs(value) < 1e15 and "e+15" not in text)
+            else format_15(value) for text, value in zip(texts, values, strict=True)]
 
 
 def g2o_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
@@ -870,13 +879,13 @@ def _text_fast(
     xs, ys, thetas = poses.T.tolist()
     vertex_fields: list[object] = [None] * (4 * len(keys))
     vertex_fields[0::4], vertex_fields[1::4] = keys, xs
-    vertex_fields[2::4], vertex_fields[3::4] = ys, _round_15(thetas)
+    vertex_fields[2::4], vertex_fields[3::4] = ys, texts_15(thetas)
     edge_fields: list[object] = [None] * (6 * len(edges))
     edge_fields[0::6], edge_fields[1::6] = edge_keys[0::2], edge_keys[1::2]
     edge_fields[2::6], edge_fields[3::6] = dx, dy
-    edge_fields[4::6], edge_fields[5::6] = _round_15(dtheta), information
-    text = [("VERTEX_SE2 %d %r %r %r\n" * len(keys)) % tuple(vertex_fields),
-            ("EDGE_SE2 %d %d %r %r %r %s\n" * len(edges)) % tuple(edge_fields)]
+    edge_fields[4::6], edge_fields[5::6] = texts_15(dtheta), information
+    text = [("VERTEX_SE2 %d %r %r %s\n" * len(keys)) % tuple(vertex_fields),
+            ("EDGE_SE2 %d %d %r %r %s %s\n" * len(edges)) % tuple(edge_fields)]
     factor_lines: list[int | None] = [None] * len(factors)
     line = len(keys)
     for index, kind in enumerate(kinds):
