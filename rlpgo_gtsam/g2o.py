@@ -52,7 +52,7 @@ from rlpgo_gtsam.errors import G2oFormatError, InputNotFoundError, OutputError
 from rlpgo_gtsam.files import write_text
 from rlpgo_gtsam.graph import disconnection, information_problem, information_problems
 from rlpgo_gtsam.se2 import chain, compose, inverse, wrap
-from rlpgo_gtsam.textscan import PLAIN, Text
+from rlpgo_gtsam.textscan import BOM, Text, blocks
 
 __all__ = ["read_g2o", "read_g2o_lines", "write_g2o", "g2o_text", "g2o_text_lines",
            "edge_list_text", "EDGE_LIST_LINE"]
@@ -71,7 +71,6 @@ TAGS_3D = ("VERTEX_SE3", "EDGE_SE3", "VERTEX3", "EDGE3", "VERTEX_TRACKXYZ", "EDG
 # a longer one, or anything near MAX_LINE_BYTES, is the careful reader's to judge.
 _CHUNK_BYTES = 1 << 21
 _FAST_LINE_BYTES = MAX_LINE_BYTES // 2
-_BOM = b"\xef\xbb\xbf"  # a UTF-8 byte-order mark, skipped at the start of line 1
 _KEY_DIGITS = 20  # 2**64 - 1 has 20 digits
 _UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # g2o's order of the information
 
@@ -192,24 +191,9 @@ def _scan(handle: BinaryIO) -> _Table | None:
     Memory: one chunk of text and its arrays, and what the lines parsed so far hold.
     """
     scan = _Scan()
-    pending = b""  # the unfinished last line of the previous chunk
-    first = True
-    while True:
-        chunk = handle.read(_CHUNK_BYTES)
-        data = pending + chunk
-        if chunk:
-            cut = data.rfind(b"\n") + 1
-            data, pending = data[:cut], data[cut:]
-            if len(pending) > _FAST_LINE_BYTES:
-                return None
-        if data:
-            if first and data.startswith(_BOM):
-                data = data[len(_BOM):]
-            first = False
-            if not _scan_block(data, scan):
-                return None
-        if not chunk:
-            break
+    for text in blocks(handle, _CHUNK_BYTES, _FAST_LINE_BYTES):
+        if text is None or not _scan_block(text, scan):
+            return None
     keys = np.concatenate(scan.vertex_keys) if scan.vertex_keys else np.zeros(0, np.uint64)
     ordered = np.sort(keys)
     if (ordered[1:] == ordered[:-1]).any():
@@ -231,27 +215,14 @@ def _stack(parts: list[np.ndarray], empty: tuple[int, ...], dtype) -> np.ndarray
     return np.concatenate(parts) if parts else np.zeros(empty, dtype)
 
 
-def _scan_block(data: bytes, scan: _Scan) -> bool:
-    """Parse the whole lines in ``data`` into ``scan``; False at anything unusual.
+def _scan_block(text: Text, scan: _Scan) -> bool:
+    """Parse the lines of ``text`` into ``scan``; False at anything unusual.
 
     The ``VERTEX_SE2`` and ``EDGE_SE2`` lines of plain text (:data:`textscan.PLAIN`) are
     read column by column; comments and blank lines are passed over; the other lines (FIX,
     the records that hold other bytes) one at a time, as the careful reader splits them.
     """
-    if b"\r" in data and data.count(b"\r") != data.count(b"\r\n"):
-        return False  # a CR that does not end a line
-    plain_text = not data.translate(None, PLAIN)
-    if not plain_text:
-        if b"\x00" in data:
-            return False  # binary data
-        try:
-            data.decode("utf-8")
-        except UnicodeDecodeError:
-            return False
-    text = Text(data)
-    if text.longest_line() > _FAST_LINE_BYTES:
-        return False
-    plain = np.ones(len(text), bool) if plain_text else text.plain_lines()
+    plain = text.plain_lines()
     vertices = np.flatnonzero(plain & text.first_field_is(b"VERTEX_SE2"))
     edges = np.flatnonzero(plain & text.first_field_is(b"EDGE_SE2"))
     others = ~plain | ((text.count > 0) & (text.first_byte() != ord("#")))
@@ -458,8 +429,8 @@ def _lines(path: Path, handle: BinaryIO) -> Iterator[tuple[int, str]]:
         if b"\r" in raw.rstrip(b"\r\n"):
             raise G2oFormatError(path, number, "a CR inside a line (classic Mac line "
                                  "endings?); convert them to LF or CR LF")
-        if number == 1 and raw.startswith(_BOM):
-            raw = raw[len(_BOM):]
+        if number == 1 and raw.startswith(BOM):
+            raw = raw[len(BOM):]
         if b"\x00" in raw:
             raise G2oFormatError(path, number, "binary data, not a g2o text file")
         try:

@@ -17,11 +17,13 @@ non-ASCII spaces, so callers read with a :class:`Text` only the lines that hold
 from __future__ import annotations
 
 import warnings
+from collections.abc import Iterator
+from typing import BinaryIO
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-__all__ = ["Text", "PLAIN"]
+__all__ = ["Text", "PLAIN", "BOM", "blocks"]
 
 # The bytes of the lines a Text reads: printable ASCII, tab, CR (and LF, which ends a line).
 PLAIN = bytes(range(32, 127)) + b"\t\r\n"
@@ -30,6 +32,49 @@ _WIDEST_SPAN = 512  # bytes: same_text compares longer spans as Python bytes
 _SPAN_BYTES = 1 << 22  # same_text compares at most this many bytes at once
 _BATCH = 1 << 16  # ids read at once: a few MB of work arrays whatever the text
 _PAD = max(_ID_DIGITS, _WIDEST_SPAN)
+BOM = b"\xef\xbb\xbf"  # a UTF-8 byte-order mark, skipped at the start of a text
+
+
+def blocks(handle: BinaryIO, chunk_bytes: int, longest_line: int) -> Iterator[Text | None]:
+    """The text of ``handle`` a block of whole lines at a time (about ``chunk_bytes`` each),
+    a UTF-8 byte-order mark at its start left out; None for a block that only a careful,
+    line-by-line reader should judge: one with a line longer than ``longest_line`` bytes, a
+    NUL byte, bytes that are not UTF-8, or a CR that does not end a line.
+
+    Memory: one block and its arrays at a time.
+    """
+    pending = b""  # the unfinished last line of the previous block
+    first = True
+    while True:
+        chunk = handle.read(chunk_bytes)
+        data = pending + chunk
+        if chunk:
+            cut = data.rfind(b"\n") + 1
+            data, pending = data[:cut], data[cut:]
+            if len(pending) > longest_line:
+                yield None
+                return
+        if first and data.startswith(BOM):
+            data = data[len(BOM):]
+        first = first and not data
+        if data:
+            yield _block(data, longest_line)
+        if not chunk:
+            return
+
+
+def _block(data: bytes, longest_line: int) -> Text | None:
+    if b"\r" in data and data.count(b"\r") != data.count(b"\r\n"):
+        return None  # a CR that does not end a line
+    text = Text(data)
+    if not text.is_plain():
+        if b"\x00" in data:
+            return None  # binary data
+        try:
+            data.decode("utf-8")
+        except UnicodeDecodeError:
+            return None
+    return text if text.longest_line() <= longest_line else None
 
 
 class Text:
@@ -59,6 +104,7 @@ class Text:
         self.field_starts, self.field_ends = flips[0::2], flips[1::2]
         self.first = np.searchsorted(self.field_starts, self.starts)
         self.count = np.searchsorted(self.field_starts, self.ends) - self.first
+        self._plain: bool | None = None
 
     def __len__(self) -> int:
         return len(self.starts)
@@ -67,10 +113,16 @@ class Text:
         """The length in bytes of the longest line, its LF included."""
         return int((self.ends - self.starts).max(initial=-1)) + 1
 
+    def is_plain(self) -> bool:
+        """Whether the whole text is :data:`PLAIN` bytes."""
+        if self._plain is None:
+            self._plain = not self.data.translate(None, PLAIN)
+        return self._plain
+
     def plain_lines(self) -> np.ndarray:
         """(lines,) bool: the lines that hold :data:`PLAIN` bytes alone."""
         plain = np.ones(len(self), bool)
-        if self.data.translate(None, PLAIN):  # some byte is not plain: find its lines
+        if not self.is_plain():  # some byte is not plain: find its lines
             odd = np.ones(256, bool)
             odd[np.frombuffer(PLAIN, np.uint8)] = False
             where = np.flatnonzero(odd[self._buffer[:len(self.data)]])
