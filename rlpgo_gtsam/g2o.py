@@ -40,10 +40,10 @@ import math
 import operator
 import os
 import stat
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import BinaryIO
+from typing import BinaryIO, TypeVar
 
 import gtsam
 import numpy as np
@@ -73,6 +73,7 @@ _CHUNK_BYTES = 1 << 21
 _FAST_LINE_BYTES = MAX_LINE_BYTES // 2
 _KEY_DIGITS = 20  # 2**64 - 1 has 20 digits
 _UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # g2o's order of the information
+T = TypeVar("T")
 
 
 @dataclass
@@ -139,17 +140,32 @@ def read_g2o_lines(
 
 def _read_table(path: Path, fast: bool) -> _Table:
     """The file's table: by the fast reader where it accepts the file (``fast``, a regular
-    file), else by the careful one, on the same open file."""
-    with _open(path) as handle:
-        table = None
-        if stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
-            table = _scan(handle) if fast else None
+    file), else by the careful one."""
+    return read_either(path, _scan if fast else None, _parse)
+
+
+def read_either(path: Path, scan: Callable[[BinaryIO], T | None] | None,
+                parse: Callable[[Path, BinaryIO], T]) -> T:
+    """What the fast reader ``scan`` makes of the file at ``path`` where it is a regular file
+    and ``scan`` takes it (not None), else what the careful reader ``parse`` makes of it, on
+    the same open file (a pipe or device is read once, by ``parse``)."""
+    with open_g2o(path) as handle:
+        if scan is not None and stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
+            table = scan(handle)
+            if table is not None:
+                return table
             handle.seek(0)
-        # a pipe or device is read once, by the careful reader
-        return table if table is not None else _parse(path, handle)
+        return parse(path, handle)
 
 
-def _open(path: Path) -> BinaryIO:
+def scan_blocks(handle: BinaryIO) -> Iterator[Text | None]:
+    """The fast readers' blocks of a file (:func:`textscan.blocks`, with this module's chunk
+    and line limit)."""
+    return blocks(handle, _CHUNK_BYTES, _FAST_LINE_BYTES)
+
+
+def open_g2o(path: Path) -> BinaryIO:
+    """``path`` opened for reading (binary), or the one-line error that says why not."""
     try:
         handle = path.open("rb")
     except FileNotFoundError:
@@ -191,7 +207,7 @@ def _scan(handle: BinaryIO) -> _Table | None:
     Memory: one chunk of text and its arrays, and what the lines parsed so far hold.
     """
     scan = _Scan()
-    for text in blocks(handle, _CHUNK_BYTES, _FAST_LINE_BYTES):
+    for text in scan_blocks(handle):
         if text is None or not _scan_block(text, scan):
             return None
     keys = np.concatenate(scan.vertex_keys) if scan.vertex_keys else np.zeros(0, np.uint64)
@@ -239,7 +255,7 @@ def _scan_block(text: Text, scan: _Scan) -> bool:
         elif tokens[0] == "EDGE_SE2":
             odd_edges.append((number, tokens))
         elif tokens[0] == "FIX" and len(tokens) > 1:
-            keys = _plain_keys(tokens[1:])
+            keys = plain_keys(tokens[1:])
             if keys is None:
                 return False
             scan.fixed.extend((key, number) for key in keys)
@@ -252,9 +268,10 @@ def _scan_block(text: Text, scan: _Scan) -> bool:
     return True
 
 
-def _plain_keys(tokens: list[str]) -> list[int] | None:
+def plain_keys(tokens: list[str]) -> list[int] | None:
     """The ids, if every token is ASCII digits for a value below 2**64 (no leading zeros
-    beyond 20 digits); None otherwise (the careful reader then judges them)."""
+    beyond 20 digits); None otherwise (the careful reader then judges them): the fast
+    readers' FIX ids."""
     joined = "".join(tokens)
     if not (joined.isascii() and joined.isdigit()) or max(map(len, tokens)) > _KEY_DIGITS:
         return None
@@ -291,7 +308,7 @@ def _scan_vertices(text: Text, lines: np.ndarray, odd: list[list[str]], scan: _S
     for tokens in odd:
         if len(tokens) != _VERTEX_NUMBERS + 1:
             return False
-        keys, pose = _plain_keys(tokens[1:2]), _plain_numbers(tokens[2:])
+        keys, pose = plain_keys(tokens[1:2]), _plain_numbers(tokens[2:])
         if keys is None or pose is None:
             return False
         scan.vertex_keys.append(np.array(keys, dtype=np.uint64))
@@ -322,7 +339,7 @@ def _scan_edges(text: Text, lines: np.ndarray, odd: list[tuple[int, list[str]]],
         if len(tokens) != _EDGE_NUMBERS + 1:
             return False
         numbers.append(np.array([number]))
-        keys.append(_plain_keys(tokens[1:3]))
+        keys.append(plain_keys(tokens[1:3]))
         fields = _plain_numbers(tokens[3:])
         measured.append(None if fields is None else fields[None, :3])
         upper.append(None if fields is None else fields[None, 3:])
@@ -404,11 +421,15 @@ class _Parsed:
     problems: dict[bytes, str | None] = field(default_factory=dict)  # information checked
 
 
-def numbered_lines(path: Path) -> Iterator[tuple[int, str]]:
-    """(line number, text) of each line of the file at ``path``, with the careful reader's
-    checks (line length, NUL bytes, UTF-8, a byte-order mark): the 3D reader's lines."""
-    with _open(path) as handle:
+def numbered_lines(path: Path, handle: BinaryIO | None = None) -> Iterator[tuple[int, str]]:
+    """(line number, text) of each line of the file at ``path`` (read from ``handle`` where
+    given), with the careful reader's checks (line length, NUL bytes, UTF-8, a byte-order
+    mark): the 3D reader's lines."""
+    if handle is not None:
         yield from _lines(path, handle)
+        return
+    with open_g2o(path) as opened:
+        yield from _lines(path, opened)
 
 
 def _lines(path: Path, handle: BinaryIO) -> Iterator[tuple[int, str]]:
@@ -826,16 +847,9 @@ def _text_fast(
     measured = list(map(between.measured, edges))
     dx, dy = list(map(gtsam.Pose2.x, measured)), list(map(gtsam.Pose2.y, measured))
     dtheta = list(map(gtsam.Pose2.theta, measured))
-    models = list(map(between.noiseModel, edges))  # held: each id stays its model's own
-    texts: dict[int, str | None] = dict.fromkeys(map(id, models))
-    by_matrix: dict[bytes, str] = {}
-    for model in models:
-        if texts[id(model)] is None:
-            text = _information_text(model, by_matrix)
-            if text is None:
-                return None
-            texts[id(model)] = text
-    information = list(map(texts.__getitem__, map(id, models)))
+    information = information_texts(list(map(between.noiseModel, edges)), 3)
+    if information is None:
+        return None
     fixed = [factors[index].keys()[0] for index in priors]
     if not all(isinstance(factors[index].noiseModel(), gtsam.noiseModel.Constrained)
                for index in priors):
@@ -871,20 +885,38 @@ def _text_fast(
     return "".join(text), factor_lines
 
 
-def _information_text(model, by_matrix: dict[bytes, str]) -> str | None:
-    """The six g2o fields of a Gaussian noise model's information (``by_matrix`` caches
-    them per matrix), or None if a g2o edge cannot hold it."""
-    if not isinstance(model, gtsam.noiseModel.Gaussian) or isinstance(
-            model, gtsam.noiseModel.Constrained):
+def information_texts(models: list, size: int,
+                      problems: Callable[[np.ndarray], list[str | None]] = information_problems,
+                      order: np.ndarray | None = None) -> list[str] | None:
+    """The g2o fields of each Gaussian noise model's ``size`` x ``size`` information (its
+    upper triangle row by row, after reordering rows and columns by ``order``: 6 fields in
+    2D, 21 in 3D), or None if a g2o edge cannot hold one of them.
+
+    Each model object is asked for its information once, each distinct matrix checked
+    once (all in one batch, by ``problems``: the careful writer's rule for a stack) and the
+    numbers of all of them formatted in one call.
+    """
+    distinct = {id(model): model for model in models}  # held: each id stays its model's
+    gaussian, constrained = gtsam.noiseModel.Gaussian, gtsam.noiseModel.Constrained
+    if not all(isinstance(model, gaussian) and not isinstance(model, constrained)
+               for model in distinct.values()):
         return None
-    info = model.information()
-    key = info.tobytes()
-    text = by_matrix.get(key)
-    if text is None:
-        if information_problem(info) is not None:
-            return None
-        text = by_matrix[key] = " ".join(format_15(info[a, b]) for a, b in _UPPER)
-    return text
+    matrices = np.array([model.information() for model in distinct.values()])
+    if matrices.shape != (len(distinct), size, size):
+        return None
+    rows = np.ascontiguousarray(matrices).reshape(len(matrices), -1)
+    _, first = np.unique(rows.view(np.dtype((np.void, rows.shape[1] * 8))).ravel(),
+                         return_index=True)
+    if any(problem is not None for problem in problems(matrices[first])):
+        return None
+    if order is not None:
+        matrices = matrices[:, order][:, :, order]
+    upper = matrices[:, np.triu_indices(size)[0], np.triu_indices(size)[1]]
+    numbers = texts_15(upper.ravel().tolist())
+    width = upper.shape[1]
+    text = {key: " ".join(numbers[k * width:(k + 1) * width])
+            for k, key in enumerate(distinct)}
+    return [text[id(model)] for model in models]
 
 
 def _text_careful(

@@ -25,12 +25,14 @@ form is told in an :class:`~rlpgo_gtsam.errors.InformationWarning` per file and 
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
 import gtsam
 import numpy as np
@@ -42,12 +44,17 @@ from rlpgo_gtsam.g2o import (
     fix_lines,
     format_15,
     g2o_text,
+    information_texts,
     numbered_lines,
     parse_fix,
     parse_id,
     parse_numbers,
+    plain_keys,
+    read_either,
     read_g2o,
+    scan_blocks,
     short_token,
+    texts_15,
     write_g2o,
 )
 from rlpgo_gtsam.graph import disconnection
@@ -58,9 +65,11 @@ from rlpgo_gtsam.graph3d import (
     UNCOUPLED,
     graph_dimension,
     information_problem_6,
+    information_problems_6,
     information_rule_3d,
 )
 from rlpgo_gtsam.se3 import compose, inverse, quaternions_to_rotations, rotations_to_quaternions
+from rlpgo_gtsam.textscan import Text
 
 __all__ = ["read_g2o3d", "write_g2o3d", "g2o3d_text", "g2o3d_text_lines", "G2O_TO_GTSAM",
            "TAGS_2D", "g2o_dimension", "read_pose_graph", "write_pose_graph", "pose_graph_text"]
@@ -89,6 +98,37 @@ class _Parsed:
     changed: dict[str, list[int]] = field(default_factory=dict)
 
 
+@dataclass
+class _Table:
+    """A 3D g2o file as arrays, in file order: what both readers produce.
+
+    Attributes:
+        vertex_keys: (n,) uint64 the VERTEX_SE3:QUAT ids.
+        vertex_rotations, vertex_translations: (n, 3, 3) and (n, 3) their poses.
+        edge_keys: (m, 2) uint64 the ids i, j of each EDGE_SE3:QUAT line.
+        edge_lines: (m,) the 1-based line of each edge.
+        rotations, translations: (m, 3, 3) and (m, 3) the measured relative poses.
+        information: (d, 6, 6) the distinct information matrices, GTSAM's order (each checked
+            once).
+        model: (m,) the index of each edge's matrix in ``information``.
+        fixed: (id, line) of each id of the FIX lines.
+        changed: what the information rule changed (:data:`~rlpgo_gtsam.graph3d.LIFTED`,
+            :data:`~rlpgo_gtsam.graph3d.UNCOUPLED`) -> the lines of those edges, in order.
+    """
+
+    vertex_keys: np.ndarray
+    vertex_rotations: np.ndarray
+    vertex_translations: np.ndarray
+    edge_keys: np.ndarray
+    edge_lines: np.ndarray
+    rotations: np.ndarray
+    translations: np.ndarray
+    information: np.ndarray
+    model: np.ndarray
+    fixed: list[tuple[int, int]]
+    changed: dict[str, list[int]]
+
+
 def read_g2o3d(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """Read a 3D g2o file into a GTSAM factor graph and initial values.
 
@@ -98,57 +138,284 @@ def read_g2o3d(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph
     :class:`~rlpgo_gtsam.errors.InformationWarning`); then one constrained
     :class:`gtsam.PriorFactorPose3` per ``FIX``-ed id. Keys are the file's ids.
 
+    A regular file is read a few megabytes at a time, record by record in numpy; anything
+    that reader does not take as plainly valid is read again line by line, which names the
+    first bad line (as :func:`rlpgo_gtsam.g2o.read_g2o`).
+
     Raises:
         G2oFormatError: the file is missing, unreadable or malformed, or its graph is not
             connected; the message names the file and the line.
     """
     path = Path(path)
-    parsed = _parse(path)
-    _warn_changes(path, parsed.changed)
-    if parsed.vertices:
-        for line, i, j, *_ in parsed.edges:
-            for key in (i, j):
-                if key not in parsed.vertices:
-                    raise G2oFormatError(path, line, f"{EDGE} refers to vertex {key}, which no "
-                                         f"{VERTEX} line defines")
-    known = parsed.vertices.keys() | {k for e in parsed.edges for k in e[1:3]}
-    for key, line in parsed.fixed:
-        if key not in known:
+    table = _read_table(path, fast=True)
+    _warn_changes(path, table.changed)
+    return _build(path, table)
+
+
+def _read_table(path: Path, fast: bool) -> _Table:
+    """The file's table, by the fast reader where it takes the file, else the careful one."""
+    return read_either(path, _scan if fast else None,
+                       lambda path, handle: _table(_parse(path, handle)))
+
+
+def _build(path: Path, table: _Table) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """The checks across lines, then the GTSAM graph and values."""
+    keys_i, keys_j = table.edge_keys[:, 0], table.edge_keys[:, 1]
+    if len(table.vertex_keys):
+        known_i = np.isin(keys_i, table.vertex_keys)
+        known_j = np.isin(keys_j, table.vertex_keys)
+        unknown = np.flatnonzero(~(known_i & known_j))
+        if len(unknown):
+            k = unknown[0]
+            key = int(keys_i[k] if not known_i[k] else keys_j[k])
+            raise G2oFormatError(path, int(table.edge_lines[k]), f"{EDGE} refers to vertex "
+                                 f"{key}, which no {VERTEX} line defines")
+    known = np.concatenate([table.vertex_keys, table.edge_keys.ravel()])
+    if table.fixed:
+        defined = np.isin(np.array([key for key, _ in table.fixed], dtype=np.uint64), known)
+        if not defined.all():
+            key, line = table.fixed[int(np.argmin(defined))]
             raise G2oFormatError(path, line, f"FIX refers to vertex {key}, which is not defined")
-    problem = disconnection(known, [(e[1], e[2]) for e in parsed.edges])
+    problem = disconnection(known, table.edge_keys)
     if problem is not None:
         raise G2oFormatError(path, None, problem)
-    if not parsed.vertices:
-        parsed.vertices = _chain(parsed.edges)
-        for key, (r, t) in parsed.vertices.items():
+    keys, rotations, translations = (table.vertex_keys, table.vertex_rotations,
+                                     table.vertex_translations)
+    if not len(keys):
+        chained = _chain(table)
+        for key, (r, t) in chained.items():
             if not (np.all(np.isfinite(r)) and np.all(np.isfinite(t))):
                 raise G2oFormatError(path, None, f"chaining the edges overflows at vertex "
                                      f"{key}: give {VERTEX} lines")
+        keys = np.array(list(chained), dtype=np.uint64)
+        rotations = np.array([r for r, _ in chained.values()]).reshape(-1, 3, 3)
+        translations = np.array([t for _, t in chained.values()]).reshape(-1, 3)
+    # One noise model per distinct matrix, shared by its edges; a Rot3 from its nine numbers
+    # and a Pose3 from it and a row of the translations: the cheapest calls into GTSAM.
+    models = [gtsam.noiseModel.Gaussian.Information(matrix) for matrix in table.information]
     graph = gtsam.NonlinearFactorGraph()
-    for _, i, j, r, t, information in parsed.edges:
-        graph.add(gtsam.BetweenFactorPose3(i, j, gtsam.Pose3(gtsam.Rot3(r), t),
-                                           gtsam.noiseModel.Gaussian.Information(information)))
+    add, between, pose3, rot3 = (graph.add, gtsam.BetweenFactorPose3, gtsam.Pose3,
+                                 gtsam.Rot3)
+    for i, j, r, t, model in zip(*table.edge_keys.T.tolist(),
+                                 table.rotations.reshape(-1, 9).tolist(), table.translations,
+                                 map(models.__getitem__, table.model.tolist()), strict=True):
+        add(between(i, j, pose3(rot3(*r), t), model))
     values = gtsam.Values()
-    for key in sorted(parsed.vertices):
-        r, t = parsed.vertices[key]
-        values.insert(key, gtsam.Pose3(gtsam.Rot3(r), t))
-    for key, _ in parsed.fixed:
+    insert = values.insert
+    order = np.argsort(keys, kind="stable")
+    for key, r, t in zip(keys[order].tolist(), rotations[order].reshape(-1, 9).tolist(),
+                         translations[order], strict=True):
+        insert(key, pose3=pose3(rot3(*r), t))
+    for key, _ in table.fixed:
         graph.add(gtsam.PriorFactorPose3(key, values.atPose3(key),
                                          gtsam.noiseModel.Constrained.All(6)))
     return graph, values
 
 
-def _records(path: Path) -> Iterator[tuple[int, str, list[str]]]:
+# --------------------------------------------------------------------------- the fast reader
+
+
+@dataclass
+class _Scan:
+    """What the fast reader has gathered so far, one list entry per chunk."""
+
+    vertex_keys: list[np.ndarray] = field(default_factory=list)
+    vertex_numbers: list[np.ndarray] = field(default_factory=list)  # (k, 7) x y z qx qy qz qw
+    edge_keys: list[np.ndarray] = field(default_factory=list)
+    edge_lines: list[np.ndarray] = field(default_factory=list)
+    edge_numbers: list[np.ndarray] = field(default_factory=list)  # (k, 7) as the vertices'
+    model: list[np.ndarray] = field(default_factory=list)
+    information: list[np.ndarray] = field(default_factory=list)  # as the rule uses them
+    changes: list[tuple[str, ...]] = field(default_factory=list)  # the rule's, per matrix
+    matrix_index: dict[bytes, int] = field(default_factory=dict)  # file's matrix -> index
+    fixed: list[tuple[int, int]] = field(default_factory=list)
+    changed: dict[str, list[int]] = field(default_factory=dict)
+    lines: int = 0  # lines read so far
+
+
+def _scan(handle: BinaryIO) -> _Table | None:
+    """The fast reader: the table of the file, or None where the careful reader must judge.
+
+    The ``VERTEX_SE3:QUAT`` and ``EDGE_SE3:QUAT`` lines of plain text are read column by
+    column (:class:`~rlpgo_gtsam.textscan.Text`), comments and blank lines passed over, FIX
+    lines read one by one; any other line, or anything unusual, is the careful reader's.
+    """
+    scan = _Scan()
+    for text in scan_blocks(handle):
+        if text is None or not _scan_block(text, scan):
+            return None
+    keys = np.concatenate(scan.vertex_keys) if scan.vertex_keys else np.zeros(0, np.uint64)
+    ordered = np.sort(keys)
+    if (ordered[1:] == ordered[:-1]).any() or not scan.edge_keys:
+        return None  # an id defined twice, or no edge: the careful reader says so
+    vertex_numbers = _stack(scan.vertex_numbers, (0, 7))
+    edge_numbers = _stack(scan.edge_numbers, (0, 7))
+    return _Table(
+        vertex_keys=keys,
+        vertex_rotations=_rotations(vertex_numbers[:, 3:])[0],
+        vertex_translations=vertex_numbers[:, :3],
+        edge_keys=np.concatenate(scan.edge_keys),
+        edge_lines=np.concatenate(scan.edge_lines),
+        rotations=_rotations(edge_numbers[:, 3:])[0],
+        translations=edge_numbers[:, :3],
+        information=np.array(scan.information).reshape(-1, 6, 6),
+        model=np.concatenate(scan.model),
+        fixed=scan.fixed,
+        changed=scan.changed,
+    )
+
+
+def _stack(parts: list[np.ndarray], empty: tuple[int, ...]) -> np.ndarray:
+    return np.concatenate(parts) if parts else np.zeros(empty)
+
+
+def _scan_block(text: Text, scan: _Scan) -> bool:
+    """Parse the lines of ``text`` into ``scan``; False at anything unusual."""
+    plain = text.plain_lines()
+    vertices = np.flatnonzero(plain & text.first_field_is(VERTEX.encode()))
+    edges = np.flatnonzero(plain & text.first_field_is(EDGE.encode()))
+    others = ~plain | ((text.count > 0) & (text.first_byte() != ord("#")))
+    others[vertices] = others[edges] = False
+    for index in np.flatnonzero(others).tolist():
+        tokens = text.line(index).decode("utf-8").split()
+        if tokens and tokens[0].startswith("#"):
+            continue
+        keys = plain_keys(tokens[1:]) if tokens and tokens[0] == "FIX" and len(tokens) > 1 \
+            else None
+        if keys is None:
+            return False  # a blank line of other spaces is the careful reader's too
+        scan.fixed.extend((key, scan.lines + index + 1) for key in keys)
+    if len(vertices):
+        if (text.count[vertices] != _VERTEX_FIELDS + 1).any():
+            return False
+        ids = text.first[vertices] + 1
+        keys = text.ids(text.field_starts[ids], text.field_ends[ids])
+        numbers = text.numbers(vertices, 2, 7)
+        if keys is None or numbers is None or not _usable_quaternions(numbers[:, 3:]):
+            return False
+        scan.vertex_keys.append(keys)
+        scan.vertex_numbers.append(numbers)
+    if len(edges):
+        if (text.count[edges] != _EDGE_FIELDS + 1).any():
+            return False
+        starts, ends = text.fields(edges, _EDGE_FIELDS + 1)
+        keys = text.ids(starts[:, 1:3].ravel(), ends[:, 1:3].ravel())
+        numbers = text.numbers(edges, 3, 7)
+        if keys is None or numbers is None or not _usable_quaternions(numbers[:, 3:]):
+            return False
+        keys = keys.reshape(-1, 2)
+        if (keys[:, 0] == keys[:, 1]).any():
+            return False  # an edge from a vertex to itself
+        # the information's 21 fields: usually the same text on every line, read once
+        if text.same_text(starts[:, 10], ends[:, 30]):
+            upper = text.numbers(edges[:1], 10, 21)
+            inverse = np.zeros(len(edges), np.int64)
+        else:
+            upper = text.numbers(edges, 10, 21)
+            if upper is not None:
+                rows = upper.view(np.dtype((np.void, upper.itemsize * 21))).ravel()
+                _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+                order = np.argsort(first)  # in the order they first appear
+                upper, inverse = upper[first[order]], np.argsort(order)[inverse.ravel()]
+        index = None if upper is None else _matrix_indices(_informations(upper), scan)
+        if index is None:
+            return False
+        model, lines = index[inverse], edges + (scan.lines + 1)
+        changed = [k for k, change in enumerate(scan.changes) if change]
+        for line, k in zip(lines[np.isin(model, changed)].tolist(),
+                           model[np.isin(model, changed)].tolist(), strict=True):
+            for change in scan.changes[k]:  # as the careful reader: by line, in order
+                scan.changed.setdefault(change, []).append(line)
+        scan.edge_keys.append(keys)
+        scan.edge_lines.append(lines)
+        scan.edge_numbers.append(numbers)
+        scan.model.append(model)
+    scan.lines += len(text)
+    return True
+
+
+def _usable_quaternions(quaternions: np.ndarray) -> bool:
+    """Whether every quaternion is long enough to normalize, with room to spare (a shorter
+    one, even by rounding, is the careful reader's to name)."""
+    return bool((_rotations(quaternions)[1] >= 2 * _QUATERNION_FLOOR).all())
+
+
+def _matrix_indices(matrices: np.ndarray, scan: _Scan) -> np.ndarray | None:
+    """The index in ``scan.information`` of each matrix of the file (the new ones through
+    the information rule, in one batch, and added as it uses them); None if the rule
+    refuses one of them."""
+    keys = [matrix.tobytes() for matrix in matrices]
+    new = [k for k, key in enumerate(keys) if key not in scan.matrix_index]
+    if new:
+        used, problems, changes = information_rule_3d(matrices[new])
+        if any(problem is not None for problem in problems):
+            return None
+        for k, matrix, change in zip(new, used, changes, strict=True):
+            scan.matrix_index[keys[k]] = len(scan.information)
+            scan.information.append(matrix)
+            scan.changes.append(change)
+    return np.array([scan.matrix_index[key] for key in keys], dtype=np.int64)
+
+
+# --------------------------------------------------------------------------- the careful reader
+
+
+def _table(parsed: _Parsed) -> _Table:
+    """The careful reader's table: its dictionaries and edge list as arrays."""
+    matrix_index: dict[bytes, int] = {}
+    information: list[np.ndarray] = []
+    model = []
+    for edge in parsed.edges:
+        index = matrix_index.setdefault(edge[5].tobytes(), len(information))
+        if index == len(information):
+            information.append(edge[5])
+        model.append(index)
+    return _Table(
+        vertex_keys=np.array(list(parsed.vertices), dtype=np.uint64),
+        vertex_rotations=np.array([r for r, _ in parsed.vertices.values()]).reshape(-1, 3, 3),
+        vertex_translations=np.array([t for _, t in parsed.vertices.values()]).reshape(-1, 3),
+        edge_keys=np.array([e[1:3] for e in parsed.edges], dtype=np.uint64).reshape(-1, 2),
+        edge_lines=np.array([e[0] for e in parsed.edges], dtype=np.int64),
+        rotations=np.array([e[3] for e in parsed.edges]).reshape(-1, 3, 3),
+        translations=np.array([e[4] for e in parsed.edges]).reshape(-1, 3),
+        information=np.array(information).reshape(-1, 6, 6),
+        model=np.array(model, dtype=np.int64),
+        fixed=parsed.fixed,
+        changed=parsed.changed,
+    )
+
+
+def _rotations(quaternions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(k, 3, 3) the rotations of (k, 4) quaternions (qx, qy, qz, qw), each divided by its
+    length first, and (k,) those lengths: the one computation both readers make, row by row
+    alike whatever k."""
+    q = np.asarray(quaternions, dtype=float).reshape(-1, 4)
+    with np.errstate(all="ignore"):  # a zero or huge one is refused by the caller
+        size = np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2]
+                       + q[:, 3] * q[:, 3])
+        return quaternions_to_rotations(q / size[:, None]), size
+
+
+def _informations(upper: np.ndarray) -> np.ndarray:
+    """(k, 6, 6) the information in GTSAM's order of (k, 21) upper triangles in g2o's."""
+    full = np.zeros((len(upper), 6, 6))
+    full[:, _UPPER[0], _UPPER[1]] = upper
+    information = full + np.transpose(np.triu(full, 1), (0, 2, 1))
+    return information[:, G2O_TO_GTSAM][:, :, G2O_TO_GTSAM]
+
+
+def _records(path: Path, handle: BinaryIO | None = None
+             ) -> Iterator[tuple[int, str, list[str]]]:
     """(line number, tag, fields) of each line that is neither blank nor a comment."""
-    for number, text in numbered_lines(path):
+    for number, text in numbered_lines(path, handle):
         tokens = text.split()
         if tokens and not tokens[0].startswith("#"):
             yield number, tokens[0], tokens[1:]
 
 
-def _parse(path: Path) -> _Parsed:
+def _parse(path: Path, handle: BinaryIO) -> _Parsed:
     parsed = _Parsed()
-    for number, tag, fields in _records(path):
+    for number, tag, fields in _records(path, handle):
         if tag == VERTEX:
             _check_count(path, number, tag, fields, _VERTEX_FIELDS)
             key = parse_id(path, number, fields[0])
@@ -166,11 +433,7 @@ def _parse(path: Path) -> _Parsed:
                 raise G2oFormatError(path, number, f"{EDGE} joins vertex {i} to itself")
             numbers = parse_numbers(path, number, tag, fields[2:], first=3)
             rotation = _rotation(path, number, tag, numbers[3:7])
-            upper = np.zeros((6, 6))
-            upper[_UPPER] = numbers[7:]
-            information = upper + np.triu(upper, 1).T
-            information = information[G2O_TO_GTSAM][:, G2O_TO_GTSAM]
-            used, problems, changes = information_rule_3d(information)
+            used, problems, changes = information_rule_3d(_informations(np.array([numbers[7:]])))
             if problems[0] is not None:
                 raise G2oFormatError(path, number, f"{EDGE} {problems[0]}")
             information = used[0]
@@ -215,19 +478,20 @@ def _check_count(path: Path, line: int, tag: str, fields: list[str], count: int)
 
 
 def _rotation(path: Path, line: int, tag: str, quaternion: list[float]) -> np.ndarray:
-    size = math.sqrt(math.fsum(q * q for q in quaternion))
-    if not size >= _QUATERNION_FLOOR:
+    rotations, size = _rotations(np.array([quaternion]))
+    if not size[0] >= _QUATERNION_FLOOR:
         raise G2oFormatError(path, line, f"{tag} quaternion ({', '.join(map(repr, quaternion))}) "
                              "is zero: it names no rotation")
-    return quaternions_to_rotations(np.array(quaternion) / size)[0]
+    return rotations[0]
 
 
-def _chain(edges: list) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def _chain(table: _Table) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Initial poses composed along i -> i+1 edges from the smallest key, then through any
     edge (depth-first) to the vertices off that chain."""
     step: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
     neighbours: dict[int, list[int]] = {}
-    for _, i, j, r, t, _ in edges:
+    for (i, j), r, t in zip(table.edge_keys.tolist(), table.rotations, table.translations,
+                            strict=True):
         if (i, j) not in step:
             step[(i, j)] = (r, t)
             r_inv, t_inv = inverse(r[None], t[None])
@@ -275,6 +539,85 @@ def g2o3d_text_lines(graph: gtsam.NonlinearFactorGraph,
     Raises:
         OutputError: a factor, value or information that a 3D g2o file cannot hold.
     """
+    written = _text_fast(graph, values)
+    return written if written is not None else _text_careful(graph, values)
+
+
+def _text_fast(graph: gtsam.NonlinearFactorGraph,
+               values: gtsam.Values) -> tuple[str, list[int | None]] | None:
+    """The text and factor lines, each vertex and factor read from GTSAM once, the poses
+    turned into quaternions in one batch and the numbers formatted in bulk; None at anything
+    :func:`_text_careful` must judge (it then raises the error for it)."""
+    keys = list(values.keys())
+    if keys != sorted(keys):
+        return None
+    poses = gtsam.utilities.extractPose3(values)  # by key: R row by row, then t
+    if poses.shape != (len(keys), 12) or not np.isfinite(poses).all():
+        return None  # a value that is not a Pose3, or not finite
+    between, prior = gtsam.BetweenFactorPose3, gtsam.PriorFactorPose3
+    factors = list(map(graph.at, range(graph.size())))
+    kinds = list(map(type, factors))
+    if kinds.count(between) + kinds.count(prior) + kinds.count(type(None)) != len(kinds):
+        return None  # another factor type (or a subclass): the careful writer judges it
+    edges = [factor for factor, kind in zip(factors, kinds, strict=True) if kind is between]
+    priors = [index for index, kind in enumerate(kinds) if kind is prior]
+    edge_keys = list(itertools.chain.from_iterable(map(between.keys, edges)))
+    measured = np.array(list(map(gtsam.Pose3.matrix, map(between.measured, edges))))
+    measured = measured.reshape(-1, 4, 4)
+    information = information_texts(list(map(between.noiseModel, edges)), 6,
+                                    information_problems_6,
+                                    np.argsort(G2O_TO_GTSAM))  # GTSAM's order -> g2o's
+    if information is None:
+        return None
+    fixed = [factors[index].keys()[0] for index in priors]
+    if not all(isinstance(factors[index].noiseModel(), gtsam.noiseModel.Constrained)
+               for index in priors):
+        return None  # a soft prior
+    if not set(keys).issuperset(edge_keys + fixed) or not np.isfinite(measured).all():
+        return None  # a factor on a key without a value; a measurement not finite
+    vertex_fields = _pose_fields(poses[:, :9].reshape(-1, 3, 3), poses[:, 9:], [keys])
+    edge_fields = _pose_fields(measured[:, :3, :3], measured[:, :3, 3],
+                               [edge_keys[0::2], edge_keys[1::2]], information)
+    if vertex_fields is None or edge_fields is None:
+        return None
+    text = [(f"{VERTEX} %d %r %r %r %s %s %s %s\n" * len(keys)) % tuple(vertex_fields),
+            (f"{EDGE} %d %d %r %r %r %s %s %s %s %s\n" * len(edges)) % tuple(edge_fields)]
+    factor_lines: list[int | None] = [None] * len(factors)
+    line = len(keys)
+    for index, kind in enumerate(kinds):
+        if kind is between:
+            line += 1
+            factor_lines[index] = line
+    for fix, part in fix_lines(fixed):
+        text.append(fix + "\n")
+        line += 1
+        for index in priors[part]:
+            factor_lines[index] = line
+    return "".join(text), factor_lines
+
+
+def _pose_fields(rotations: np.ndarray, translations: np.ndarray, first: list[list[int]],
+                 last: list[str] | None = None) -> list[object] | None:
+    """The fields of pose lines, line after line: the columns ``first`` (ids), x y z, the
+    quaternion's four numbers as :func:`_pose_text` writes them, then ``last`` if given;
+    None if a quaternion is not finite."""
+    quaternions = rotations_to_quaternions(rotations)
+    if not np.isfinite(quaternions).all():
+        return None
+    columns = [*first, *translations.T.tolist(),
+               *[texts_15(column) for column in quaternions.T.tolist()]]
+    if last is not None:
+        columns.append(last)
+    fields: list[object] = [None] * (len(columns) * len(translations))
+    for c, column in enumerate(columns):
+        fields[c::len(columns)] = column
+    return fields
+
+
+def _text_careful(graph: gtsam.NonlinearFactorGraph,
+                  values: gtsam.Values) -> tuple[str, list[int | None]]:
+    """:func:`g2o3d_text_lines` one vertex and one factor at a time, raising at the first
+    that a 3D g2o file cannot hold."""
     factor_lines: list[int | None] = [None] * graph.size()
     priors: list[int] = []
     lines = [f"{VERTEX} {key} " + _pose_text(_pose3(values, key), f"vertex {key}")

@@ -210,6 +210,11 @@ def information_problem_6(information: np.ndarray) -> str | None:
     return information_problem(information, 6, MAX_CONDITION_3D)
 
 
+def information_problems_6(matrices: np.ndarray) -> list[str | None]:
+    """:func:`information_problem_6` for a stack of (k, 6, 6) matrices at once."""
+    return information_problems(matrices, MAX_CONDITION_3D)
+
+
 def information_rule_3d(matrices: np.ndarray) -> tuple[np.ndarray, list[str | None],
                                                           list[tuple[str, ...]]]:
     """The 3D reader's information rule on a stack of (k, 6, 6) matrices: the matrices to

@@ -1,0 +1,181 @@
+"""The fast 3D g2o reader and writer agree with the careful, line-by-line ones.
+
+``read_g2o3d`` parses a regular file a chunk at a time and hands anything unusual to the
+careful reader; ``g2o3d_text_lines`` formats in bulk and hands anything unusual to the careful
+writer. On generated graphs, SE-Sync's files and files the fast reader declines, both paths
+must give the same graph and values, bit for bit, and the same text.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+
+from rlpgo_gtsam import g2o3d
+from rlpgo_gtsam.errors import G2oFormatError
+from rlpgo_gtsam.synthetic import generate3d
+from tests.conftest import DATASETS
+
+
+def _rows(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[list, list]:
+    """Every factor and value as exact numbers (matrices as bytes: bit for bit)."""
+    factors = []
+    for index in range(graph.size()):
+        factor = graph.at(index)
+        model = factor.noiseModel()
+        if isinstance(factor, gtsam.BetweenFactorPose3):
+            factors.append(("between", tuple(factor.keys()), factor.measured().matrix().tobytes(),
+                            model.information().tobytes()))
+        else:
+            factors.append(("prior", tuple(factor.keys()), factor.prior().matrix().tobytes(),
+                            type(model).__name__))
+    poses = [(key, values.atPose3(key).matrix().tobytes()) for key in values.keys()]
+    return factors, poses
+
+
+def _careful_read(path: Path):
+    return g2o3d._build(path, g2o3d._read_table(path, fast=False))
+
+
+def _assert_same_read(path: Path) -> None:
+    assert _rows(*g2o3d.read_g2o3d(path)) == _rows(*_careful_read(path))
+
+
+def _fast_scan_accepts(path: Path) -> bool:
+    with path.open("rb") as handle:
+        return g2o3d._scan(handle) is not None
+
+
+def _generated(n: int, seed: int, fixed: bool) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    sample = generate3d(n, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(seed),
+                        noisy_measurements=True)
+    graph, values = sample.graph, sample.initial
+    if fixed:
+        for key in (0, n // 2):
+            graph.add(gtsam.PriorFactorPose3(key, values.atPose3(key),
+                                             gtsam.noiseModel.Constrained.All(6)))
+    return graph, values
+
+
+@pytest.mark.parametrize("n, seed, fixed", [(300, 1, False), (1200, 2, True)])
+def test_generated_graphs_read_and_write_the_same_both_ways(tmp_path, n, seed, fixed):
+    graph, values = _generated(n, seed, fixed)
+    written = g2o3d._text_fast(graph, values)
+    assert written is not None  # the speed comes from here: it must not fall back
+    assert written == g2o3d._text_careful(graph, values)
+    path = tmp_path / "g.g2o"
+    path.write_text(written[0])
+    assert _fast_scan_accepts(path)
+    _assert_same_read(path)
+    # what was read writes the same text on both paths (not always the text it was read
+    # from: a quaternion through a rotation matrix and back can move in its 15th digit)
+    graph2, values2 = g2o3d.read_g2o3d(path)
+    assert g2o3d._text_fast(graph2, values2) == g2o3d._text_careful(graph2, values2)
+
+
+@pytest.mark.parametrize("name", ["torus3D.g2o", "sphere2500.g2o", "smallGrid3D.g2o"])
+def test_datasets_read_and_write_the_same_both_ways(name):
+    path = DATASETS / "3d" / name
+    if not path.exists():
+        pytest.skip(f"{path} not found (set RLPGO_DATASETS)")
+    assert _fast_scan_accepts(path)  # a distinct information text per edge, spaces padded
+    _assert_same_read(path)
+    graph, values = g2o3d.read_g2o3d(path)
+    assert g2o3d._text_fast(graph, values) == g2o3d._text_careful(graph, values)
+    graph, values = gtsam.readG2o(str(path), True)  # one noise model object per edge
+    assert g2o3d._text_fast(graph, values) == g2o3d._text_careful(graph, values)
+
+
+_INFO = "1 0 0 0 0 0 1 0 0 0 0 1 0 0 0 1 0 0 1 0 1"
+BASE = [
+    "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1",
+    "VERTEX_SE3:QUAT 1 1 0 0 0 0 0.1 1",
+    "VERTEX_SE3:QUAT 2 2 0.5 0 0.1 0 0 2",
+    "EDGE_SE3:QUAT 0 1 1 0 0 0 0 0.1 1 " + _INFO,
+    "EDGE_SE3:QUAT 1 2 1 0.5 0 0.1 0 -0.1 1 " + _INFO.replace("1 0 0 0 0 0", "2 0.5 0 0 0 0", 1),
+    "EDGE_SE3:QUAT 0 2 2 0.5 0 0.1 0 0 1e0 " + _INFO,
+    "FIX 0",
+]
+
+
+@pytest.mark.parametrize("lines, fast", [
+    pytest.param(BASE, True, id="plain"),
+    pytest.param([" " + line.replace(" ", "\t") + " \r" for line in BASE], True, id="tabs_crlf"),
+    pytest.param(["# caf\u00e9", "", *BASE[:3], "# edges", *BASE[3:]], True, id="comments"),
+    pytest.param([line.replace(" ", "\u00a0", 1) for line in BASE], False, id="nbsp"),
+    pytest.param(BASE[3:6] + ["FIX 1 2"], True, id="edges_only"),
+    pytest.param(["VERTEX_SE3:QUAT 18446744073709551615 3 0 0 0 0 0 1",
+                  "EDGE_SE3:QUAT 2 18446744073709551615 1 -0.5 0 0 0 0 1 " + _INFO, *BASE], True,
+                 id="largest_id"),
+    pytest.param([BASE[0], "VERTEX_SE3:QUAT 1 1 0 0 0 0 0 1e-9", *BASE[2:]], False,
+                 id="nearly_zero_quaternion"),
+])
+def test_unusual_but_valid_files_read_the_same(tmp_path, lines, fast):
+    path = tmp_path / "odd.g2o"
+    path.write_bytes(("\n".join(lines) + "\n").encode())
+    assert _fast_scan_accepts(path) == fast
+    _assert_same_read(path)
+
+
+@pytest.mark.parametrize("line, reason", [
+    ("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 1 0", "needs 30 numbers after the tag, found 11"),
+    ("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1_0 " + _INFO, "field 9 is not a number: '1_0'"),
+    ("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 0 " + _INFO, "is zero: it names no rotation"),
+    ("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 -" + _INFO, "not positive definite"),
+    ("EDGE_SE3:QUAT 1 1 1 0 0 0 0 0 1 " + _INFO, "joins vertex 1 to itself"),
+    ("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 inf " + _INFO, "field 9 is not finite"),
+    ("VERTEX_SE3:QUAT 1 0 0 0 0 0 0 1", "id 1 defined twice (first on line 2)"),
+    ("EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1", "a planar line in a 3D file"),
+])
+def test_an_error_in_a_long_file_names_its_line(tmp_path, monkeypatch, line, reason):
+    """A bad line deep in a file the fast reader reads in small chunks: the careful reader,
+    which it hands the file to, names that line."""
+    monkeypatch.setattr(g2o3d, "scan_blocks", _small_blocks)
+    lines = BASE[:6] + [BASE[3]] * 50
+    lines.insert(40, line)
+    path = tmp_path / "bad.g2o"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(G2oFormatError) as caught:
+        g2o3d.read_g2o3d(path)
+    assert str(caught.value).startswith(f"{path}:41: ")
+    assert reason in str(caught.value)
+
+
+def _small_blocks(handle):
+    from rlpgo_gtsam.textscan import blocks
+
+    return blocks(handle, 301, 32768)
+
+
+def test_a_file_across_chunks_keeps_its_line_numbers(tmp_path, monkeypatch):
+    graph, values = _generated(150, 5, fixed=True)
+    path = tmp_path / "g.g2o"
+    path.write_text("# header\n\n" + g2o3d.g2o3d_text(graph, values))
+    whole = _rows(*g2o3d.read_g2o3d(path))
+    monkeypatch.setattr(g2o3d, "scan_blocks", _small_blocks)
+    assert _fast_scan_accepts(path)
+    assert _rows(*g2o3d.read_g2o3d(path)) == whole
+    _assert_same_read(path)
+
+
+@pytest.mark.parametrize("name", ["cubicle.g2o", "parking-garage.g2o"])
+def test_matrices_the_rule_changes_read_and_warn_the_same_both_ways(name):
+    """The 3D information rule on real matrices (cubicle's indefinite couplings, parking
+    garage's ill-conditioned ones): the same matrices used and the same warnings."""
+    path = DATASETS / "3d" / name
+    if not path.exists():
+        pytest.skip(f"{path} not found (set RLPGO_DATASETS)")
+    assert _fast_scan_accepts(path)
+    with warnings.catch_warnings(record=True) as fast:
+        warnings.simplefilter("always")
+        rows = _rows(*g2o3d.read_g2o3d(path))
+    with warnings.catch_warnings(record=True) as careful:
+        warnings.simplefilter("always")
+        table = g2o3d._read_table(path, fast=False)
+        g2o3d._warn_changes(path, table.changed)
+        assert rows == _rows(*g2o3d._build(path, table))
+    assert [str(w.message) for w in fast] == [str(w.message) for w in careful]
