@@ -19,14 +19,18 @@ model: the pose is held where its vertex line puts it (the first FIXed pose is t
 a held pose adds nothing to :func:`~rlpgo_gtsam.graph.chi2`).
 
 Two readers apply these rules. The fast one reads a regular file in chunks of
-:data:`_CHUNK_BYTES` and parses all ``VERTEX_SE2`` and ``EDGE_SE2`` lines of a chunk at once
-(fields split and counted per chunk, numbers converted column by column, each distinct
-information matrix checked once). It only ever accepts: at the first thing it does not
-recognise as valid (a malformed line, an unusual token or separator, a duplicate id, an
-unusable information matrix, a very long line) the careful reader reads the file again
-line by line and raises the error of the first bad line, or accepts what it accepts. Both
-produce the same :class:`_Table`; the checks across lines (undefined vertices, FIX ids,
-connectivity), the chained initial guess and the GTSAM graph are built from it once.
+:data:`_CHUNK_BYTES` (:func:`~rlpgo_gtsam.textscan.blocks`); numpy finds every line and field
+of a chunk (:class:`~rlpgo_gtsam.textscan.Text`), the ``VERTEX_SE2`` and ``EDGE_SE2`` records
+are checked and gathered column by column (ids by numpy, numbers by ``float()``'s own parser,
+each distinct information matrix checked once, in a batch). It only ever accepts: at the
+first thing it does not recognise as valid (a malformed line, an unusual token, a duplicate
+id, an unusable information matrix, a very long line) the careful reader reads the file
+again line by line and raises the error of the first bad line, or accepts what it accepts.
+Both produce the same :class:`_Table`; the checks across lines (undefined vertices, FIX ids,
+connectivity), the chained initial guess and the GTSAM graph are built from it once: one
+noise model per distinct matrix, and the values, where the fast reader read every vertex
+line as plain text, by ``gtsam.readG2o`` from those lines held in memory (Linux), kept only
+if they are the values this reader read (:func:`_values_by_gtsam`).
 
 The writer gets each vertex and factor from GTSAM once, formats each distinct information
 matrix once and the numbers in bulk (``%`` over one template); anything it cannot write as
