@@ -93,8 +93,8 @@ class _Table:
         information: the distinct 3x3 information matrices (each checked once).
         model: (m,) the index of each edge's matrix in ``information``.
         fixed: (id, line) of each id of the FIX lines.
-        vertex_text: the VERTEX_SE2 lines as read, where the fast reader read them all as
-            plain text (GTSAM's own parser may then build the values from them).
+        vertex_text: the VERTEX_SE2 lines as read (a block per chunk), where the fast reader
+            read them all as plain text (GTSAM's own parser may then build the values).
     """
 
     vertex_keys: np.ndarray
@@ -105,7 +105,7 @@ class _Table:
     information: list[np.ndarray]
     model: np.ndarray
     fixed: list[tuple[int, int]]
-    vertex_text: bytes | None = None
+    vertex_text: list[bytes] | None = None
 
 
 def read_g2o(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
@@ -227,7 +227,7 @@ def _scan(handle: BinaryIO) -> _Table | None:
         information=scan.information,
         model=_stack(scan.model, (0,), np.int64),
         fixed=scan.fixed,
-        vertex_text=None if scan.vertex_text is None else b"".join(scan.vertex_text),
+        vertex_text=scan.vertex_text,
     )
 
 
@@ -662,11 +662,13 @@ def _pose2_inserter(values: gtsam.Values):
     return lambda key, pose: insert(key, pose2=pose)
 
 
-def _values_by_gtsam(text: bytes, keys: np.ndarray, poses: np.ndarray) -> gtsam.Values | None:
+def _values_by_gtsam(text: list[bytes], keys: np.ndarray,
+                     poses: np.ndarray) -> gtsam.Values | None:
     """The values of the VERTEX_SE2 lines ``text``, built by GTSAM's own parser from a file
     held in memory; None where that cannot be done, or where GTSAM read them otherwise.
 
-    ``text`` holds every vertex line of the file, which this reader has read (and checked)
+    ``text`` holds every vertex line of the file (in blocks), which this reader has read
+    (and checked)
     as ``keys`` (ascending) and ``poses``. ``Values.insert`` costs some 5 us a call from
     Python, more than the rest of a vertex line; ``gtsam.readG2o`` builds the same
     ``Pose2(x, y, theta)`` values in C++ in about half the time, reading the text included.
@@ -682,9 +684,10 @@ def _values_by_gtsam(text: bytes, keys: np.ndarray, poses: np.ndarray) -> gtsam.
     except OSError:
         return None
     try:
-        view = memoryview(text)
-        while view:
-            view = view[os.write(descriptor, view):]
+        for block in text:
+            view = memoryview(block)
+            while view:
+                view = view[os.write(descriptor, view):]
         _graph, values = gtsam.readG2o(f"/proc/self/fd/{descriptor}", False)
     except (OSError, RuntimeError, ValueError):  # no /proc, a line GTSAM refuses, ...
         return None

@@ -144,3 +144,28 @@ def test_a_file_across_chunks_keeps_its_line_numbers(tmp_path, monkeypatch):
     assert chunked[2] == whole[2]
     assert _rows(*chunked[:2]) == _rows(*whole[:2])
     _assert_same_read(path)
+
+
+def test_values_built_by_gtsam_are_the_values_inserted_one_by_one(tmp_path):
+    """Where GTSAM's parser builds the vertices (a memfd on Linux), its Pose2 values are the
+    ones ``Pose2(x, y, theta)`` gives for the numbers this reader read, bit for bit (cos and
+    sin included); without memfd the reader inserts them itself."""
+    sample = generate(500, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(6),
+                      noisy_measurements=True)
+    path = tmp_path / "g.g2o"
+    path.write_text("\n".join(line.replace(" ", "\t", 2) if k % 7 == 0 else line
+                              for k, line in enumerate(g2o.g2o_text(sample.graph,
+                                                                    sample.initial).splitlines()))
+                    + "\n")
+    table = g2o._read_table(path, fast=True)
+    assert table.vertex_text is not None
+    order = np.argsort(table.vertex_keys)
+    keys, poses = table.vertex_keys[order], table.vertex_poses[order]
+    values = g2o._values_by_gtsam(table.vertex_text, keys, poses)
+    if not hasattr(__import__("os"), "memfd_create"):
+        assert values is None
+        return
+    assert values is not None
+    assert list(values.keys()) == keys.tolist()
+    for key, (x, y, theta) in zip(keys.tolist(), poses.tolist(), strict=True):
+        assert values.atPose2(key).matrix().tobytes() == gtsam.Pose2(x, y, theta).matrix().tobytes()
