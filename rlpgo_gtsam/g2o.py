@@ -298,15 +298,11 @@ def _plain_numbers(tokens: list[str]) -> np.ndarray | None:
 
 def _scan_vertices(text: Text, lines: np.ndarray, odd: list[list[str]], scan: _Scan) -> bool:
     if len(lines):
-        if (text.count[lines] != _VERTEX_NUMBERS + 1).any():
+        records = text.records(lines, _VERTEX_NUMBERS + 1, 1, 3)
+        if records is None:
             return False
-        ids = text.first[lines] + 1
-        keys = text.ids(text.field_starts[ids], text.field_ends[ids])
-        poses = text.numbers(lines, 2, 3)
-        if keys is None or poses is None:
-            return False
-        scan.vertex_keys.append(keys)
-        scan.vertex_poses.append(poses)
+        scan.vertex_keys.append(records[0][:, 0])
+        scan.vertex_poses.append(records[1])
         if scan.vertex_text is not None:
             scan.vertex_text.append(text.lines_text(lines))
     for tokens in odd:
@@ -325,14 +321,14 @@ def _scan_edges(text: Text, lines: np.ndarray, odd: list[tuple[int, list[str]]],
                 scan: _Scan) -> bool:
     numbers, keys, measured, upper = [], [], [], []
     if len(lines):
-        if (text.count[lines] != _EDGE_NUMBERS + 1).any():
+        records = text.records(lines, _EDGE_NUMBERS + 1, 2, 3)
+        if records is None:
             return False
-        starts, ends = text.fields(lines, _EDGE_NUMBERS + 1)
-        ids = text.ids(starts[:, 1:3].ravel(), ends[:, 1:3].ravel())
         numbers.append(lines + (scan.lines + 1))
-        keys.append(ids)
-        measured.append(text.numbers(lines, 3, 3))
+        keys.append(records[0])
+        measured.append(records[1])
         # the information's six fields: usually the same text on every line, read once
+        starts, ends = text.fields(lines, _EDGE_NUMBERS + 1)
         if text.same_text(starts[:, 6], ends[:, 11]):
             information = text.numbers(lines[:1], 6, 6)
             upper.append(None if information is None
@@ -351,7 +347,7 @@ def _scan_edges(text: Text, lines: np.ndarray, odd: list[tuple[int, list[str]]],
         return True
     if any(part is None for part in keys + measured + upper):
         return False
-    edge_keys = np.concatenate([np.asarray(k, dtype=np.uint64) for k in keys]).reshape(-1, 2)
+    edge_keys = np.concatenate([np.asarray(k, dtype=np.uint64).reshape(-1, 2) for k in keys])
     if (edge_keys[:, 0] == edge_keys[:, 1]).any():
         return False  # an edge from a vertex to itself
     model = _scan_information(np.concatenate(upper), scan)
@@ -878,12 +874,22 @@ def _text_fast(
     edge_fields[4::6], edge_fields[5::6] = texts_15(dtheta), information
     text = [("VERTEX_SE2 %d %r %r %s\n" * len(keys)) % tuple(vertex_fields),
             ("EDGE_SE2 %d %d %r %r %s %s\n" * len(edges)) % tuple(edge_fields)]
-    factor_lines: list[int | None] = [None] * len(factors)
-    line = len(keys)
+    return with_fix_lines(text, kinds, between, len(keys), priors, fixed)
+
+
+def with_fix_lines(text: list[str], kinds: list[type], edge: type, vertices: int,
+                   priors: list[int], fixed: list[int]) -> tuple[str, list[int | None]]:
+    """A fast writer's whole text: ``text`` (the lines of ``vertices`` vertices, then one
+    line per factor of type ``edge`` in ``kinds``, the graph's factor types), then the FIX
+    lines of the ids ``fixed`` (of the prior factors ``priors``); and the line of each factor
+    (None for an empty slot), as :func:`g2o_text_lines` gives them."""
+    factor_lines: list[int | None] = [None] * len(kinds)
+    line = vertices
     for index, kind in enumerate(kinds):
-        if kind is between:
+        if kind is edge:
             line += 1
             factor_lines[index] = line
+    text = list(text)
     for fix, part in fix_lines(fixed):
         text.append(fix + "\n")
         line += 1

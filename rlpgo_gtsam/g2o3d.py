@@ -55,6 +55,7 @@ from rlpgo_gtsam.g2o import (
     scan_blocks,
     short_token,
     texts_15,
+    with_fix_lines,
     write_g2o,
 )
 from rlpgo_gtsam.graph import disconnection
@@ -286,26 +287,19 @@ def _scan_block(text: Text, scan: _Scan) -> bool:
             return False  # a blank line of other spaces is the careful reader's too
         scan.fixed.extend((key, scan.lines + index + 1) for key in keys)
     if len(vertices):
-        if (text.count[vertices] != _VERTEX_FIELDS + 1).any():
+        records = text.records(vertices, _VERTEX_FIELDS + 1, 1, 7)
+        if records is None or not _usable_quaternions(records[1][:, 3:]):
             return False
-        ids = text.first[vertices] + 1
-        keys = text.ids(text.field_starts[ids], text.field_ends[ids])
-        numbers = text.numbers(vertices, 2, 7)
-        if keys is None or numbers is None or not _usable_quaternions(numbers[:, 3:]):
-            return False
-        scan.vertex_keys.append(keys)
-        scan.vertex_numbers.append(numbers)
+        scan.vertex_keys.append(records[0][:, 0])
+        scan.vertex_numbers.append(records[1])
     if len(edges):
-        if (text.count[edges] != _EDGE_FIELDS + 1).any():
+        records = text.records(edges, _EDGE_FIELDS + 1, 2, 7)
+        if records is None or not _usable_quaternions(records[1][:, 3:]):
             return False
-        starts, ends = text.fields(edges, _EDGE_FIELDS + 1)
-        keys = text.ids(starts[:, 1:3].ravel(), ends[:, 1:3].ravel())
-        numbers = text.numbers(edges, 3, 7)
-        if keys is None or numbers is None or not _usable_quaternions(numbers[:, 3:]):
-            return False
-        keys = keys.reshape(-1, 2)
+        keys, numbers = records
         if (keys[:, 0] == keys[:, 1]).any():
             return False  # an edge from a vertex to itself
+        starts, ends = text.fields(edges, _EDGE_FIELDS + 1)
         # the information's 21 fields: usually the same text on every line, read once
         if text.same_text(starts[:, 10], ends[:, 30]):
             upper = text.numbers(edges[:1], 10, 21)
@@ -582,18 +576,7 @@ def _text_fast(graph: gtsam.NonlinearFactorGraph,
         return None
     text = [(f"{VERTEX} %d %r %r %r %s %s %s %s\n" * len(keys)) % tuple(vertex_fields),
             (f"{EDGE} %d %d %r %r %r %s %s %s %s %s\n" * len(edges)) % tuple(edge_fields)]
-    factor_lines: list[int | None] = [None] * len(factors)
-    line = len(keys)
-    for index, kind in enumerate(kinds):
-        if kind is between:
-            line += 1
-            factor_lines[index] = line
-    for fix, part in fix_lines(fixed):
-        text.append(fix + "\n")
-        line += 1
-        for index in priors[part]:
-            factor_lines[index] = line
-    return "".join(text), factor_lines
+    return with_fix_lines(text, kinds, between, len(keys), priors, fixed)
 
 
 def _pose_fields(rotations: np.ndarray, translations: np.ndarray, first: list[list[int]],

@@ -206,6 +206,21 @@ class Text:
             values[longest] = exact
         return values
 
+    def records(self, lines: np.ndarray, width: int, ids: int,
+                numbers: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The records on ``lines`` (plain lines) of a tag and ``width - 1`` fields: (k, ids)
+        the ids in the fields after the tag, (k, numbers) the numbers in the fields after
+        those; None if a line has another number of fields, or one of these fields is not
+        what :meth:`ids` or :meth:`numbers` takes."""
+        if (self.count[lines] != width).any():
+            return None
+        index = (self.first[lines][:, None] + np.arange(1, ids + 1)).ravel()
+        keys = self.ids(self.field_starts[index], self.field_ends[index])
+        values = self.numbers(lines, ids + 1, numbers)
+        if keys is None or values is None:
+            return None
+        return keys.reshape(len(lines), ids), values
+
     def numbers(self, lines: np.ndarray, first: int, count: int) -> np.ndarray | None:
         """(k, count) fields ``first .. first + count - 1`` of each of ``lines`` (plain lines
         with that many fields) as float64, each exactly ``float(field)``; None unless every
