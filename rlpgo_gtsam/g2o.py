@@ -603,7 +603,7 @@ def _build(
         raise G2oFormatError(path, None, "holds no VERTEX_SE2 or EDGE_SE2 line")
     if not len(table.edge_keys):
         raise G2oFormatError(path, None, "holds no EDGE_SE2 line: a pose graph needs edges")
-    _check_edges(path, table)
+    check_references(path, table.vertex_keys, table.edge_keys, table.edge_lines, table.fixed)
     _check_connected(path, table)
     keys, poses = table.vertex_keys, table.vertex_poses
     if not len(keys):
@@ -700,24 +700,27 @@ def _values_by_gtsam(text: list[bytes], keys: np.ndarray,
     return values
 
 
-def _check_edges(path: Path, table: _Table) -> None:
-    keys_i, keys_j = table.edge_keys[:, 0], table.edge_keys[:, 1]
-    if len(table.vertex_keys):
-        known_i = np.isin(keys_i, table.vertex_keys)
-        known_j = np.isin(keys_j, table.vertex_keys)
+def check_references(path: Path, vertex_keys: np.ndarray, edge_keys: np.ndarray,
+                     edge_lines: np.ndarray, fixed: list[tuple[int, int]],
+                     vertex: str = "VERTEX_SE2", edge: str = "EDGE_SE2") -> None:
+    """Raise the error of the first edge line (in file order) that names an id no vertex
+    line defines (where the file has vertex lines), then of the first FIX id that no line
+    names; ``vertex`` and ``edge`` are the tags in the messages."""
+    keys_i, keys_j = edge_keys[:, 0], edge_keys[:, 1]
+    if len(vertex_keys):
+        known_i = np.isin(keys_i, vertex_keys)
+        known_j = np.isin(keys_j, vertex_keys)
         unknown = np.flatnonzero(~(known_i & known_j))
         if len(unknown):
             k = unknown[0]
             key = int(keys_i[k] if not known_i[k] else keys_j[k])
-            raise G2oFormatError(
-                path, int(table.edge_lines[k]),
-                f"EDGE_SE2 refers to vertex {key}, which no VERTEX_SE2 line defines",
-            )
-    if table.fixed:
-        known = np.isin(np.array([key for key, _ in table.fixed], dtype=np.uint64),
-                        np.concatenate([table.vertex_keys, table.edge_keys.ravel()]))
+            raise G2oFormatError(path, int(edge_lines[k]),
+                                 f"{edge} refers to vertex {key}, which no {vertex} line defines")
+    if fixed:
+        known = np.isin(np.array([key for key, _ in fixed], dtype=np.uint64),
+                        np.concatenate([vertex_keys, edge_keys.ravel()]))
         if not known.all():
-            key, line = table.fixed[int(np.argmin(known))]
+            key, line = fixed[int(np.argmin(known))]
             raise G2oFormatError(path, line, f"FIX refers to vertex {key}, which is not defined")
 
 
@@ -838,25 +841,18 @@ def _text_fast(
     poses = gtsam.utilities.extractPose2(values)  # x, y, theta() of the Pose2 values, by key
     if poses.shape != (len(keys), 3) or not np.isfinite(poses).all():
         return None  # a value that is not a Pose2, or not finite
-    between, prior = gtsam.BetweenFactorPose2, gtsam.PriorFactorPose2
-    factors = list(map(graph.at, range(graph.size())))
-    kinds = list(map(type, factors))
-    if kinds.count(between) + kinds.count(prior) + kinds.count(type(None)) != len(kinds):
-        return None  # another factor type (or a subclass): the careful writer judges it
-    edges = [factor for factor, kind in zip(factors, kinds, strict=True) if kind is between]
-    priors = [index for index, kind in enumerate(kinds) if kind is prior]
+    between = gtsam.BetweenFactorPose2
+    found = writable_factors(graph, between, gtsam.PriorFactorPose2)
+    if found is None:
+        return None
+    kinds, edges, edge_keys, priors, fixed = found
     # Each call runs over all edges at once (map of the unbound methods).
-    edge_keys = list(itertools.chain.from_iterable(map(between.keys, edges)))
     measured = list(map(between.measured, edges))
     dx, dy = list(map(gtsam.Pose2.x, measured)), list(map(gtsam.Pose2.y, measured))
     dtheta = list(map(gtsam.Pose2.theta, measured))
     information = information_texts(list(map(between.noiseModel, edges)), 3)
     if information is None:
         return None
-    fixed = [factors[index].keys()[0] for index in priors]
-    if not all(isinstance(factors[index].noiseModel(), gtsam.noiseModel.Constrained)
-               for index in priors):
-        return None  # a soft prior
     known = set(keys)
     if not known.issuperset(edge_keys) or not known.issuperset(fixed):
         return None  # a factor on a key without a value
@@ -875,6 +871,25 @@ def _text_fast(
     text = [("VERTEX_SE2 %d %r %r %s\n" * len(keys)) % tuple(vertex_fields),
             ("EDGE_SE2 %d %d %r %r %s %s\n" * len(edges)) % tuple(edge_fields)]
     return with_fix_lines(text, kinds, between, len(keys), priors, fixed)
+
+
+def writable_factors(graph: gtsam.NonlinearFactorGraph, edge: type, prior: type
+                     ) -> tuple[list[type], list, list[int], list[int], list[int]] | None:
+    """A fast writer's view of ``graph``: the type of each factor, the ``edge`` factors and
+    their keys (i, j, i, j, ...), the indices of the ``prior`` factors and their keys; None
+    where a factor is of another type (or a subclass) or a prior is soft: the careful writer
+    judges those."""
+    factors = list(map(graph.at, range(graph.size())))
+    kinds = list(map(type, factors))
+    if kinds.count(edge) + kinds.count(prior) + kinds.count(type(None)) != len(kinds):
+        return None
+    edges = [factor for factor, kind in zip(factors, kinds, strict=True) if kind is edge]
+    priors = [index for index, kind in enumerate(kinds) if kind is prior]
+    if not all(isinstance(factors[index].noiseModel(), gtsam.noiseModel.Constrained)
+               for index in priors):
+        return None  # a soft prior
+    edge_keys = list(itertools.chain.from_iterable(map(edge.keys, edges)))
+    return kinds, edges, edge_keys, priors, [factors[index].keys()[0] for index in priors]
 
 
 def with_fix_lines(text: list[str], kinds: list[type], edge: type, vertices: int,

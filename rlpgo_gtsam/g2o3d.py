@@ -25,7 +25,6 @@ form is told in an :class:`~rlpgo_gtsam.errors.InformationWarning` per file and 
 
 from __future__ import annotations
 
-import itertools
 import math
 import os
 import warnings
@@ -41,6 +40,7 @@ from rlpgo_gtsam.errors import G2oFormatError, InformationWarning, OutputError
 from rlpgo_gtsam.files import write_text
 from rlpgo_gtsam.g2o import (
     TAGS_3D,
+    check_references,
     fix_lines,
     format_15,
     g2o_text,
@@ -56,6 +56,7 @@ from rlpgo_gtsam.g2o import (
     short_token,
     texts_15,
     with_fix_lines,
+    writable_factors,
     write_g2o,
 )
 from rlpgo_gtsam.graph import disconnection
@@ -161,22 +162,9 @@ def _read_table(path: Path, fast: bool) -> _Table:
 
 def _build(path: Path, table: _Table) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """The checks across lines, then the GTSAM graph and values."""
-    keys_i, keys_j = table.edge_keys[:, 0], table.edge_keys[:, 1]
-    if len(table.vertex_keys):
-        known_i = np.isin(keys_i, table.vertex_keys)
-        known_j = np.isin(keys_j, table.vertex_keys)
-        unknown = np.flatnonzero(~(known_i & known_j))
-        if len(unknown):
-            k = unknown[0]
-            key = int(keys_i[k] if not known_i[k] else keys_j[k])
-            raise G2oFormatError(path, int(table.edge_lines[k]), f"{EDGE} refers to vertex "
-                                 f"{key}, which no {VERTEX} line defines")
+    check_references(path, table.vertex_keys, table.edge_keys, table.edge_lines, table.fixed,
+                     VERTEX, EDGE)
     known = np.concatenate([table.vertex_keys, table.edge_keys.ravel()])
-    if table.fixed:
-        defined = np.isin(np.array([key for key, _ in table.fixed], dtype=np.uint64), known)
-        if not defined.all():
-            key, line = table.fixed[int(np.argmin(defined))]
-            raise G2oFormatError(path, line, f"FIX refers to vertex {key}, which is not defined")
     problem = disconnection(known, table.edge_keys)
     if problem is not None:
         raise G2oFormatError(path, None, problem)
@@ -548,14 +536,11 @@ def _text_fast(graph: gtsam.NonlinearFactorGraph,
     poses = gtsam.utilities.extractPose3(values)  # by key: R row by row, then t
     if poses.shape != (len(keys), 12) or not np.isfinite(poses).all():
         return None  # a value that is not a Pose3, or not finite
-    between, prior = gtsam.BetweenFactorPose3, gtsam.PriorFactorPose3
-    factors = list(map(graph.at, range(graph.size())))
-    kinds = list(map(type, factors))
-    if kinds.count(between) + kinds.count(prior) + kinds.count(type(None)) != len(kinds):
-        return None  # another factor type (or a subclass): the careful writer judges it
-    edges = [factor for factor, kind in zip(factors, kinds, strict=True) if kind is between]
-    priors = [index for index, kind in enumerate(kinds) if kind is prior]
-    edge_keys = list(itertools.chain.from_iterable(map(between.keys, edges)))
+    between = gtsam.BetweenFactorPose3
+    found = writable_factors(graph, between, gtsam.PriorFactorPose3)
+    if found is None:
+        return None
+    kinds, edges, edge_keys, priors, fixed = found
     measured = np.array(list(map(gtsam.Pose3.matrix, map(between.measured, edges))))
     measured = measured.reshape(-1, 4, 4)
     information = information_texts(list(map(between.noiseModel, edges)), 6,
@@ -563,10 +548,6 @@ def _text_fast(graph: gtsam.NonlinearFactorGraph,
                                     np.argsort(G2O_TO_GTSAM))  # GTSAM's order -> g2o's
     if information is None:
         return None
-    fixed = [factors[index].keys()[0] for index in priors]
-    if not all(isinstance(factors[index].noiseModel(), gtsam.noiseModel.Constrained)
-               for index in priors):
-        return None  # a soft prior
     if not set(keys).issuperset(edge_keys + fixed) or not np.isfinite(measured).all():
         return None  # a factor on a key without a value; a measurement not finite
     vertex_fields = _pose_fields(poses[:, :9].reshape(-1, 3, 3), poses[:, 9:], [keys])
