@@ -95,11 +95,41 @@ def test_progress_says_one_line_per_rank_and_changes_nothing(heavy):
     theta, certificate = synchronize(heavy, progress=lines.append)
     ranks = [line for line in lines if "iterations," in line]
     assert [line.split(":")[0] for line in ranks] == \
-        [f"rank {r}" for r in range(1, certificate.rank + 1)]
+        [f"rank {r}" for r in range(1, certificate.rank + 1)] + ["rounded estimate polished"]
     assert all("cost" in line and "gradient" in line and line.endswith(" s") for line in ranks)
     assert all("\n" not in line and len(line) < 120 for line in lines)
     again, same = synchronize(heavy)
     assert np.array_equal(theta, again) and same.estimate_cost == certificate.estimate_cost
+
+
+def test_a_stalled_rank_is_verified_where_it_stands_and_its_bound_holds(heavy, monkeypatch):
+    """A trust region that stops lowering the cost by 1% of n eta per 10 iterations ends its
+    rank; the bound tr(Lambda) + n min(lambda_min, 0) computed there is a bound at any Y:
+    it stays below the optimum the unstalled staircase reaches, and both verdicts agree."""
+    import rlpgo_gtsam.staircase as staircase
+
+    _, fully = synchronize(heavy)
+    ranks: list[str] = []
+    monkeypatch.setattr(staircase, "STALL_FRACTION", 1e4)  # any slow rank stalls
+    _, stalled = synchronize(heavy, progress=ranks.append)
+    assert any(line.startswith("rank 2: 10 iterations") for line in ranks)  # stalled there
+    assert stalled.status == fully.status == Status.NOT_TIGHT
+    assert stalled.lower_bound <= fully.lower_bound + heavy.num_poses * fully.tolerance
+
+
+def test_the_rounded_estimate_is_polished_downhill_at_rank_one(heavy, monkeypatch):
+    """Above rank 1 the rounded orientations are moved downhill at rank 1: the estimate's
+    relaxation cost is at most the plain rounding's (here 175 against 206, the relaxation's
+    174), and it is a rank-1 critical point."""
+    theta, polished = synchronize(heavy)
+    monkeypatch.setattr(certified, "polish", lambda problem, manifold, y, *args: y)
+    plain_theta, plain = synchronize(heavy)
+    assert polished.rank == plain.rank > 1
+    assert polished.estimate_cost < 0.9 * plain.estimate_cost
+    assert polished.lower_bound == plain.lower_bound  # the staircase itself is unchanged
+    assert certified.relaxation_cost(heavy, theta) == pytest.approx(polished.estimate_cost)
+    at_rank_one = certify(heavy, theta)  # Lambda at the polished z: a critical point
+    assert at_rank_one.estimate_cost == pytest.approx(polished.estimate_cost)
 
 
 def test_the_initializer_passes_its_time_limit_and_progress_on(heavy):
