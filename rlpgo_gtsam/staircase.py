@@ -450,6 +450,7 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
     radius = None
     ended: Status | None = Status.ITERATION_LIMIT
     costs = [f]  # the cost at the start of each iteration
+    rejected, path = False, []  # whether the last step was rejected; its CG run's path
     for iteration in range(max_iterations + 1):
         lam = m.multipliers(y, qy)
         grad = 2.0 * (qy - m.times(lam, y))
@@ -478,7 +479,13 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
 
         if radius is None:
             radius = m.initial_radius * np.sqrt(max(m.inner(grad, pre(grad)), 1e-300))
-        step, h_step, on_boundary, length = truncated_cg(grad, hess, pre, radius)
+        # a rejected step's Y, gradient and Hessian stand: the smaller radius's step lies on
+        # the recorded path of the last run (its iterates do not depend on the radius)
+        shortened = _shortened(path, radius) if rejected else None
+        if shortened is None:
+            path = []
+            shortened = truncated_cg(grad, hess, pre, radius, path)
+        step, h_step, on_boundary, length = shortened
         model_decrease = -(m.inner(grad, step) + 0.5 * m.inner(step, h_step))
         y_new = m.retract(y + step)
         qy_new = problem.apply(y_new)
@@ -494,16 +501,18 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
             radius = 0.25 * (min(radius, length) if m.step_radius else radius)
         elif rho > 0.75 and on_boundary:
             radius *= 2.0
-        if rho > 0.1 or (actual > 0 and model_decrease <= 1e-12 * abs(f)):
+        rejected = not (rho > 0.1 or (actual > 0 and model_decrease <= 1e-12 * abs(f)))
+        if not rejected:
             y, qy, f = y_new, qy_new, m.inner(y_new, qy_new)
         costs.append(f)
     return y, ended
 
 
-def truncated_cg(grad, hess, pre, radius):
+def truncated_cg(grad, hess, pre, radius, path: list | None = None):
     """Steihaug-Toint truncated CG for min <g, e> + <e, H e> / 2 in the preconditioner's
     norm ball of ``radius``; returns (step, H step, whether it stopped on the boundary, the
-    step's length in the preconditioner's norm)."""
+    step's length in the preconditioner's norm). ``path`` (if given) gets the iterations
+    that a run with a quarter of the radius or less would stop in (see :func:`_shortened`)."""
     step = np.zeros_like(grad)
     h_step = np.zeros_like(grad)
     residual = grad.copy()
@@ -518,6 +527,9 @@ def truncated_cg(grad, hess, pre, radius):
         curvature = _inner(direction, h_dir)
         alpha = z_r / curvature if curvature > 0 else np.inf
         e_pe_new = e_pe + 2.0 * alpha * e_pd + alpha * alpha * d_pd
+        if path is not None and e_pe < (0.25 * radius) ** 2:
+            path.append((step, h_step, direction, h_dir, e_pe, e_pd, d_pd, curvature,
+                         e_pe_new))
         if curvature <= 0 or e_pe_new >= radius * radius:
             tau = (-e_pd + np.sqrt(e_pd * e_pd + d_pd * (radius * radius - e_pe))) / d_pd
             return step + tau * direction, h_step + tau * h_dir, True, radius
@@ -534,6 +546,20 @@ def truncated_cg(grad, hess, pre, radius):
         d_pd = z_r + beta * beta * d_pd
         direction = -z + beta * direction
     return step, h_step, False, float(np.sqrt(max(e_pe, 0.0)))
+
+
+def _shortened(path: list, radius: float) -> tuple | None:
+    """What :func:`truncated_cg` returns for ``radius``, from the ``path`` a run with a
+    radius at least 4 times larger recorded (CG's iterates do not depend on the radius until
+    one leaves the ball; their preconditioned norm grows): the first recorded iteration
+    whose direction has no positive curvature or whose next iterate leaves the ball is where
+    the run stops, on the boundary, in the same arithmetic. None if no recorded iteration
+    reaches the ball's edge (then CG has to run)."""
+    for step, h_step, direction, h_dir, e_pe, e_pd, d_pd, curvature, e_pe_new in path:
+        if curvature <= 0 or e_pe_new >= radius * radius:
+            tau = (-e_pd + np.sqrt(e_pd * e_pd + d_pd * (radius * radius - e_pe))) / d_pd
+            return step + tau * direction, h_step + tau * h_dir, True, radius
+    return None
 
 
 # --- verification, escape, certificate ------------------------------------------------------
@@ -568,7 +594,9 @@ def verify(problem: Any, manifold: Manifold, y: np.ndarray, eta: float) -> Check
     factor = _factor(problem, m.shift(lam, -eta))
     negatives = _negative_pivots(m, factor)
     if negatives == 0:
-        value, vector = _nearest_above(problem, m, factor, -eta, m.start(y))
+        start = m.start(y)
+        value, vector = _nearest_above(problem, m, factor, -eta, start,
+                                       None if start is None else STARTED_NCV)
         if vector is None:  # the pivots proved lambda_min > -eta: that is the floor kept
             return Check(True, -eta, trace, None, imprecise=True)
         return Check(True, value, trace, vector)
@@ -581,7 +609,8 @@ def verify(problem: Any, manifold: Manifold, y: np.ndarray, eta: float) -> Check
                      imprecise=not converged)
     # many negative eigenvalues: shift below them all
     sigma = floor - eta - 1e-3 * problem.scale
-    value, vector = _nearest_above(problem, m, problem.factor(m.shift(lam, sigma)), sigma, None)
+    value, vector = _nearest_above(problem, m, problem.factor(m.shift(lam, sigma)), sigma, None,
+                                   None)
     if vector is None:
         return Check(False, floor, trace, None, imprecise=True)
     return Check(bool(value >= -eta), value, trace, vector)
@@ -621,13 +650,17 @@ def _shifted_inverse(problem: Any, manifold: Manifold, factor: Any) -> LinearOpe
                           matvec=lambda v: problem.solve_shifted(factor, v.reshape(-1, 1))[:, 0])
 
 
-def _nearest_above(problem, manifold, factor, sigma, start) -> tuple[float, np.ndarray | None]:
+def _nearest_above(problem, manifold, factor, sigma, start,
+                   ncv) -> tuple[float, np.ndarray | None]:
     """The smallest eigenvalue of S when all lie above sigma: the largest of (S - sigma)^-1
-    (``factor``: of S - sigma I); (NaN, None) when ARPACK did not converge."""
-    options = {} if start is None else {"ncv": min(STARTED_NCV, manifold.size(problem.n))}
-    values, vectors, converged = _eigsh(_shifted_inverse(problem, manifold, factor),
-                                        {**manifold.arpack_options, **options}, k=1,
-                                        which="LA", v0=start, tol=1e-10)
+    (``factor``: of S - sigma I), from ``start`` (None: :func:`_fixed_start`) with ``ncv``
+    Lanczos vectors (None: ARPACK's default); (NaN, None) when ARPACK did not converge."""
+    size = manifold.size(problem.n)
+    options = {} if ncv is None else {"ncv": min(ncv, size)}
+    values, vectors, converged = _eigsh(
+        _shifted_inverse(problem, manifold, factor), {**manifold.arpack_options, **options},
+        k=1, which="LA", v0=_fixed_start(problem, manifold) if start is None else start,
+        tol=1e-10)
     if not converged or len(values) == 0:
         return math.nan, None
     return float(sigma + 1.0 / np.real(values[0])), vectors[:, 0]
@@ -637,8 +670,21 @@ def _below(problem, manifold, factor, sigma, count) -> tuple[np.ndarray, np.ndar
     """The ``count`` eigenvalues of S below sigma: the most negative of (S - sigma)^-1; and
     whether ARPACK converged on all of them (if not, those it did converge on)."""
     values, vectors, converged = _eigsh(_shifted_inverse(problem, manifold, factor),
-                                        manifold.arpack_options, k=count, which="SA", tol=1e-8)
+                                        manifold.arpack_options, k=count, which="SA",
+                                        v0=_fixed_start(problem, manifold), tol=1e-8)
     return sigma + 1.0 / np.real(values), vectors, converged
+
+
+def _fixed_start(problem: Any, manifold: Manifold) -> np.ndarray:
+    """ARPACK's start where the manifold gives none: a normal sample that depends on the
+    size only. ARPACK's own random start carries its seed from call to call, so the same
+    graph verified twice in one process got lower bounds apart in the 4th digit."""
+    rng = np.random.default_rng(0)
+    size = manifold.size(problem.n)
+    start = rng.standard_normal(size)
+    if np.dtype(manifold.dtype).kind == "c":
+        start = start + 1j * rng.standard_normal(size)
+    return start
 
 
 def _eigsh(op: LinearOperator, arpack_options: dict[str, Any],

@@ -154,6 +154,48 @@ def test_the_block_factor_solves_and_counts_the_shifted_schur_complement():
     assert factor.negative_pivots() == int(np.sum(np.linalg.eigvalsh(dense) <= 0))
 
 
+def test_a_rejected_step_is_cut_from_the_recorded_cg_path_exactly(heavy):
+    """After a rejected step the trust region takes the smaller radius's step from the last
+    CG run's recorded path: bitwise what a new run would return, without Hessian products."""
+    from rlpgo_gtsam.staircase import _shortened, truncated_cg
+
+    problem, manifold = certified._Problem(heavy), certified._manifold()
+    y = np.exp(1j * chordal_orientations(heavy))[:, None]
+    qy = problem.apply(y)
+    lam = manifold.multipliers(y, qy)
+    grad = 2.0 * (qy - manifold.times(lam, y))
+    precon = problem.preconditioner(manifold)
+
+    def hess(v):
+        return manifold.hessian(y, lam, v, problem.apply(v))
+
+    def pre(v):
+        return 0.5 * manifold.project(y, problem.solve_shifted(precon, v))
+
+    radius = 50.0 * np.sqrt(manifold.inner(grad, pre(grad)))
+    path: list = []
+    *_, length = truncated_cg(grad, hess, pre, radius, path)
+    assert path
+    for smaller in (0.25 * min(radius, length), 1e-3 * length):
+        again = truncated_cg(grad, hess, pre, smaller)
+        cut = _shortened(path, smaller)
+        assert cut is not None and cut[2:] == again[2:] == (True, smaller)
+        assert np.array_equal(cut[0], again[0]) and np.array_equal(cut[1], again[1])
+
+
+def test_the_same_graph_gets_the_same_certificate_twice_in_one_process():
+    """ARPACK starts from Y or a fixed sample, never its own seed carried between calls (320
+    poses: above the dense verification's size; with ARPACK's seed the two calls differed)."""
+    sample = generate(320, 1.0, 0.05, 3.0, 1.0, np.random.default_rng(2),
+                      noisy_measurements=True)
+    graph = PoseGraph2D.from_gtsam(sample.graph, sample.initial)
+    first = synchronize(graph, max_rank=3)
+    second = synchronize(graph, max_rank=3)
+    assert np.array_equal(first[0], second[0])
+    assert first[1].lower_bound == second[1].lower_bound
+    assert first[1].min_eigenvalue == second[1].min_eigenvalue
+
+
 def test_a_failed_saddle_escape_is_reported(monkeypatch):
     # This graph needs rank 3; with no step halvings the escape to rank 2 cannot descend.
     graph = _graph(30, 2.0, 2)
