@@ -36,10 +36,15 @@ point is a global optimum of the relaxation iff ``S >= 0``. This is tested exact
 sparse domain: ``S + eta I`` is positive definite iff the sparse Hermitian matrix
 ``[[L, -B], [-B^H, D - Lambda + eta I]]`` (whose Schur complement is ``S + eta I``) has only
 positive pivots in a symmetric, pivot-free LU. If it fails, the staircase escapes the saddle
-along the eigenvector of ``lambda_min(S)`` into rank r + 1. The solution is rounded (leading
-left singular vector of Y, each entry projected onto the unit circle) and the gauge fixed so
-the anchor keeps its angle. Complex rank 1 is the rotation problem itself (SE-Sync's real rank
-r = d = 2 without reflections); complex rank r matches SE-Sync's real rank 2r.
+along the eigenvector of ``lambda_min(S)`` into rank r + 1. A rank whose trust region stalls
+(its last 10 iterations lowered the cost by less than 1% of the certificate's resolution
+``n eta``) is verified where it stands: the bound below holds at any ``Y``. The solution is
+rounded (leading left singular vector of Y, each entry projected onto the unit circle); if
+the staircase ended above rank 1 the rounded ``z`` is then polished by the trust region at
+rank 1 (a local descent of ``f(z)``, not in SE-Sync: where the relaxation is not exact the
+projection can land far uphill), and the gauge fixed so the anchor keeps its angle. Complex
+rank 1 is the rotation problem itself (SE-Sync's real rank r = d = 2 without reflections);
+complex rank r matches SE-Sync's real rank 2r.
 
 Certificate. ``Lambda + lambda_min(S) I`` is feasible for the relaxation's dual, so
 ``lower_bound = tr(Lambda) + n min(lambda_min, 0)`` bounds the relaxation's optimum (and so
@@ -86,6 +91,7 @@ from rlpgo_gtsam.staircase import (
     check_start,
     climb,
     negative_pivots,
+    polish,
     trust_region,
     verify,
 )
@@ -131,8 +137,9 @@ def synchronize(
             call has run this long it rounds the current ``Y`` and returns it with status
             ``time_limit``. None: no limit.
         progress: called with one short line per rank (rank, trust-region iterations, cost,
-            gradient norm, lambda_min, seconds so far) and, inside a long trust region, one
-            line at most every 2 s. None: silent.
+            gradient norm, lambda_min, seconds so far), one after the rounded estimate's
+            polish (where the staircase ended above rank 1) and, inside a long trust region,
+            one line at most every 2 s. None: silent.
 
     The certificate's ``status`` says how the staircase ended (:class:`Status`). Where the
     final rank is not certified, more than one reason may hold; the first of these is told:
@@ -155,9 +162,13 @@ def synchronize(
     y = np.zeros((problem.n, initial_rank), complex)
     y[:, 0] = z
     grad_tol = gradient_tolerance * np.sqrt(problem.n) * problem.scale
-    y, check, stop = climb(problem, _manifold(), y, eta, max_rank, max_iterations, grad_tol,
+    manifold = _manifold()
+    y, check, stop = climb(problem, manifold, y, eta, max_rank, max_iterations, grad_tol,
                            deadline, progress, started)
     z = _round(y)
+    if y.shape[1] > 1:
+        z = polish(problem, manifold, z[:, None], eta, max_iterations, grad_tol, deadline,
+                   progress, started)[:, 0]
     z *= np.exp(1j * pose_graph.poses[pose_graph.anchor, 2]) / z[pose_graph.anchor]
     theta = wrap(np.angle(z))
     estimate = problem.cost(z[:, None])

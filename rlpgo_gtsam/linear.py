@@ -62,8 +62,11 @@ class PairwiseSystem:
         # the four blocks (i,i), (j,j), (i,j), (j,i) of each edge, kept where both are free
         self._block_keep = [(column[p] >= 0) & (column[q] >= 0) for p, q in
                             ((i, i), (j, j), (i, j), (j, i))]
-        # with every edge kept: the normal equations' CSC structure in the fill-reducing
-        # ordering (slots, indices, indptr) and each column's position in it
+        # with every edge kept: the entries' rows and columns and the fill-reducing ordering
+        # the first solve found (each column's position in it); from the second solve on,
+        # the normal equations' CSC structure in that ordering (slots, indices, indptr) and
+        # the positions (a one-shot solve never builds it)
+        self._ordering: tuple | None = None
         self._pattern: tuple | None = None
 
     def solve(self, a_i: np.ndarray, a_j: np.ndarray, b: np.ndarray, held_values: np.ndarray,
@@ -142,7 +145,7 @@ class PairwiseSystem:
 
         size = self.unknowns
         data = self._data(blocks, None)
-        if self._pattern is None:
+        if self._ordering is None:
             rows, cols = self._entries(None)
             slots, indices, indptr = _csc_pattern(rows, cols, size)
             normal = sp.csc_matrix((np.bincount(slots, weights=data, minlength=len(indices)),
@@ -150,9 +153,12 @@ class PairwiseSystem:
             factor, vanishing = _factorize(normal, natural=False)
             if factor is None or vanishing.any():
                 raise self._indeterminate(normal, None, vanishing)
-            position = factor.perm_c  # column k of the matrix is eliminated at position[k]
-            self._pattern = (*_csc_pattern(position[rows], position[cols], size), position)
+            # column k of the matrix is eliminated at position[k]
+            self._ordering = (rows, cols, factor.perm_c)
             return self._checked(factor.solve(gradient), normal, None)
+        if self._pattern is None:
+            rows, cols, position = self._ordering
+            self._pattern = (*_csc_pattern(position[rows], position[cols], size), position)
         slots, indices, indptr, position = self._pattern
         permuted = sp.csc_matrix((np.bincount(slots, weights=data, minlength=len(indices)),
                                   indices, indptr), shape=(size, size))
@@ -210,8 +216,9 @@ class PairwiseSystem:
 def _csc_pattern(rows: np.ndarray, cols: np.ndarray, size: int) -> tuple:
     """The CSC structure of entries at (rows, cols), duplicates summed: each entry's slot in
     the data array, then the row indices and column pointers."""
-    order = np.lexsort((rows, cols))
-    key = cols[order] * size + rows[order]  # sorted
+    key = cols.astype(np.int64) * size + rows
+    order = np.argsort(key, kind="stable")  # np.lexsort((rows, cols)), in half the time
+    key = key[order]
     first = np.diff(key, prepend=-1) != 0
     unique = key[first]
     slots = np.empty(len(rows), np.int64)

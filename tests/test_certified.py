@@ -95,11 +95,41 @@ def test_progress_says_one_line_per_rank_and_changes_nothing(heavy):
     theta, certificate = synchronize(heavy, progress=lines.append)
     ranks = [line for line in lines if "iterations," in line]
     assert [line.split(":")[0] for line in ranks] == \
-        [f"rank {r}" for r in range(1, certificate.rank + 1)]
+        [f"rank {r}" for r in range(1, certificate.rank + 1)] + ["rounded estimate polished"]
     assert all("cost" in line and "gradient" in line and line.endswith(" s") for line in ranks)
     assert all("\n" not in line and len(line) < 120 for line in lines)
     again, same = synchronize(heavy)
     assert np.array_equal(theta, again) and same.estimate_cost == certificate.estimate_cost
+
+
+def test_a_stalled_rank_is_verified_where_it_stands_and_its_bound_holds(heavy, monkeypatch):
+    """A trust region that stops lowering the cost by 1% of n eta per 10 iterations ends its
+    rank; the bound tr(Lambda) + n min(lambda_min, 0) computed there is a bound at any Y:
+    it stays below the optimum the unstalled staircase reaches, and both verdicts agree."""
+    import rlpgo_gtsam.staircase as staircase
+
+    _, fully = synchronize(heavy)
+    ranks: list[str] = []
+    monkeypatch.setattr(staircase, "STALL_FRACTION", 1e4)  # any slow rank stalls
+    _, stalled = synchronize(heavy, progress=ranks.append)
+    assert any(line.startswith("rank 2: 10 iterations") for line in ranks)  # stalled there
+    assert stalled.status == fully.status == Status.NOT_TIGHT
+    assert stalled.lower_bound <= fully.lower_bound + heavy.num_poses * fully.tolerance
+
+
+def test_the_rounded_estimate_is_polished_downhill_at_rank_one(heavy, monkeypatch):
+    """Above rank 1 the rounded orientations are moved downhill at rank 1: the estimate's
+    relaxation cost is at most the plain rounding's (here 175 against 206, the relaxation's
+    174), and it is a rank-1 critical point."""
+    theta, polished = synchronize(heavy)
+    monkeypatch.setattr(certified, "polish", lambda problem, manifold, y, *args: y)
+    plain_theta, plain = synchronize(heavy)
+    assert polished.rank == plain.rank > 1
+    assert polished.estimate_cost < 0.9 * plain.estimate_cost
+    assert polished.lower_bound == plain.lower_bound  # the staircase itself is unchanged
+    assert certified.relaxation_cost(heavy, theta) == pytest.approx(polished.estimate_cost)
+    at_rank_one = certify(heavy, theta)  # Lambda at the polished z: a critical point
+    assert at_rank_one.estimate_cost == pytest.approx(polished.estimate_cost)
 
 
 def test_the_initializer_passes_its_time_limit_and_progress_on(heavy):
@@ -122,6 +152,48 @@ def test_the_block_factor_solves_and_counts_the_shifted_schur_complement():
     v = np.random.default_rng(0).standard_normal((problem.n, 2)) + 0j
     assert np.allclose(factor.solve(v), np.linalg.solve(dense, v), rtol=1e-8, atol=1e-12)
     assert factor.negative_pivots() == int(np.sum(np.linalg.eigvalsh(dense) <= 0))
+
+
+def test_a_rejected_step_is_cut_from_the_recorded_cg_path_exactly(heavy):
+    """After a rejected step the trust region takes the smaller radius's step from the last
+    CG run's recorded path: bitwise what a new run would return, without Hessian products."""
+    from rlpgo_gtsam.staircase import _shortened, truncated_cg
+
+    problem, manifold = certified._Problem(heavy), certified._manifold()
+    y = np.exp(1j * chordal_orientations(heavy))[:, None]
+    qy = problem.apply(y)
+    lam = manifold.multipliers(y, qy)
+    grad = 2.0 * (qy - manifold.times(lam, y))
+    precon = problem.preconditioner(manifold)
+
+    def hess(v):
+        return manifold.hessian(y, lam, v, problem.apply(v))
+
+    def pre(v):
+        return 0.5 * manifold.project(y, problem.solve_shifted(precon, v))
+
+    radius = 50.0 * np.sqrt(manifold.inner(grad, pre(grad)))
+    path: list = []
+    *_, length = truncated_cg(grad, hess, pre, radius, path)
+    assert path
+    for smaller in (0.25 * min(radius, length), 1e-3 * length):
+        again = truncated_cg(grad, hess, pre, smaller)
+        cut = _shortened(path, smaller)
+        assert cut is not None and cut[2:] == again[2:] == (True, smaller)
+        assert np.array_equal(cut[0], again[0]) and np.array_equal(cut[1], again[1])
+
+
+def test_the_same_graph_gets_the_same_certificate_twice_in_one_process():
+    """ARPACK starts from Y or a fixed sample, never its own seed carried between calls (320
+    poses: above the dense verification's size; with ARPACK's seed the two calls differed)."""
+    sample = generate(320, 1.0, 0.05, 3.0, 1.0, np.random.default_rng(2),
+                      noisy_measurements=True)
+    graph = PoseGraph2D.from_gtsam(sample.graph, sample.initial)
+    first = synchronize(graph, max_rank=3)
+    second = synchronize(graph, max_rank=3)
+    assert np.array_equal(first[0], second[0])
+    assert first[1].lower_bound == second[1].lower_bound
+    assert first[1].min_eigenvalue == second[1].min_eigenvalue
 
 
 def test_a_failed_saddle_escape_is_reported(monkeypatch):
