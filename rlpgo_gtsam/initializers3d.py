@@ -100,20 +100,24 @@ class Certified3D(Initializer3D):
     Args:
         max_rank: highest rank of the Riemannian staircase.
         time_limit_s: the staircase's time limit, or None.
+        max_iterations: trust-region iterations per rank.
     """
 
     name = "certified"
 
-    def __init__(self, max_rank: int = 10, time_limit_s: float | None = None) -> None:
+    def __init__(self, max_rank: int = 10, time_limit_s: float | None = None,
+                 max_iterations: int = 300) -> None:
         self.max_rank = max_rank
         self.time_limit_s = time_limit_s
+        self.max_iterations = max_iterations
 
     def estimate(self, pose_graph: PoseGraph3D, start_poses: np.ndarray | None) -> Estimate:
         from rlpgo_gtsam.certified3d import synchronize3d
 
         start = None if start_poses is None else start_poses[:, :, :3]
         rotations, certificate = synchronize3d(pose_graph, start, max_rank=self.max_rank,
-                                               time_limit_s=self.time_limit_s)
+                                               time_limit_s=self.time_limit_s,
+                                               max_iterations=self.max_iterations)
         return Estimate(pose_matrices(*poses_with_rotations(pose_graph, rotations)),
                         certificate=certificate)
 

@@ -9,8 +9,9 @@ import gtsam
 
 from rlpgo_gtsam.errors import SolverError, one_line
 from rlpgo_gtsam.graph import PoseGraph2D, chi2
+from rlpgo_gtsam.graph3d import PoseGraph3D
 
-__all__ = ["RefineResult", "refine", "solver_params", "SOLVERS"]
+__all__ = ["RefineResult", "refine", "solver_params", "gauge_prior", "SOLVERS"]
 
 SOLVERS = ("lm", "gn")
 # A gauge prior this tight holds the anchor without changing the chi2 of the other factors.
@@ -63,7 +64,7 @@ def refine(
     values: gtsam.Values,
     solver: str | Params = "lm",
     iters: int = 30,
-    pose_graph: PoseGraph2D | None = None,
+    pose_graph: PoseGraph2D | PoseGraph3D | None = None,
 ) -> RefineResult:
     """Run GTSAM's GN or LM on ``graph`` from ``values``.
 
@@ -80,7 +81,9 @@ def refine(
             step; "gn" keeps iterating (GTSAM's ``iterate()``) until the error changes by
             less than 1e-10 (relative or absolute) or ``iters`` steps ran.
         iters: iteration cap of "lm" / "gn".
-        pose_graph: the graph's extraction, if the caller has it (saves a second one).
+        pose_graph: the graph's extraction, if the caller has it (saves a second one); a
+            :class:`~rlpgo_gtsam.graph3d.PoseGraph3D` for a Pose3 graph (without one the
+            graph is extracted as a planar one).
 
     A failure of the linear solver (an indeterminate system) or a non-finite error ends the
     run with ``failure`` set instead of raising.
@@ -98,9 +101,7 @@ def refine(
     optimized = graph
     if not _has_prior(graph):
         optimized = gtsam.NonlinearFactorGraph(graph)
-        anchor_key = int(g.keys[g.anchor])
-        optimized.add(gtsam.PriorFactorPose2(anchor_key, values.atPose2(anchor_key),
-                                             gtsam.noiseModel.Isotropic.Sigma(3, _ANCHOR_SIGMA)))
+        optimized.add(gauge_prior(g, values, _ANCHOR_SIGMA))
     after_iteration: dict[int, float] = {}  # GTSAM's LM may report an iteration twice
     caller_hook = params.iterationHook  # the caller's params get their own hook back
     params.iterationHook = lambda k, _before, after: after_iteration.__setitem__(k, 2.0 * after)
@@ -142,6 +143,19 @@ def _iterate_through_increases(optimizer, iters: int, after_iteration: dict) -> 
         previous = current
 
 
+def gauge_prior(pose_graph: PoseGraph2D | PoseGraph3D, values: gtsam.Values,
+                sigma: float) -> gtsam.NonlinearFactor:
+    """A prior holding the anchor at its pose in ``values``, isotropic ``sigma``: a
+    ``PriorFactorPose2`` or, for a 3D graph, a ``PriorFactorPose3``."""
+    key = int(pose_graph.keys[pose_graph.anchor])
+    if isinstance(pose_graph, PoseGraph3D):
+        return gtsam.PriorFactorPose3(key, values.atPose3(key),
+                                      gtsam.noiseModel.Isotropic.Sigma(6, sigma))
+    return gtsam.PriorFactorPose2(key, values.atPose2(key),
+                                  gtsam.noiseModel.Isotropic.Sigma(3, sigma))
+
+
 def _has_prior(graph: gtsam.NonlinearFactorGraph) -> bool:
-    return any(isinstance(graph.at(i), gtsam.PriorFactorPose2) for i in range(graph.size()))
+    return any(isinstance(graph.at(i), gtsam.PriorFactorPose2 | gtsam.PriorFactorPose3)
+               for i in range(graph.size()))
 
