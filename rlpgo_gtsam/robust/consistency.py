@@ -192,6 +192,39 @@ class ChainTree:
         """Steps along the tree between index arrays ``a`` and ``b``."""
         return self.depth[a] + self.depth[b] - 2 * self.depth[self.ancestor(a, b)]
 
+    def cycles(self, i: np.ndarray, j: np.ndarray, k: np.ndarray, m: np.ndarray,
+               z_e: np.ndarray, cov_e: np.ndarray, z_f: np.ndarray,
+               cov_f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Errors (Logmap) and covariances of the cycles ``Z_e^-1 D(i, k) Z_f D(m, j)`` that
+        closures ``e = (i, j)`` and ``f = (k, m)`` (measured ``z``, right-frame covariances
+        ``cov``) close through the tree, in the cycle's end frame, to first order.
+
+        Each measurement's error reaches the end frame through the adjoint of the inverse of
+        what follows it. The chain's steps enter through ``D(i, k) = X_i^-1 X_k`` and
+        ``D(m, j)``: with ``X_a = Exp(eps_a) X_a`` (``eps_a`` the root-frame sum of the steps
+        above a), the error is ``A1 (eps_k - eps_i) + A2 (eps_j - eps_m)``, ``A1 = Ad((X_k
+        Z_f D(m, j))^-1)``, ``A2 = Ad(X_j^-1)``, and its covariance is ``sum_ab c_a
+        P(lca(a, b)) c_b^T`` over the four ends (``c_k = A1 = -c_i``, ``c_j = A2 = -c_m``):
+        steps that both segments pass (the segments overlap where the closures lie apart
+        along the chain) are counted once, with the coefficient ``A1 - A2``, not twice.
+        """
+        g, x, p = self.group, self.poses, self.prefix
+        d_ik, d_mj = g.between(x[i], x[k]), g.between(x[m], x[j])
+        z_inv, cov_inv = _oriented(g, z_e, cov_e, True)
+        tail = g.compose(z_f, d_mj)  # what follows D(i, k)
+        after = g.compose(d_ik, tail)  # what follows Z_e^-1
+        a1 = g.adjoint(g.inverse(g.compose(x[k], tail)))
+        a2 = g.adjoint(g.inverse(x[j]))
+        near = p[i] + p[k] - 2.0 * p[self.ancestor(i, k)]
+        far = p[j] + p[m] - 2.0 * p[self.ancestor(j, m)]
+        shared = (p[self.ancestor(k, j)] - p[self.ancestor(k, m)] - p[self.ancestor(i, j)]
+                  + p[self.ancestor(i, m)])
+        cross = a1 @ shared @ np.transpose(a2, (0, 2, 1))
+        total = (_sandwich(g.adjoint(g.inverse(after)), cov_inv)
+                 + _sandwich(g.adjoint(g.inverse(d_mj)), cov_f) + _sandwich(a1, near)
+                 + _sandwich(a2, far) + cross + np.transpose(cross, (0, 2, 1)))
+        return g.logmap(g.compose(z_inv, after)), total
+
     def between(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``D(a, b)`` along the tree and its covariance in b's frame.
 
@@ -237,16 +270,8 @@ def pairwise_consistency(g: PoseGraph, chain_mask: np.ndarray, threshold: float,
     parallel = np.empty(len(a_idx), bool)
     for start in range(0, len(a_idx), _CHUNK):
         a, b = a_idx[start:start + _CHUNK], b_idx[start:start + _CHUNK]
-        # the cycle Z_e^-1 D(i, k) Z_f D(l, j); a factor's error reaches the cycle's end
-        # frame through the adjoint of the inverse of the factors after it
-        factors = [_oriented(group, measured[a], closure_cov[a], True),
-                   tree.between(i[a], i[b]), (measured[b], closure_cov[b]),
-                   tree.between(j[b], j[a])]
-        after, total = factors[-1][0], factors[-1][1].copy()
-        for pose, cov in factors[-2::-1]:
-            total += _sandwich(group.adjoint(group.inverse(after)), cov)
-            after = group.compose(pose, after)
-        error = group.logmap(after)
+        error, total = tree.cycles(i[a], j[a], i[b], j[b], measured[a], closure_cov[a],
+                                   measured[b], closure_cov[b])
         scores[start:start + _CHUNK] = np.einsum(
             "ea,ea->e", error, np.linalg.solve(total, error[..., None])[..., 0])
         volume[start:start + _CHUNK] = np.sqrt(np.maximum(np.linalg.det(total), 0.0))
