@@ -121,7 +121,7 @@ def _random_chain_graph(dim: int, rng: np.random.Generator, n: int = 14):
 @pytest.mark.parametrize("dim", [2, 3])
 def test_cycle_covariance_is_the_first_order_one(dim):
     """Every pair of closures' cycle covariance equals J Sigma J^T, J the cycle error's
-    derivative in each measurement (central differences): segments that overlap along the
+    derivative in each measurement (finite differences): segments that overlap along the
     chain (closures far apart), nest or cross alike."""
     from dataclasses import replace
 
