@@ -24,8 +24,10 @@ import rlpgo_gtsam.se2 as se2
 import rlpgo_gtsam.se3 as se3
 from rlpgo_gtsam.graph import PoseGraph2D
 from rlpgo_gtsam.graph import edge_chi2 as edge_chi2_2d
+from rlpgo_gtsam.graph import edge_errors as edge_errors_2d
 from rlpgo_gtsam.graph3d import PoseGraph3D
 from rlpgo_gtsam.graph3d import edge_chi2 as edge_chi2_3d
+from rlpgo_gtsam.graph3d import edge_errors as edge_errors_3d
 from rlpgo_gtsam.initializers import Initializer, make_initializer
 from rlpgo_gtsam.initializers3d import Certified3D, pose_matrices
 from rlpgo_gtsam.linear import PairwiseSystem
@@ -36,9 +38,9 @@ __all__ = ["Group", "PLANAR", "SPATIAL", "group_of", "extract", "TranslationSyst
 
 # The SE(3) relaxations the robust steps run stop at rank 3 after this many trust-region
 # iterations: SE-Sync's seven 3D files certify at rank 3 in 4-8, while with 5% wrong closures
-# sphere2500 and torus3D used 45-91 there (15 s each) and the staircase then climbed to rank
-# 10 (250 s) without a certificate.
-_RELAXATION_ITERATIONS = 50
+# sphere2500 and torus3D ran 91 and 45 there (15 s CPU each, against 1.0 and 1.8 s clean)
+# and the staircase then climbed to rank 10 (250 s) without a certificate.
+_RELAXATION_ITERATIONS = 20
 
 PoseGraph = PoseGraph2D | PoseGraph3D
 # The translation step at fixed rotations: (m, d, d) blocks A_e and (m, d) b_e of the whitened
@@ -96,6 +98,10 @@ class Group:
 
     def edge_chi2(self, g: PoseGraph, poses: np.ndarray) -> np.ndarray:
         """(m,) each edge's chi2 at ``poses``, as GTSAM's between factor charges it."""
+        raise NotImplementedError
+
+    def edge_errors(self, g: PoseGraph, poses: np.ndarray) -> np.ndarray:
+        """(m, dof) each edge's error (GTSAM's Logmap) at ``poses``."""
         raise NotImplementedError
 
     def poses_of(self, g: PoseGraph, values: gtsam.Values) -> np.ndarray:
@@ -165,6 +171,9 @@ class _Planar(Group):
     def edge_chi2(self, g, poses):
         return edge_chi2_2d(g, poses)
 
+    def edge_errors(self, g, poses):
+        return edge_errors_2d(g, poses)
+
     def poses_of(self, g, values):
         return g.poses_of(values)
 
@@ -222,6 +231,9 @@ class _Spatial(Group):
 
     def edge_chi2(self, g, poses):
         return edge_chi2_3d(g, poses[:, :, :3], poses[:, :, 3])
+
+    def edge_errors(self, g, poses):
+        return edge_errors_3d(g, poses[:, :, :3], poses[:, :, 3])
 
     def poses_of(self, g, values):
         return pose_matrices(*g.poses_of(values))
