@@ -1,15 +1,23 @@
 """The SE(3) certified relaxation and GTSAM's InitializePose3 on SE-Sync's seven 3D files,
-each refined by GTSAM LM30, against SE-Sync + LM30 (figures measured here, see
-``datasets/3d/README.md``).
+each refined by GTSAM LM30, against SE-Sync + LM30 measured in the same run; with
+``--generated``, on the project's hard 3D graphs instead.
 
-    python benchmarks/pose3.py [--files tinyGrid3D,...] [--time-limit 120]
+    python benchmarks/pose3.py [--files tinyGrid3D,...] [--time-limit 120] [--sesync BIN]
+    python benchmarks/pose3.py --generated [--n 500,1000] [--sigma-r 0.3,0.4] [--seeds 0,1,2]
+        [--sesync BIN]
 
 Per file: ``certified3d`` (status, rank, CPU seconds) and chi2 after LM30 from its estimate;
 ``InitializePose3`` (with a prior on the first pose) + LM30: chi2 and seconds; the in-process
 CPU seconds (``time.process_time``) of certified + LM30 against SE-Sync's wall seconds + LM30.
-Graphs are read by ``gtsam.readG2o(path, True)``: the graph SE-Sync's figures were refined on
-(cubicle's indefinite informations, which :func:`rlpgo_gtsam.g2o3d.read_g2o3d` refuses, are
-GTSAM's conversion of them, so the extraction skips the usability check there). chi2 =
+SE-Sync runs through its driver (``benchmarks/sesync``: ``--sesync`` or
+``$RLPGO_SESYNC_BINARY``, default options, BLAS on one thread): its seconds are the driver's
+wall time of the whole ``SESync()`` call, its certificate the driver's (verification passed
+and suboptimality bound about 0), and its rounded estimate, moved onto the file's first
+vertex, is refined by the same LM30 as ours. Without the driver the SE-Sync columns are left
+empty. Graphs are read by ``gtsam.readG2o(path, True)``: the graph SE-Sync's figures were
+refined on (cubicle's indefinite informations, which :func:`rlpgo_gtsam.g2o3d.read_g2o3d`
+reads without their rotation-translation coupling, are GTSAM's conversion of them here, so
+the extraction skips the usability check there; docs/pose3.md has the rule). chi2 =
 2 x GTSAM error, first pose fixed. Prints a markdown table, writes
 ``benchmarks/results/pose3.json`` and ``.md``.
 """
@@ -19,31 +27,31 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import gtsam
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks.process import check_binaries  # noqa: E402
+from benchmarks.sesync.runner import run_sesync, to_values  # noqa: E402
 from rlpgo_gtsam.errors import RlpgoError, one_line  # noqa: E402
+from rlpgo_gtsam.g2o3d import write_g2o3d  # noqa: E402
 from rlpgo_gtsam.graph3d import PoseGraph3D, information_problem_6  # noqa: E402
 from rlpgo_gtsam.initializers3d import Certified3D, InitializePose3  # noqa: E402
+from rlpgo_gtsam.synthetic import generate3d  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 DATA = ROOT.parent / "shared" / "datasets" / "3d"
-# SE-Sync measured here (2026-11-23): seconds, certified, chi2 of its rounding + LM30
-SESYNC = {
-    "tinyGrid3D": (0.01, True, 18.6278),
-    "smallGrid3D": (0.08, True, 1035.85),
-    "parking-garage": (1.39, True, 1.26843),
-    "sphere2500": (2.01, True, 1351.4),
-    "torus3D": (3.92, True, 24235.3),
-    "cubicle": (4.46, True, 2745.56),
-    "sphere_bignoise_vertex3": (2.91, True, 2.98834e6),
-}
+FILES = ["tinyGrid3D", "smallGrid3D", "parking-garage", "sphere2500", "torus3D", "cubicle",
+         "sphere_bignoise_vertex3"]
 MARGIN = 1e-4  # chi2 at or below SE-Sync + LM30 (+0.01%)
+# The generated family: sigma_t (m), d (m), lc; noisy measurements
+GENERATED = (0.1, 1.0, 0.5)
 
 
 def _lm30(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[float | None, float,
@@ -63,13 +71,32 @@ def _lm30(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[floa
     return 2.0 * graph.error(result), time.process_time() - start, None
 
 
-def _case(name: str, time_limit: float) -> dict:
-    graph, values = gtsam.readG2o(str(DATA / f"{name}.g2o"), True)
-    usable = all(information_problem_6(graph.at(k).noiseModel().information()) is None
-                 for k in range(graph.size()))
-    pose_graph = PoseGraph3D.from_gtsam(graph, values, check_information=usable)
-    row: dict = {"file": name, "poses": pose_graph.num_poses, "edges": pose_graph.num_edges,
-                 "information_usable": usable}
+def _sesync(graph: gtsam.NonlinearFactorGraph, path: Path, binary: Path | None) -> dict:
+    """SE-Sync's figures for one file: the driver's run, then the same LM30 as ours from its
+    re-anchored estimate; all None without a driver."""
+    row: dict = dict.fromkeys(("sesync_seconds", "sesync_certified", "sesync_status",
+                               "sesync_rank", "sesync_bound", "sesync_failure",
+                               "sesync_lm30_chi2", "sesync_lm30_seconds",
+                               "sesync_lm30_failure"))
+    if binary is None:
+        return row
+    try:
+        run = run_sesync(binary, path)
+    except RuntimeError as error:
+        row["sesync_failure"] = one_line(error)
+        return row
+    row.update(sesync_seconds=run.seconds, sesync_certified=run.certified,
+               sesync_status=run.status, sesync_rank=run.rank,
+               sesync_bound=run.suboptimality_bound)
+    chi2, seconds, failure = _lm30(graph, to_values(run.ids, run.poses))
+    row.update(sesync_lm30_chi2=chi2, sesync_lm30_seconds=seconds, sesync_lm30_failure=failure)
+    return row
+
+
+def _ours(graph: gtsam.NonlinearFactorGraph, pose_graph: PoseGraph3D,
+          time_limit: float) -> dict:
+    """certified3d + LM30 and InitializePose3 + LM30: chi2, CPU seconds, certificate."""
+    row: dict = {}
     start = time.process_time()
     certified = Certified3D(time_limit_s=time_limit).run(pose_graph)
     row["certified_seconds"] = time.process_time() - start
@@ -89,19 +116,103 @@ def _case(name: str, time_limit: float) -> dict:
     except RlpgoError as error:
         row.update(initialize_pose3_seconds=time.process_time() - start,
                    initialize_pose3_lm30_chi2=None, initialize_pose3_failure=str(error))
-    sesync_seconds, sesync_certified, sesync_chi2 = SESYNC[name]
-    row.update(sesync_seconds=sesync_seconds, sesync_certified=sesync_certified,
-               sesync_lm30_chi2=sesync_chi2)
-    ours = row["certified_lm30_chi2"]
-    row["chi2_target_met"] = ours is not None and ours <= sesync_chi2 * (1 + MARGIN)
-    row["certified_target_met"] = row["certificate"]["certified"] or not sesync_certified
     return row
 
 
+def _targets(row: dict) -> dict:
+    """Whether ours met SE-Sync + LM30's chi2 (+MARGIN) and certified where SE-Sync did."""
+    ours, theirs = row["certified_lm30_chi2"], row["sesync_lm30_chi2"]
+    return {"chi2_target_met": None if theirs is None else
+            ours is not None and ours <= theirs * (1 + MARGIN),
+            "certified_target_met": None if row["sesync_certified"] is None else
+            row["certificate"]["certified"] or not row["sesync_certified"]}
+
+
+def _case(name: str, time_limit: float, sesync: Path | None) -> dict:
+    path = DATA / f"{name}.g2o"
+    graph, values = gtsam.readG2o(str(path), True)
+    usable = all(information_problem_6(graph.at(k).noiseModel().information()) is None
+                 for k in range(graph.size()))
+    pose_graph = PoseGraph3D.from_gtsam(graph, values, check_information=usable)
+    row: dict = {"file": name, "poses": pose_graph.num_poses, "edges": pose_graph.num_edges,
+                 "information_usable": usable}
+    row.update(_ours(graph, pose_graph, time_limit))
+    row.update(_sesync(graph, path, sesync))
+    row.update(_targets(row))
+    return row
+
+
+def _generated_case(n: int, sigma_r: float, seed: int, time_limit: float,
+                    sesync: Path | None, folder: Path) -> dict:
+    """One generated graph: ours (:func:`_ours`), SE-Sync + LM30 on its g2o file, and LM30
+    from the ground truth (a reference: the lowest chi2 known for the graph)."""
+    sigma_t, d, lc = GENERATED
+    sample = generate3d(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
+                        noisy_measurements=True)
+    graph = sample.graph
+    pose_graph = PoseGraph3D.from_gtsam(graph, sample.initial)
+    name = f"gen3d_n{n}_r{sigma_r:g}_s{seed}"
+    row: dict = {"file": name, "poses": n, "edges": pose_graph.num_edges, "sigma_r": sigma_r,
+                 "sigma_t": sigma_t, "d": d, "lc": lc, "seed": seed,
+                 "command": f"generate3d({n}, {sigma_r:g}, {sigma_t:g}, {d:g}, {lc:g}, "
+                            f"default_rng({seed}), noisy_measurements=True)"}
+    row.update(_ours(graph, pose_graph, time_limit))
+    row["truth_lm30_chi2"] = _lm30(graph, sample.ground_truth)[0]
+    path = folder / f"{name}.g2o"
+    write_g2o3d(path, graph, sample.initial)
+    row.update(_sesync(graph, path, sesync))
+    row.update(_targets(row))
+    return row
+
+
+def _sesync_cells(r: dict) -> tuple[str, str, str]:
+    """SE-Sync's certificate (rank), its + LM30 chi2, and its seconds (+ LM30 CPU s)."""
+    if r["sesync_failure"] is not None:
+        return f"fails: {r['sesync_failure'][:60]}", "-", "-"
+    if r["sesync_certified"] is None:
+        return "-", "-", "-"
+    certified = f"{'yes' if r['sesync_certified'] else 'no'} ({r['sesync_rank']})"
+    if r["sesync_lm30_chi2"] is None:
+        return certified, f"fails: {r['sesync_lm30_failure'][:60]}", \
+            f"{r['sesync_seconds']:.2f}"
+    return (certified, f"{r['sesync_lm30_chi2']:.6g}",
+            f"{r['sesync_seconds']:.2f} (+{r['sesync_lm30_seconds']:.2f})")
+
+
+def _generated_table(rows: list[dict]) -> str:
+    def number(value) -> str:
+        return "-" if value is None else f"{value:.6g}"
+
+    head = ("| graph | edges | certified3d (rank, bound, CPU s) | + LM30 chi2 | CPU s (+ LM30) "
+            "| SE-Sync (rank, bound, s) | + LM30 chi2 | s (+ LM30) | InitializePose3 + LM30 "
+            "chi2 (CPU s) | truth + LM30 chi2 |\n|---|---|---|---|---|---|---|---|---|---|")
+    lines = [head]
+    for r in rows:
+        cert = r["certificate"]
+        if r["sesync_status"] is None:
+            sesync, sesync_s = r["sesync_failure"] or "-", "-"
+        else:
+            sesync = (f"{'certified' if r['sesync_certified'] else r['sesync_status']} "
+                      f"({r['sesync_rank']}, {r['sesync_bound']:.3g}, "
+                      f"{r['sesync_seconds']:.2f})")
+            sesync_s = f"{r['sesync_seconds'] + (r['sesync_lm30_seconds'] or 0.0):.2f}"
+        init = r["initialize_pose3_lm30_chi2"]
+        init = number(init) if init is not None else \
+            f"fails: {r['initialize_pose3_failure'][:40]}"
+        lines.append(
+            f"| {r['file']} | {r['edges']} | {cert['status']} ({cert['rank']}, "
+            f"{cert['suboptimality_bound']:.3g}, {r['certified_seconds']:.2f}) | "
+            f"{number(r['certified_lm30_chi2'])} | {r['in_process_seconds']:.2f} | {sesync} | "
+            f"{number(r['sesync_lm30_chi2'])} | {sesync_s} | {init} "
+            f"({r['initialize_pose3_seconds']:.2f}) | {number(r['truth_lm30_chi2'])} |")
+    return "\n".join(lines) + "\n"
+
+
 def _table(rows: list[dict]) -> str:
-    head = ("| file | poses | certified3d (rank, CPU s) | + LM30 chi2 | SE-Sync + LM30 chi2 | "
-            "in-process CPU s (certified + LM30) | SE-Sync s | InitializePose3 + LM30 chi2 "
-            "(CPU s) |\n|---|---|---|---|---|---|---|---|")
+    head = ("| file | poses | certified3d (rank, CPU s) | + LM30 chi2 | SE-Sync certified "
+            "(rank) | SE-Sync + LM30 chi2 | in-process CPU s (certified + LM30) | SE-Sync s "
+            "(+ LM30 CPU s) | InitializePose3 + LM30 chi2 (CPU s) |\n"
+            "|---|---|---|---|---|---|---|---|---|")
     lines = [head]
     for r in rows:
         cert = r["certificate"]
@@ -109,31 +220,60 @@ def _table(rows: list[dict]) -> str:
         init = r["initialize_pose3_lm30_chi2"]
         init = f"{init:.6g}" if init is not None else \
             f"fails: {r['initialize_pose3_failure'][:60]}"
+        sesync_certified, sesync_chi2, sesync_seconds = _sesync_cells(r)
         lines.append(
             f"| {r['file']} | {r['poses']} | {cert['status']} ({cert['rank']}, "
-            f"{r['certified_seconds']:.2f}) | {ours} | {r['sesync_lm30_chi2']:.6g} | "
-            f"{r['in_process_seconds']:.2f} | {r['sesync_seconds']:.2f} | {init} "
+            f"{r['certified_seconds']:.2f}) | {ours} | {sesync_certified} | {sesync_chi2} | "
+            f"{r['in_process_seconds']:.2f} | {sesync_seconds} | {init} "
             f"({r['initialize_pose3_seconds']:.2f}) |")
     return "\n".join(lines) + "\n"
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--files", default=",".join(SESYNC))
+    parser.add_argument("--files", default=",".join(FILES))
     parser.add_argument("--time-limit", type=float, default=120.0,
                         help="the staircase's time limit per file, seconds")
+    parser.add_argument("--generated", action="store_true",
+                        help="run the generated hard 3D graphs instead of SE-Sync's files")
+    parser.add_argument("--n", default="500,1000", help="--generated: poses, a list")
+    parser.add_argument("--sigma-r", default="0.3,0.4",
+                        help="--generated: rotation noise per axis, radians, a list")
+    parser.add_argument("--seeds", default="0,1,2", help="--generated: seeds, a list")
+    parser.add_argument("--sesync", help="the sesync_rounded driver (default: "
+                        "$RLPGO_SESYNC_BINARY; without one the SE-Sync columns are left empty)")
+    parser.add_argument("--name", default=None,
+                        help="results file name (default pose3, pose3_generated)")
     args = parser.parse_args()
+    check_binaries(parser, args, ("sesync",))
+    print(f"SE-Sync driver: {args.sesync or 'none (SE-Sync columns left empty)'}", flush=True)
+    sesync = None if args.sesync is None else Path(args.sesync)
     rows = []
-    for name in args.files.split(","):
-        rows.append(_case(name, args.time_limit))
-        print(json.dumps({k: v for k, v in rows[-1].items() if k != "certificate"}), flush=True)
-    table = _table(rows)
+    if args.generated:
+        with tempfile.TemporaryDirectory(prefix="pose3_generated_") as folder:
+            for n in map(int, args.n.split(",")):
+                for sigma_r in map(float, args.sigma_r.split(",")):
+                    for seed in map(int, args.seeds.split(",")):
+                        rows.append(_generated_case(n, sigma_r, seed, args.time_limit, sesync,
+                                                    Path(folder)))
+                        _print_row(rows[-1])
+        table, name = _generated_table(rows), args.name or "pose3_generated"
+    else:
+        for file in args.files.split(","):
+            rows.append(_case(file, args.time_limit, sesync))
+            _print_row(rows[-1])
+        table, name = _table(rows), args.name or "pose3"
     print(table)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "pose3.json").write_text(json.dumps(
-        {"command": "python benchmarks/pose3.py " + " ".join(sys.argv[1:]), "rows": rows},
+    (RESULTS / f"{name}.json").write_text(json.dumps(
+        {"command": "python benchmarks/pose3.py " + " ".join(sys.argv[1:]),
+         "sesync": None if sesync is None else str(sesync), "rows": rows},
         indent=2) + "\n")
-    (RESULTS / "pose3.md").write_text(table)
+    (RESULTS / f"{name}.md").write_text(table)
+
+
+def _print_row(row: dict) -> None:
+    print(json.dumps({k: v for k, v in row.items() if k != "certificate"}), flush=True)
 
 
 if __name__ == "__main__":

@@ -1,117 +1,198 @@
-"""Large graphs: seconds and peak memory of read, LAGO, one RL cycle and write, per edge.
+"""Large graphs, process to process: ``rlpgo-init FILE -o OUT`` on generated graphs of 10k,
+100k and 200k poses (seconds per phase, peak memory, growth with size) against SE-Sync +
+GTSAM LM30 in the same run; and ``--budget`` kept: wall seconds against 1.2 x the budget on
+the largest graph and on a hard 2000-pose graph, with what the command said it cut.
 
-    python benchmarks/scale.py [--sizes 10000,30000,100000] [--model preset1]
+    python benchmarks/scale.py [--sizes 10000,100000,200000] [--repeats 1] [--sesync BIN]
+        [--budget 30] [--hard-n 2000] [--cache DIR] [--timeout 600] [--no-budget]
+        [--name scale]
 
-Each size is a generated lawn-mower graph (noisy measurements, lc 0.5). Each stage runs in
-its own process, which reads the file first; its peak memory is the growth of the
-process's maximum resident set over what the read left. Seconds are reported as ratios
-to GTSAM LM10 on the same graph, measured the same way in this run. Writes
-benchmarks/results/scale.json and prints a table.
+Graphs (made once into ``--cache``, a folder outside the repository, and reused): the easy
+ones are ``rlpgo-generate --n N --sigma-r 0.05 --sigma-t 0.05 --d 3 --lc 0.3
+--noisy-measurements --seed 1`` (the graphs of ``benchmarks/g2o_speed.py``); the hard one is
+``rlpgo-generate --n 2000 --sigma-r 3.0 --lc 1.0 --noisy-measurements --seed 1``.
+
+Per size: ``rlpgo-init FILE -o OUT`` as a user runs it (median wall seconds of ``--repeats``
+runs, start to exit, and the process's peak resident set from ``wait4``;
+``benchmarks/processes.py``), then one instrumented run of it (``processes.probe``): seconds
+of each step (start-up, import, read, extraction, certified stage, LM, write, exit) and the
+peak resident set (VmHWM) after each; with the SE-Sync driver (``--sesync`` or
+``$RLPGO_SESYNC_BINARY``), SE-Sync + LM30 as two processes, as ``benchmarks/process.py``
+runs them. Growth: for each pair of consecutive sizes, the exponent k in seconds ~ edges^k
+(1 is linear). Budget rows: ``rlpgo-init FILE -o OUT --budget B`` once each; "within" is
+wall seconds <= 1.2 B, the process's start-up and exit included.
+
+Prints the tables, writes ``benchmarks/results/<name>.json`` and ``.md``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import resource
-import subprocess
+import math
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-import numpy as np
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-ROOT = Path(__file__).resolve().parents[1]
-STAGES = ("read", "lm10", "lago", "rl_cycle", "write")
+from benchmarks import processes  # noqa: E402
+from benchmarks.common import RESULTS, write_result  # noqa: E402
+from benchmarks.process import (  # noqa: E402
+    add_common_options,
+    cell,
+    check_binaries,
+    chi2_of,
+    graph_size,
+    median,
+    run_baseline,
+    run_ours,
+)
+
+EASY = {"sigma_r": 0.05, "sigma_t": 0.05, "d": 3.0, "lc": 0.3, "seed": 1}
+HARD = {"sigma_r": 3.0, "lc": 1.0, "seed": 1}
+GROWTH = ("total", "read", "certified", "LM", "write", "SE-Sync", "LM30", "peak MB")
 
 
-def _peak_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+def _size_row(n: int, path: Path, folder: Path, args) -> dict:
+    import gtsam
+
+    poses, edges = graph_size(path, 2)
+    out = folder / "ours.g2o"
+    runs = [run_ours(path, out, args.timeout) for _ in range(args.repeats)]
+    graph, _ = gtsam.readG2o(str(path), False)
+    last = runs[-1]
+    row = {"n": n, "poses": poses, "edges": edges, "file_mb": path.stat().st_size / 2**20,
+           "ours_seconds": median([r["seconds"] for r in runs if r["failure"] is None]),
+           "ours_seconds_all": [r["seconds"] for r in runs],
+           "ours_peak_mb": median([r["peak_mb"] for r in runs]),
+           "ours_failure": last["failure"], "ours_certified": last["certified"],
+           "ours_stopped": last["stopped"], "ours_last_line": last["last"],
+           "ours_chi2": chi2_of(graph, out, 2) if last["failure"] is None else None}
+    phases = processes.probe([str(path), "-o", str(folder / "probe.g2o"), "--overwrite"],
+                             args.timeout)
+    phases.pop("stdout")
+    row["phases"] = phases
+    if args.sesync:
+        base = run_baseline(path, folder, args.sesync, args.sesync_threads, args.timeout, False)
+        row.update(base)
+        if base.get("lm30_failure", "no run") is None:
+            row["baseline_seconds"] = base["sesync_seconds"] + base["lm30_seconds"]
+            if row["ours_seconds"] is not None:
+                row["ratio"] = row["ours_seconds"] / row["baseline_seconds"]
+    return row
 
 
-def _stage(stage: str, path: str, model: str) -> dict:
-    """Run one stage in this process; returns seconds and peak memory growth."""
-    from rlpgo_gtsam import RLInitializer, make_initializer, read_g2o, refine, write_g2o
-    from rlpgo_gtsam.graph import PoseGraph2D
-    from rlpgo_gtsam.rl.episode import rollout
+def _figures(row: dict) -> dict[str, float | None]:
+    """The figures whose growth is reported, for one size."""
+    seconds = row["phases"]["seconds"]
+    return {"total": row["ours_seconds"], "read": seconds["read"],
+            "certified": seconds["certified"], "LM": seconds["LM"], "write": seconds["write"],
+            "SE-Sync": row.get("sesync_seconds"), "LM30": row.get("lm30_seconds"),
+            "peak MB": row["ours_peak_mb"]}
 
-    before = _peak_mb()
-    start = time.perf_counter()
-    graph, values = read_g2o(path)
-    seconds = time.perf_counter() - start
-    if stage != "read":
-        before = _peak_mb()
-        start = time.perf_counter()
-        if stage == "lm10":
-            refine(graph, values, "lm", 10)
-        elif stage == "lago":
-            make_initializer("lago").initialize(graph, values)
-        elif stage == "rl_cycle":
-            rl = RLInitializer(model=model, cycles=1)
-            pose_graph = PoseGraph2D.from_gtsam(graph, values)
-            start = time.perf_counter()  # the RL pass alone: the rollout over one cycle
-            rollout(rl.policy, pose_graph, pose_graph.poses[:, 2], 1,
-                    rl.model.env_config.action_range_rad, rl.last_actions())
-        elif stage == "write":
-            with tempfile.TemporaryDirectory() as folder:
-                write_g2o(Path(folder) / "out.g2o", graph, values)
-        seconds = time.perf_counter() - start
-    return {"seconds": seconds, "peak_mb": _peak_mb() - before,
-            "edges": graph.size(), "poses": values.size()}
+
+def _growth(rows: list[dict]) -> list[dict]:
+    """Exponent k of figure ~ edges^k between consecutive sizes."""
+    found = []
+    for a, b in zip(rows, rows[1:], strict=False):
+        fa, fb = _figures(a), _figures(b)
+        scale = math.log(b["edges"] / a["edges"])
+        exponents = {key: (math.log(fb[key] / fa[key]) / scale
+                           if fa[key] and fb[key] and fa[key] > 0 and fb[key] > 0 else None)
+                     for key in GROWTH}
+        found.append({"from": a["n"], "to": b["n"], **exponents})
+    return found
+
+
+def _budget_row(name: str, path: Path, folder: Path, args) -> dict:
+    poses, edges = graph_size(path, 2)
+    run = run_ours(path, folder / "budget.g2o", args.timeout, ("--budget", f"{args.budget:g}"))
+    limit = 1.2 * args.budget
+    return {"graph": name, "poses": poses, "edges": edges, "budget": args.budget,
+            "limit": limit, "seconds": run["seconds"], "failure": run["failure"],
+            "within": run["seconds"] is not None and run["seconds"] <= limit,
+            "certified": run["certified"], "stopped": run["stopped"], "last_line": run["last"]}
+
+
+def _tables(rows: list[dict], growth: list[dict], budgets: list[dict]) -> str:
+    steps = ("start-up", "import", "read", "extraction", "certified", "LM", "write", "exit")
+    head = ["poses", "edges", "file MB", "ours s", *(f"{s} s" for s in steps),
+            "peak MB (after read / default / write)", "SE-Sync s", "LM30 s",
+            "ours / (SE-Sync + LM30)", "peak MB (SE-Sync / LM30)", "chi2 (ours / SE-Sync + LM30)",
+            "certified (ours / SE-Sync)"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        seconds, peaks = r["phases"]["seconds"], r["phases"]["peaks_mb"]
+        ours = cell(r["ours_seconds"]) if r["ours_failure"] is None else \
+            f"fails: {r['ours_failure'][:60]}"
+        peak = f"{cell(r['ours_peak_mb'], '.0f')} (" + " / ".join(
+            cell(peaks.get(s), ".0f") for s in ("read", "default", "write")) + ")"
+        sesync = cell(r.get("sesync_seconds")) if not r.get("sesync_failure") else \
+            f"fails: {r['sesync_failure'][:60]}"
+        lines.append("| " + " | ".join([
+            str(r["poses"]), str(r["edges"]), cell(r["file_mb"], ".1f"), ours,
+            *(cell(seconds[s]) for s in steps), peak, sesync, cell(r.get("lm30_seconds")),
+            cell(r.get("ratio")),
+            f"{cell(r.get('sesync_peak_mb'), '.0f')} / {cell(r.get('lm30_peak_mb'), '.0f')}",
+            f"{cell(r['ours_chi2'], '.6g')} / {cell(r.get('lm30_chi2'), '.6g')}",
+            f"{cell(r['ours_certified'])} / {cell(r.get('sesync_certified'))}"]) + " |")
+    text = "\n".join(lines) + "\n"
+    if growth:
+        text += "\nGrowth: k in figure ~ edges^k between consecutive sizes (1: linear)\n\n"
+        text += "| sizes | " + " | ".join(GROWTH) + " |\n|" + "---|" * (len(GROWTH) + 1) + "\n"
+        for g in growth:
+            text += f"| {g['from']} -> {g['to']} | " + " | ".join(
+                cell(g[key]) for key in GROWTH) + " |\n"
+    if budgets:
+        text += "\n`rlpgo-init FILE -o OUT --budget B`, once each\n\n"
+        text += ("| graph | poses | edges | budget s | wall s | 1.2 x budget | within | "
+                 "certified | stopped | last line |\n|" + "---|" * 10 + "\n")
+        for b in budgets:
+            wall = cell(b["seconds"]) if b["failure"] is None else f"fails: {b['failure']}"
+            text += "| " + " | ".join([
+                b["graph"], str(b["poses"]), str(b["edges"]), f"{b['budget']:g}", wall,
+                f"{b['limit']:g}", cell(b["within"]), cell(b["certified"]),
+                b["stopped"] or "-", (b["last_line"] or "-").replace("|", "/")]) + " |\n"
+    return text
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", default="10000,30000,100000")
-    parser.add_argument("--model", default="preset1")
-    parser.add_argument("--stage", help=argparse.SUPPRESS)
-    parser.add_argument("--file", help=argparse.SUPPRESS)
+    add_common_options(parser, "scale")
+    parser.add_argument("--sizes", default="10000,100000,200000")
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--budget", type=float, default=30.0)
+    parser.add_argument("--hard-n", type=int, default=2000)
+    parser.add_argument("--no-budget", action="store_true")
     args = parser.parse_args()
-    if args.stage:
-        print(json.dumps(_stage(args.stage, args.file, args.model)))
-        return
-    from rlpgo_gtsam import generate, write_g2o
-
-    rows = []
-    with tempfile.TemporaryDirectory() as folder:
-        for size in (int(s) for s in args.sizes.split(",")):
-            path = Path(folder) / f"scale_{size}.g2o"
-            sample = generate(size, 0.05, 0.05, 3.0, 0.5, np.random.default_rng(size),
-                              noisy_measurements=True)
-            write_g2o(path, sample.graph, sample.initial)
-            row = {"poses": size}
-            for stage in STAGES:
-                out = subprocess.run(
-                    [sys.executable, __file__, "--stage", stage, "--file", str(path),
-                     "--model", args.model],
-                    capture_output=True, text=True, check=True, cwd=ROOT,
-                )
-                result = json.loads(out.stdout.strip().splitlines()[-1])
-                row["edges"] = result["edges"]
-                row[f"{stage}_seconds"] = result["seconds"]
-                row[f"{stage}_peak_mb"] = result["peak_mb"]
-            for stage in STAGES:
-                row[f"{stage}_over_lm10"] = row[f"{stage}_seconds"] / row["lm10_seconds"]
-            row["rl_cycle_us_per_edge"] = row["rl_cycle_seconds"] / row["edges"] * 1e6
-            rows.append(row)
-            print(json.dumps(row), flush=True)
-    header = f"{'poses':>8}{'edges':>8}" + "".join(f"{s + '/LM10':>14}" for s in STAGES) + \
-        f"{'RL us/edge':>12}" + "".join(f"{s + ' MB':>12}" for s in STAGES)
-    print(header)
-    for row in rows:
-        print(f"{row['poses']:>8}{row['edges']:>8}"
-              + "".join(f"{row[f'{s}_over_lm10']:>14.3f}" for s in STAGES)
-              + f"{row['rl_cycle_us_per_edge']:>12.1f}"
-              + "".join(f"{row[f'{s}_peak_mb']:>12.1f}" for s in STAGES))
-    per_edge = [r["rl_cycle_us_per_edge"] for r in rows]
-    summary = {"rl_us_per_edge_max_over_min": max(per_edge) / min(per_edge)}
-    print(f"RL pass, seconds per edge, largest / smallest: "
-          f"{summary['rl_us_per_edge_max_over_min']:.2f}")
-    sys.path.insert(0, str(ROOT))
-    from benchmarks.common import write_result
-
-    print(f"wrote {write_result('scale', {'rows': rows, **summary})}")
+    check_binaries(parser, args, ("sesync",))
+    print(f"SE-Sync driver: {args.sesync or 'none (left out)'}", flush=True)
+    sizes = [int(s) for s in args.sizes.split(",")]
+    rows, budgets = [], []
+    with tempfile.TemporaryDirectory(prefix="rlpgo_scale_") as name:
+        folder = Path(name)
+        for n in sizes:
+            path = processes.generated_graph(args.cache, n, **EASY)
+            rows.append(_size_row(n, path, folder, args))
+            print(json.dumps(rows[-1]), flush=True)
+        if not args.no_budget:
+            largest = processes.generated_graph(args.cache, max(sizes), **EASY)
+            hard = processes.generated_graph(args.cache, args.hard_n, **HARD)
+            for label, path in ((f"easy n={max(sizes)}", largest),
+                                (f"hard n={args.hard_n} sigma_R=3 lc=1", hard)):
+                budgets.append(_budget_row(label, path, folder, args))
+                print(json.dumps(budgets[-1]), flush=True)
+    growth = _growth(rows)
+    command = "python benchmarks/scale.py " + " ".join(sys.argv[1:])
+    text = (f"Made by `{command.strip()}`: wall seconds of whole processes; step seconds from "
+            "one instrumented run; chi2 = 2 x GTSAM error.\n\n" + _tables(rows, growth, budgets))
+    print(text)
+    (RESULTS / f"{args.name}.md").write_text(text)
+    result = {"command": command.strip(), "rows": rows, "growth": growth, "budget": budgets,
+              "peak_floor_mb": processes.launcher_floor_mb(), "sesync": str(args.sesync),
+              "sesync_threads": args.sesync_threads, "easy": EASY, "hard": HARD}
+    print(f"wrote {write_result(args.name, result)}")
 
 
 if __name__ == "__main__":

@@ -1,11 +1,11 @@
 """rlpgo_gtsam: better initial guesses for pose-graph optimization in GTSAM.
 
-The default is :func:`staged_initialize`: certify with the SE(2) synchronization
-relaxation, then refine. Every name loads its module on first use: reading graphs, the
-classical initializers, the default and the robust path load GTSAM, numpy and scipy only;
-the agent's names (``RLInitializer``, ``PoseGraphEnv``, ``EnvConfig``, ``PRESETS``) load
-torch or gymnasium from :mod:`rlpgo_gtsam.rl` where they need them. The environment id
-``rlpgo/PoseGraph-v0`` registers when :mod:`rlpgo_gtsam.rl.env` is imported
+The default is :func:`staged_initialize`: certify with the SE(d) synchronization relaxation
+(planar or 3D graphs), then refine. Every name loads its module on first use: reading
+graphs, the classical initializers, the default and the robust path load GTSAM, numpy and
+scipy only; the agent's names (``RLInitializer``, ``PoseGraphEnv``, ``EnvConfig``,
+``PRESETS``) load torch or gymnasium from :mod:`rlpgo_gtsam.rl` where they need them. The
+environment id ``rlpgo/PoseGraph-v0`` registers when :mod:`rlpgo_gtsam.rl.env` is imported
 (``gymnasium.make("rlpgo_gtsam.rl.env:rlpgo/PoseGraph-v0")`` does that itself).
 """
 
@@ -26,6 +26,7 @@ _WHERE = {
     "Status": "rlpgo_gtsam.certified",
     "G2oFormatError": "rlpgo_gtsam.errors",
     "GraphError": "rlpgo_gtsam.errors",
+    "InformationWarning": "rlpgo_gtsam.errors",
     "InputNotFoundError": "rlpgo_gtsam.errors",
     "ModelError": "rlpgo_gtsam.errors",
     "OutputError": "rlpgo_gtsam.errors",
@@ -36,10 +37,13 @@ _WHERE = {
     "write_g2o": "rlpgo_gtsam.g2o",
     "read_g2o3d": "rlpgo_gtsam.g2o3d",
     "write_g2o3d": "rlpgo_gtsam.g2o3d",
+    "read_pose_graph": "rlpgo_gtsam.g2o3d",
+    "write_pose_graph": "rlpgo_gtsam.g2o3d",
     "PoseGraph2D": "rlpgo_gtsam.graph",
     "chi2": "rlpgo_gtsam.graph",
     "rotation_weights": "rlpgo_gtsam.graph",
     "PoseGraph3D": "rlpgo_gtsam.graph3d",
+    "extract_pose_graph": "rlpgo_gtsam.graph3d",
     "CertifiedInitializer": "rlpgo_gtsam.initializers",
     "ChordalInitializer": "rlpgo_gtsam.initializers",
     "FastSyncInitializer": "rlpgo_gtsam.initializers",
@@ -100,6 +104,7 @@ __all__ = [
     "FastSyncInitializer",
     "G2oFormatError",
     "GraphError",
+    "InformationWarning",
     "InitResult",
     "InputNotFoundError",
     "Initializer",
@@ -124,6 +129,7 @@ __all__ = [
     "best_of",
     "chi2",
     "compare_methods",
+    "extract_pose_graph",
     "generate",
     "initializer_names",
     "make_initializer",
@@ -131,6 +137,7 @@ __all__ = [
     "read_g2o",
     "read_g2o_lines",
     "read_g2o3d",
+    "read_pose_graph",
     "refine",
     "register",
     "rotation_weights",
@@ -138,4 +145,5 @@ __all__ = [
     "trajectory_errors",
     "write_g2o",
     "write_g2o3d",
+    "write_pose_graph",
 ]

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -71,7 +72,9 @@ _INITIAL_RADIUS = 0.1
 def synchronize3d(pose_graph: PoseGraph3D, start_rotations: np.ndarray | None = None, *,
                   max_rank: int = 10, tolerance: float | None = None, initial_rank: int = 3,
                   max_iterations: int = 300, gradient_tolerance: float = 1e-7,
-                  time_limit_s: float | None = None) -> tuple[np.ndarray, Certificate]:
+                  time_limit_s: float | None = None,
+                  progress: Callable[[str], None] | None = None
+                  ) -> tuple[np.ndarray, Certificate]:
     """Rotations (n, 3, 3) of the rounded estimate (the anchor keeps its rotation) and the
     certificate.
 
@@ -86,6 +89,8 @@ def synchronize3d(pose_graph: PoseGraph3D, start_rotations: np.ndarray | None = 
             times ``sqrt(n) x mean(diag D)``.
         time_limit_s: checked between iterations and ranks; once passed, the current
             estimate is rounded and returned with status ``time_limit``.
+        progress: called with one short line per rank and, inside a long trust region, at
+            most one every 2 s (as the planar relaxation's); None: silent.
 
     Raises:
         SolverError: bad ranks, tolerance or start, or a graph whose translations the
@@ -102,7 +107,7 @@ def synchronize3d(pose_graph: PoseGraph3D, start_rotations: np.ndarray | None = 
     x[:, :3] = np.transpose(rotations, (0, 2, 1)).reshape(-1, 3)
     grad_tol = gradient_tolerance * math.sqrt(problem.n) * problem.scale
     x, check, stop = climb(problem, _STIEFEL, x, eta, max_rank, max_iterations, grad_tol,
-                           deadline)
+                           deadline, progress, started)
     rotations = _round(x)
     anchor = pose_graph.anchor
     rotations = pose_graph.anchor_rotation @ rotations[anchor].T @ rotations

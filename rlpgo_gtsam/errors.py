@@ -1,7 +1,9 @@
-"""The errors rlpgo_gtsam raises for problems a user can act on.
+"""The errors rlpgo_gtsam raises for problems a user can act on, and its one warning.
 
 Every error carries a message that reads well on one line; the command-line tools print
-``Error: <message>`` and exit non-zero, with no traceback.
+``Error: <message>`` and exit non-zero, with no traceback. :class:`InformationWarning` says
+that a reader used an input's information matrices in a documented, changed form; the
+commands print it as a ``note:`` line.
 """
 
 from __future__ import annotations
@@ -50,6 +52,12 @@ class SolverError(RlpgoError):
 
 class ModelError(RlpgoError):
     """A model file that cannot be loaded (missing, tampered, wrong format version)."""
+
+
+class InformationWarning(UserWarning):
+    """A file's information matrices were read in a changed form, by a documented rule (the
+    3D reader's: :func:`rlpgo_gtsam.graph3d.information_rule_3d`); the message names the file,
+    how many edges and the first one's line."""
 
 
 def one_line(error: BaseException) -> str:

@@ -64,7 +64,8 @@ _VERTEX_NUMBERS = 4
 # A line of an edge list (:func:`edge_list_text`): L is the edge's line in its g2o file.
 EDGE_LIST_LINE = "line <L> EDGE_SE2 <id_i> <id_j>"
 _FIX_PER_LINE = 1000  # 21-byte ids: at most 22 KB a line, well inside MAX_LINE_BYTES
-_3D_TAGS = ("VERTEX_SE3", "EDGE_SE3", "VERTEX3", "EDGE3", "VERTEX_TRACKXYZ", "EDGE_SE3_")
+# A line whose tag starts so is a 3D one.
+TAGS_3D = ("VERTEX_SE3", "EDGE_SE3", "VERTEX3", "EDGE3", "VERTEX_TRACKXYZ", "EDGE_SE3_")
 # The fast reader's chunk (2 MiB: about 10 000 edge lines) and the longest line it takes;
 # a longer one, or anything near MAX_LINE_BYTES, is the careful reader's to judge.
 _CHUNK_BYTES = 1 << 21
@@ -448,10 +449,13 @@ def _parse(path: Path, handle: BinaryIO) -> _Table:
             _parse_edge(path, number, fields, parsed)
         elif tag == "FIX":
             parsed.fixed.extend(parse_fix(path, number, fields))
-        elif tag.upper().startswith(_3D_TAGS):
+        elif tag.upper().startswith(TAGS_3D):
+            if parsed.vertices or parsed.edges:
+                raise G2oFormatError(path, number, f"{short_token(tag)}: a 3D line in a planar "
+                                     "file (a file holds 2D or 3D lines, not both)")
             raise G2oFormatError(path, number, f"{short_token(tag)}: 3D graphs are not "
                                  "supported by the planar reader (read them with "
-                                 "rlpgo_gtsam.read_g2o3d)")
+                                 "rlpgo_gtsam.read_g2o3d or read_pose_graph)")
         else:
             raise G2oFormatError(
                 path, number, f"unknown tag '{short_token(tag)}' (this reader takes VERTEX_SE2, "
@@ -894,28 +898,30 @@ def _text_careful(
 
 def edge_list_text(
     graph: gtsam.NonlinearFactorGraph, indices: list[int], lines: list[int | None], *,
-    title: str, g2o_name: str,
+    title: str, g2o_name: str, tag: str = "EDGE_SE2",
 ) -> str:
-    """A list of some edges of a g2o file, one a line: ``line <L> EDGE_SE2 <id_i> <id_j>``.
+    """A list of some edges of a g2o file, one a line: ``line <L> EDGE_SE2 <id_i> <id_j>``
+    (``tag="EDGE_SE3:QUAT"``: the ``BetweenFactorPose3`` edges of a 3D file).
 
     ``L`` is the edge's line in the g2o file ``g2o_name`` (``lines[k]`` for factor ``k``, as
-    :func:`read_g2o_lines` or :func:`g2o_text_lines` give them), ``id_i`` and ``id_j`` its
-    vertex ids, in the order of ``indices``. One comment line opens the list: ``# <title>:``
-    and the format. Lines that start with ``#`` are comments; every other line has those five
-    fields.
+    :func:`read_g2o_lines`, :func:`g2o_text_lines` or
+    :func:`rlpgo_gtsam.g2o3d.g2o3d_text_lines` give them), ``id_i`` and ``id_j`` its vertex
+    ids, in the order of ``indices``. One comment line opens the list: ``# <title>:`` and the
+    format. Lines that start with ``#`` are comments; every other line has those five fields.
 
     Raises:
         OutputError: an index that is not an edge with a line.
     """
-    header = f"{title}: {EDGE_LIST_LINE}, L the edge's line in {g2o_name}"
+    edge = gtsam.BetweenFactorPose3 if tag == "EDGE_SE3:QUAT" else gtsam.BetweenFactorPose2
+    header = f"{title}: {EDGE_LIST_LINE.replace('EDGE_SE2', tag)}, L the edge's line in {g2o_name}"
     rows = ["# " + " ".join(header.splitlines())]  # one line, whatever the name holds
     for index in indices:
         factor = graph.at(index) if 0 <= index < graph.size() else None
         line = lines[index] if 0 <= index < len(lines) else None
-        if not isinstance(factor, gtsam.BetweenFactorPose2) or line is None:
+        if not isinstance(factor, edge) or line is None:
             raise OutputError(f"factor {index} is not an edge of the g2o file")
         i, j = factor.keys()
-        rows.append(f"line {line} EDGE_SE2 {i} {j}")
+        rows.append(f"line {line} {tag} {i} {j}")
     return "\n".join(rows) + "\n"
 
 

@@ -15,13 +15,19 @@ GTSAM's tangent order (rotation first), as ``gtsam.readG2o(path, True)`` does. Q
 are normalized; a zero or non-finite one is an error. A line of a planar file (``VERTEX_SE2``,
 ``EDGE_SE2``) is an error naming that line. A file without vertices gets its initial guess
 chained from the edges (i -> i+1 first, then through any edge). A ``FIX``-ed vertex becomes
-a :class:`gtsam.PriorFactorPose3` with a constrained noise model.
+a :class:`gtsam.PriorFactorPose3` with a constrained noise model. Information matrices follow
+the 3D rule (:func:`~rlpgo_gtsam.graph3d.information_rule_3d`); one it reads in a changed
+form is told in an :class:`~rlpgo_gtsam.errors.InformationWarning` per file and kind.
+
+:func:`read_pose_graph` reads a g2o file of either dimension, told by its first pose line
+(:func:`g2o_dimension`); :func:`write_pose_graph` writes a graph of either dimension.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,28 +35,41 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from rlpgo_gtsam.errors import G2oFormatError, OutputError
+from rlpgo_gtsam.errors import G2oFormatError, InformationWarning, OutputError
 from rlpgo_gtsam.files import write_text
 from rlpgo_gtsam.g2o import (
+    TAGS_3D,
     fix_lines,
     format_15,
+    g2o_text,
     numbered_lines,
     parse_fix,
     parse_id,
     parse_numbers,
+    read_g2o,
     short_token,
+    write_g2o,
 )
 from rlpgo_gtsam.graph import disconnection
-from rlpgo_gtsam.graph3d import information_problem_6
+from rlpgo_gtsam.graph3d import (
+    LIFTED,
+    MAX_CONDITION_3D,
+    ROUNDING_3D,
+    UNCOUPLED,
+    graph_dimension,
+    information_problem_6,
+    information_rule_3d,
+)
 from rlpgo_gtsam.se3 import compose, inverse, quaternions_to_rotations, rotations_to_quaternions
 
-__all__ = ["read_g2o3d", "write_g2o3d", "g2o3d_text", "G2O_TO_GTSAM"]
+__all__ = ["read_g2o3d", "write_g2o3d", "g2o3d_text", "g2o3d_text_lines", "G2O_TO_GTSAM",
+           "TAGS_2D", "g2o_dimension", "read_pose_graph", "write_pose_graph", "pose_graph_text"]
 
 VERTEX = "VERTEX_SE3:QUAT"
 EDGE = "EDGE_SE3:QUAT"
 _VERTEX_FIELDS = 8
 _EDGE_FIELDS = 30
-_2D_TAGS = ("VERTEX_SE2", "EDGE_SE2", "VERTEX2", "EDGE2")
+TAGS_2D = ("VERTEX_SE2", "EDGE_SE2", "VERTEX2", "EDGE2")  # a line's tag starting so is planar
 # g2o's tangent order (x y z, then rotation) -> GTSAM's (rotation, then x y z): the
 # information in GTSAM's order is info_g2o[G2O_TO_GTSAM][:, G2O_TO_GTSAM]
 G2O_TO_GTSAM = np.array([3, 4, 5, 0, 1, 2])
@@ -66,13 +85,17 @@ class _Parsed:
     edges: list[tuple[int, int, int, np.ndarray, np.ndarray, np.ndarray]] = field(
         default_factory=list)
     fixed: list[tuple[int, int]] = field(default_factory=list)  # (id, line)
+    # what the information rule changed: LIFTED / UNCOUPLED -> the lines of those edges
+    changed: dict[str, list[int]] = field(default_factory=dict)
 
 
 def read_g2o3d(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """Read a 3D g2o file into a GTSAM factor graph and initial values.
 
     Each ``EDGE_SE3:QUAT`` becomes a :class:`gtsam.BetweenFactorPose3` whose Gaussian noise
-    model holds the edge's full 6x6 information; then one constrained
+    model holds the edge's full 6x6 information (read by
+    :func:`~rlpgo_gtsam.graph3d.information_rule_3d`: a matrix it changes is told in an
+    :class:`~rlpgo_gtsam.errors.InformationWarning`); then one constrained
     :class:`gtsam.PriorFactorPose3` per ``FIX``-ed id. Keys are the file's ids.
 
     Raises:
@@ -81,6 +104,7 @@ def read_g2o3d(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph
     """
     path = Path(path)
     parsed = _parse(path)
+    _warn_changes(path, parsed.changed)
     if parsed.vertices:
         for line, i, j, *_ in parsed.edges:
             for key in (i, j):
@@ -146,13 +170,16 @@ def _parse(path: Path) -> _Parsed:
             upper[_UPPER] = numbers[7:]
             information = upper + np.triu(upper, 1).T
             information = information[G2O_TO_GTSAM][:, G2O_TO_GTSAM]
-            problem = information_problem_6(information)
-            if problem is not None:
-                raise G2oFormatError(path, number, f"{EDGE} {problem}")
+            used, problems, changes = information_rule_3d(information)
+            if problems[0] is not None:
+                raise G2oFormatError(path, number, f"{EDGE} {problems[0]}")
+            information = used[0]
+            for change in changes[0]:
+                parsed.changed.setdefault(change, []).append(number)
             parsed.edges.append((number, i, j, rotation, np.array(numbers[:3]), information))
         elif tag == "FIX":
             parsed.fixed.extend(parse_fix(path, number, fields))
-        elif tag.upper().startswith(_2D_TAGS):
+        elif tag.upper().startswith(TAGS_2D):
             raise G2oFormatError(path, number, f"{short_token(tag)}: a planar line in a 3D file "
                                  "(a file holds 2D or 3D lines, not both)")
         else:
@@ -161,6 +188,24 @@ def _parse(path: Path) -> _Parsed:
     if not parsed.edges:
         raise G2oFormatError(path, None, f"holds no {EDGE} line: a pose graph needs edges")
     return parsed
+
+
+# What each change of the information rule is, told once per file.
+_CHANGES = {
+    UNCOUPLED: "indefinite through their rotation-translation coupling alone: read as SE-Sync "
+               "reads every edge, the rotation and translation blocks without the coupling",
+    LIFTED: f"positive definite only to rounding (a condition number above "
+            f"{MAX_CONDITION_3D:g}, or eigenvalues down to -{ROUNDING_3D:g} x the largest): "
+            "their smallest eigenvalues raised to 1e-11 x the largest",
+}
+
+
+def _warn_changes(path: Path, changed: dict[str, list[int]]) -> None:
+    for change, lines in changed.items():
+        many = len(lines) > 1
+        warnings.warn(InformationWarning(
+            f"{path}: {len(lines)} {EDGE} information matri{'ces' if many else 'x'} (first on "
+            f"line {lines[0]}) {'are' if many else 'is'} {_CHANGES[change]}"), stacklevel=3)
 
 
 def _check_count(path: Path, line: int, tag: str, fields: list[str], count: int) -> None:
@@ -218,6 +263,20 @@ def g2o3d_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
     Raises:
         OutputError: a factor, value or information that a 3D g2o file cannot hold.
     """
+    return g2o3d_text_lines(graph, values)[0]
+
+
+def g2o3d_text_lines(graph: gtsam.NonlinearFactorGraph,
+                     values: gtsam.Values) -> tuple[str, list[int | None]]:
+    """:func:`g2o3d_text`, and the line (1-based) of that text which holds each factor:
+    its ``EDGE_SE3:QUAT`` line, or the ``FIX`` line of a prior, or None for an empty slot
+    (as :func:`rlpgo_gtsam.g2o.g2o_text_lines` for planar files).
+
+    Raises:
+        OutputError: a factor, value or information that a 3D g2o file cannot hold.
+    """
+    factor_lines: list[int | None] = [None] * graph.size()
+    priors: list[int] = []
     lines = [f"{VERTEX} {key} " + _pose_text(_pose3(values, key), f"vertex {key}")
              for key in sorted(values.keys())]
     fixed = []
@@ -244,15 +303,20 @@ def g2o3d_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
             upper = information[back][:, back][_UPPER]
             lines.append(f"{EDGE} {i} {j} " + _pose_text(factor.measured(), f"edge {i}-{j}")
                          + " " + " ".join(format_15(v) for v in upper))
+            factor_lines[index] = len(lines)
         elif isinstance(factor, gtsam.PriorFactorPose3):
             if not isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
                 raise OutputError(f"prior on key {factor.keys()[0]}: a soft prior has no g2o "
                                   "line (FIX holds a pose exactly)")
             fixed.append(factor.keys()[0])
+            priors.append(index)
         else:
             raise OutputError(f"cannot write a {type(factor).__name__} as a 3D g2o line")
-    lines.extend(fix for fix, _ in fix_lines(fixed))
-    return "\n".join(lines) + "\n"
+    for fix, part in fix_lines(fixed):
+        lines.append(fix)
+        for index in priors[part]:
+            factor_lines[index] = len(lines)
+    return "\n".join(lines) + "\n", factor_lines
 
 
 def _pose3(values: gtsam.Values, key: int) -> gtsam.Pose3:
@@ -283,3 +347,59 @@ def write_g2o3d(path: str | os.PathLike[str], graph: gtsam.NonlinearFactorGraph,
             cannot (see :func:`g2o3d_text`).
     """
     write_text(path, g2o3d_text(graph, values))
+
+
+# --------------------------------------------------------------------------- either dimension
+
+
+def g2o_dimension(path: str | os.PathLike[str]) -> int:
+    """3 if the first pose line of the g2o file at ``path`` is a 3D one (``VERTEX_SE3:QUAT``,
+    ``EDGE_SE3:QUAT``, any tag of :data:`~rlpgo_gtsam.g2o.TAGS_3D`), else 2.
+
+    It reads up to that line only: a later line of the other dimension is the reader's
+    ``file:line`` error (a file holds 2D or 3D lines, not both). A file without a pose line
+    is 2: the planar reader names what it holds.
+
+    Raises:
+        G2oFormatError: the file is missing or unreadable, or a line before the first pose
+            line is (too long, binary, not UTF-8).
+    """
+    for _, tag, _ in _records(Path(path)):
+        upper = tag.upper()
+        if upper.startswith(TAGS_3D):
+            return 3
+        if upper.startswith(TAGS_2D) or tag != "FIX":
+            return 2  # an unknown tag: the planar reader names it
+    return 2
+
+
+def read_pose_graph(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph,
+                                                          gtsam.Values]:
+    """Read a g2o file of either dimension (:func:`g2o_dimension`): a ``BetweenFactorPose2``
+    graph by :func:`~rlpgo_gtsam.g2o.read_g2o` or a ``BetweenFactorPose3`` one by
+    :func:`read_g2o3d`, with their ``file:line`` errors.
+
+    Raises:
+        G2oFormatError: as the reader of the file's dimension.
+    """
+    return read_g2o3d(path) if g2o_dimension(path) == 3 else read_g2o(path)
+
+
+def pose_graph_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
+    """The g2o text of a planar or a 3D graph (:func:`~rlpgo_gtsam.graph3d.graph_dimension`):
+    :func:`~rlpgo_gtsam.g2o.g2o_text` or :func:`g2o3d_text`."""
+    return g2o3d_text(graph, values) if graph_dimension(graph) == 3 else g2o_text(graph, values)
+
+
+def write_pose_graph(path: str | os.PathLike[str], graph: gtsam.NonlinearFactorGraph,
+                     values: gtsam.Values) -> None:
+    """Write a planar or a 3D graph as g2o, atomically (:func:`~rlpgo_gtsam.g2o.write_g2o` or
+    :func:`write_g2o3d`).
+
+    Raises:
+        OutputError: as the writer of the graph's dimension.
+    """
+    if graph_dimension(graph) == 3:
+        write_g2o3d(path, graph, values)
+    else:
+        write_g2o(path, graph, values)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import gtsam
 import numpy as np
@@ -88,8 +88,10 @@ class PoseGraph2D(PoseArrays):
         anchor_pose: (3,) where the initializers put the anchor: its prior's value if it has
             one, else its pose in ``values``.
         graph: the GTSAM graph the arrays came from (costs are evaluated on it).
+        dimension: 2 (the class's; :class:`~rlpgo_gtsam.graph3d.PoseGraph3D`'s is 3).
     """
 
+    dimension: ClassVar[int] = 2
     keys: np.ndarray
     poses: np.ndarray
     edges: np.ndarray
@@ -210,20 +212,23 @@ INFORMATION_RANGE = (1e-20, 1e20)
 MAX_CONDITION = 1e9
 
 
-def information_problem(information: np.ndarray, size: int = 3) -> str | None:
+def information_problem(information: np.ndarray, size: int = 3,
+                        max_condition: float = MAX_CONDITION) -> str | None:
     """Why an edge's ``size`` x ``size`` information matrix (3 in 2D, 6 in 3D) cannot be
     used, or None if it can.
 
     It must be symmetric positive definite with eigenvalues in :data:`INFORMATION_RANGE`
-    and a condition number at most :data:`MAX_CONDITION`.
+    and a condition number at most ``max_condition`` (the planar rule's
+    :data:`MAX_CONDITION`; 3D graphs have their own, :mod:`rlpgo_gtsam.graph3d`).
     """
     matrix = np.asarray(information, dtype=float)
     if matrix.shape != (size, size):
         return f"information matrix is not a finite {size}x{size} matrix"
-    return information_problems(matrix[None])[0]
+    return information_problems(matrix[None], max_condition)[0]
 
 
-def information_problems(matrices: np.ndarray) -> list[str | None]:
+def information_problems(matrices: np.ndarray,
+                         max_condition: float = MAX_CONDITION) -> list[str | None]:
     """:func:`information_problem` for a stack of (k, s, s) matrices at once (one batched
     eigenvalue computation: extraction checks every edge)."""
     matrices = np.asarray(matrices, dtype=float)
@@ -239,7 +244,7 @@ def information_problems(matrices: np.ndarray) -> list[str | None]:
         eigenvalues[usable] = np.linalg.eigvalsh(matrices[usable])
         low, high = INFORMATION_RANGE
         bad = ~usable | ~(eigenvalues[:, 0] > 0) | (eigenvalues[:, 0] < low) | \
-            (eigenvalues[:, -1] > high) | (eigenvalues[:, -1] > MAX_CONDITION * eigenvalues[:, 0])
+            (eigenvalues[:, -1] > high) | (eigenvalues[:, -1] > max_condition * eigenvalues[:, 0])
     for k in np.flatnonzero(bad).tolist():
         smallest, largest = eigenvalues[k, 0], eigenvalues[k, -1]
         if not finite[k]:
@@ -253,7 +258,7 @@ def information_problems(matrices: np.ndarray) -> list[str | None]:
                            f"{largest:.3g}, outside the usable {low:g} .. {high:g}")
         else:
             problems[k] = (f"information matrix is too ill-conditioned (condition number "
-                           f"{largest / smallest:.3g} > {MAX_CONDITION:g}): an axis is all "
+                           f"{largest / smallest:.3g} > {max_condition:g}): an axis is all "
                            "but unmeasured")
     return problems
 
@@ -285,7 +290,8 @@ class Factors:
 
 def sort_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int], between: type,
                  prior: type, pose: Callable[[Any], Any], size: int, kind: str,
-                 check_information: bool = True) -> Factors:
+                 check_information: bool = True,
+                 max_condition: float = MAX_CONDITION) -> Factors:
     """The factors of ``graph`` as edges, hard and soft priors, in graph order (the one walk
     of both pose graphs' extraction).
 
@@ -304,7 +310,8 @@ def sort_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int], betwe
     def refuse(message: str) -> GraphError:
         # the edges' information is checked in one batch; an edge before this factor whose
         # information is refused is still the error reported, as in a factor-by-factor walk
-        _check_information(factors.information, names, size, check_information)
+        _check_information(factors.information, names, size, check_information,
+                           max_condition)
         return GraphError(message)
 
     for position in range(graph.size()):
@@ -330,29 +337,31 @@ def sort_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int], betwe
             if isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
                 factors.hard.append(entry)
             else:
-                _check_information(factors.information, names, size, check_information)
-                factor_information(factor, f"prior factor on key {key}", size)
+                _check_information(factors.information, names, size, check_information,
+                                   max_condition)
+                factor_information(factor, f"prior factor on key {key}", size,
+                                   max_condition=max_condition)
                 factors.soft.append(entry)
         else:
             raise refuse(
                 f"unsupported factor {type(factor).__name__}: a {kind} pose graph holds "
                 f"{between.__name__} and {prior.__name__} factors only"
             )
-    _check_information(factors.information, names, size, check_information)
+    _check_information(factors.information, names, size, check_information, max_condition)
     if not factors.edges:
         raise GraphError(f"the graph has no {between.__name__} factors")
     return factors
 
 
 def _check_information(informations: list[np.ndarray], names: list[str], size: int,
-                       check: bool) -> None:
+                       check: bool, max_condition: float = MAX_CONDITION) -> None:
     """Raise the error of the first of the edges' information matrices that
     :func:`factor_information` would refuse (all checked at once)."""
     if not informations:
         return
     stack = np.array(informations).reshape(-1, size, size)
     if check:
-        problems = information_problems(stack)
+        problems = information_problems(stack, max_condition)
         first = next((k for k, problem in enumerate(problems) if problem is not None), None)
         if first is not None:
             raise GraphError(f"{names[first]}: {problems[first]}")
@@ -388,17 +397,18 @@ def _gaussian_information(factor, name: str, refuse: Callable[[str], Exception] 
     return model.information()
 
 
-def factor_information(factor, name: str, size: int = 3, check: bool = True) -> np.ndarray:
+def factor_information(factor, name: str, size: int = 3, check: bool = True,
+                       max_condition: float = MAX_CONDITION) -> np.ndarray:
     """The information of ``factor``'s Gaussian, not constrained, noise model (``name`` in
-    the errors): usable by :func:`information_problem` at ``size``, or with
-    ``check=False`` only finite and positive semidefinite.
+    the errors): usable by :func:`information_problem` at ``size`` and ``max_condition``,
+    or with ``check=False`` only finite and positive semidefinite.
 
     Raises:
         GraphError: a model that is not Gaussian (robust models), a constrained one, or
             information the rule refuses.
     """
     information = _gaussian_information(factor, name)
-    _check_information([information], [name], size, check)
+    _check_information([information], [name], size, check, max_condition)
     return information
 
 

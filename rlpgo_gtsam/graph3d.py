@@ -8,27 +8,67 @@ The Pose3 sibling of :mod:`rlpgo_gtsam.graph`, with the same meaning kept:
 - a ``PriorFactorPose3`` with a Gaussian noise model is a soft prior: it sets the gauge only
   (GTSAM's cost, :func:`~rlpgo_gtsam.graph.chi2`, still evaluates it);
 - anything else is a :class:`~rlpgo_gtsam.errors.GraphError` that names it.
+
+Its information rule is the planar one with a higher condition bound,
+:data:`MAX_CONDITION_3D`; the 3D reader applies :func:`information_rule_3d`, which also
+reads matrices that are positive definite only to rounding, and SE-Sync's files whose
+rotation-translation coupling alone makes them indefinite (docs/pose3.md).
+:func:`extract_pose_graph` extracts a planar or a 3D graph, by what it holds.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
-from rlpgo_gtsam.graph import PoseArrays, information_problem, sort_factors
+from rlpgo_gtsam.graph import (
+    INFORMATION_RANGE,
+    PoseArrays,
+    PoseGraph2D,
+    information_problem,
+    information_problems,
+    sort_factors,
+)
 from rlpgo_gtsam.se3 import between, logmap
 
 __all__ = [
     "PoseGraph3D",
+    "AnyPoseGraph",
+    "extract_pose_graph",
+    "graph_dimension",
     "edge_chi2",
     "edge_errors",
     "rotation_weights",
     "translation_weights",
     "information_problem_6",
+    "information_rule_3d",
+    "MAX_CONDITION_3D",
+    "ROUNDING_3D",
+    "LIFTED",
+    "UNCOUPLED",
 ]
+
+# The 3D information rule (docs/pose3.md has the measurements behind it).
+# A condition number up to 1e12 is used as given: the planar 1e9 would refuse SE-Sync's
+# parking-garage (3 edges above it, the worst 2.67e9: a rotation axis all but unmeasured).
+# On smallGrid3D with every edge's information given one weak axis (a rotation or a
+# translation) of condition 1e9 .. 1e16, GTSAM LM30 reached the same chi2 at each; 1e12 keeps
+# 4 of double's 16 digits for the Cholesky factor GTSAM whitens with.
+MAX_CONDITION_3D = 1e12
+# Eigenvalues down to -1e-5 x the largest are rounding: printing a matrix's entries with 6
+# significant digits (g2o's and SE-Sync's %g) moves its eigenvalues by up to 3e-5 x the
+# largest (6 x 5e-6), so an unmeasured axis may print slightly negative.
+ROUNDING_3D = 1e-5
+# Eigenvalues below the largest / 1e11 are raised to it when a matrix is lifted.
+_LIFT_CONDITION = MAX_CONDITION_3D / 10.0
+# What the rule changed in a matrix: its smallest eigenvalues raised, or its
+# rotation-translation coupling dropped.
+LIFTED = "lifted"
+UNCOUPLED = "uncoupled"
 
 
 @dataclass(frozen=True)
@@ -51,8 +91,10 @@ class PoseGraph3D(PoseArrays):
         anchor_rotation, anchor_translation: where the initializers put the anchor: its
             prior's value if it has one, else its pose in ``values``.
         graph: the GTSAM graph the arrays came from (costs are evaluated on it).
+        dimension: 3 (the class's).
     """
 
+    dimension: ClassVar[int] = 3
     keys: np.ndarray
     rotations: np.ndarray
     translations: np.ndarray
@@ -82,10 +124,13 @@ class PoseGraph3D(PoseArrays):
                    check_information: bool = True) -> PoseGraph3D:
         """Extract the arrays; the graph must be connected and made of Pose3 factors only.
 
-        ``check_information=False`` accepts any information a Gaussian model holds (finite,
-        positive semidefinite), unusable by :func:`information_problem_6`'s rule or not:
-        ``gtsam.readG2o`` turns cubicle's 5020 indefinite informations into matrices with a
-        condition number near 1e16, and SE-Sync's published figures are on that graph.
+        Each edge's information must pass :func:`information_problem_6` (what
+        :func:`~rlpgo_gtsam.g2o3d.read_g2o3d` makes always does). ``check_information=False``
+        accepts any information a Gaussian model holds (finite, positive semidefinite):
+        ``gtsam.readG2o`` turns cubicle's 5021 indefinite informations into matrices with a
+        condition number near 1e16 (Eigen's Cholesky stops at the first negative pivot and
+        GTSAM keeps the partial factor), and the benchmark compares with SE-Sync on that
+        graph.
 
         Raises:
             GraphError: a factor other than BetweenFactorPose3 / PriorFactorPose3, a noise
@@ -100,7 +145,8 @@ class PoseGraph3D(PoseArrays):
             raise GraphError(f"values hold something other than Pose3: "
                              f"{' '.join(str(error).split())}") from None
         factors = sort_factors(graph, index, gtsam.BetweenFactorPose3, gtsam.PriorFactorPose3,
-                               lambda pose: pose, 6, "3D", check_information)
+                               lambda pose: pose, 6, "3D", check_information,
+                               MAX_CONDITION_3D)
         hard = factors.hard
         anchor, anchor_prior = factors.anchor
         fixed_r, fixed_t = _pose_arrays([pose for _, pose in hard])
@@ -166,9 +212,93 @@ def translation_weights(pose_graph: PoseGraph3D) -> np.ndarray:
 
 
 def information_problem_6(information: np.ndarray) -> str | None:
-    """Why a 6x6 information matrix cannot be used, or None if it can: the planar rule
-    (:func:`rlpgo_gtsam.graph.information_problem`) at size 6."""
-    return information_problem(information, 6)
+    """Why a 6x6 information matrix cannot be used as it is, or None if it can: the planar
+    rule (:func:`rlpgo_gtsam.graph.information_problem`) at size 6, with a condition number
+    up to :data:`MAX_CONDITION_3D`."""
+    return information_problem(information, 6, MAX_CONDITION_3D)
+
+
+def information_rule_3d(matrices: np.ndarray) -> tuple[np.ndarray, list[str | None],
+                                                          list[tuple[str, ...]]]:
+    """The 3D reader's information rule on a stack of (k, 6, 6) matrices: the matrices to
+    use, why each cannot be used (None: it can), and what was changed in each (``()``,
+    or :data:`UNCOUPLED` and/or :data:`LIFTED`).
+
+    1. A matrix :func:`information_problem_6` accepts is used as it is.
+    2. Indefinite, with its rotation block and its translation block each positive
+       definite (to :data:`ROUNDING_3D`): its rotation-translation coupling is dropped
+       (:data:`UNCOUPLED`). SE-Sync reads every edge this way (its weights come from
+       these two blocks alone); cubicle's 5021 indefinite matrices are of this kind.
+    3. Finite and symmetric, largest eigenvalue in range, smallest at least
+       ``-ROUNDING_3D`` x the largest, but with a condition number above
+       :data:`MAX_CONDITION_3D` or a slightly negative eigenvalue: positive definite to
+       rounding. Eigenvalues below the largest / 1e11 are raised to it (:data:`LIFTED`),
+       a change of at most 1e-5 of the matrix's norm.
+    4. Anything else (not finite, not symmetric, indefinite beyond rounding in a block,
+       eigenvalues out of :data:`~rlpgo_gtsam.graph.INFORMATION_RANGE`) is refused.
+    """
+    matrices = np.array(matrices, dtype=float).reshape(-1, 6, 6)
+    problems = information_problems(matrices, MAX_CONDITION_3D)
+    changes: list[tuple[str, ...]] = [()] * len(matrices)
+    for k in [k for k, problem in enumerate(problems) if problem is not None]:
+        matrix, changed = matrices[k].copy(), []
+        if not (np.all(np.isfinite(matrix)) and np.allclose(matrix, matrix.T, rtol=1e-9,
+                                                             atol=0.0)):
+            continue
+        if not _semidefinite_to_rounding(matrix) and all(
+                _semidefinite_to_rounding(matrix[b, b]) for b in (_ROTATION, _TRANSLATION)):
+            matrix[_ROTATION, _TRANSLATION] = 0.0
+            matrix[_TRANSLATION, _ROTATION] = 0.0
+            changed.append(UNCOUPLED)
+        if _semidefinite_to_rounding(matrix) and information_problem_6(matrix) is not None:
+            eigenvalues, vectors = np.linalg.eigh(0.5 * (matrix + matrix.T))
+            floor = eigenvalues[-1] / _LIFT_CONDITION
+            matrix = (vectors * np.maximum(eigenvalues, floor)) @ vectors.T
+            matrix = 0.5 * (matrix + matrix.T)
+            changed.append(LIFTED)
+        if changed and information_problem_6(matrix) is None:
+            matrices[k], problems[k], changes[k] = matrix, None, tuple(changed)
+        elif problems[k] == "information matrix is not positive definite":
+            eigenvalues = np.linalg.eigvalsh(0.5 * (matrices[k] + matrices[k].T))
+            problems[k] += f" (eigenvalues {eigenvalues[0]:.3g} .. {eigenvalues[-1]:.3g})"
+    return matrices, problems, changes
+
+
+_ROTATION, _TRANSLATION = slice(0, 3), slice(3, 6)  # GTSAM's tangent order
+
+
+def _semidefinite_to_rounding(matrix: np.ndarray) -> bool:
+    """Whether a symmetric matrix's eigenvalues lie in ``-ROUNDING_3D x largest ..
+    INFORMATION_RANGE[1]``, with the largest at least ``INFORMATION_RANGE[0]``."""
+    eigenvalues = np.linalg.eigvalsh(0.5 * (matrix + matrix.T))
+    low, high = INFORMATION_RANGE
+    return bool(low <= eigenvalues[-1] <= high and
+                eigenvalues[0] >= -ROUNDING_3D * eigenvalues[-1])
+
+
+AnyPoseGraph = PoseGraph2D | PoseGraph3D
+
+
+def graph_dimension(graph: gtsam.NonlinearFactorGraph) -> int:
+    """3 if the first pose factor of ``graph`` is a Pose3 one (between or prior), else 2
+    (a graph of neither kind: the planar extraction names what it holds)."""
+    for position in range(graph.size()):
+        factor = graph.at(position)
+        if isinstance(factor, gtsam.BetweenFactorPose3 | gtsam.PriorFactorPose3):
+            return 3
+        if isinstance(factor, gtsam.BetweenFactorPose2 | gtsam.PriorFactorPose2):
+            return 2
+    return 2
+
+
+def extract_pose_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
+                       ) -> PoseGraph2D | PoseGraph3D:
+    """The one extraction of a planar or a 3D pose graph, by what it holds
+    (:func:`graph_dimension`): :class:`~rlpgo_gtsam.graph.PoseGraph2D` or
+    :class:`PoseGraph3D`. A graph mixing both is the chosen one's ``GraphError``."""
+    if graph_dimension(graph) == 3:
+        return PoseGraph3D.from_gtsam(graph, values)
+    return PoseGraph2D.from_gtsam(graph, values)
 
 
 def _pose_arrays(poses: list[gtsam.Pose3]) -> tuple[np.ndarray, np.ndarray]:

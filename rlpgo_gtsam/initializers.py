@@ -56,6 +56,7 @@ __all__ = [
     "initializer_names",
     "start_names",
     "check_method",
+    "build_initializer",
 ]
 
 
@@ -421,7 +422,18 @@ def make_initializer(name: str, **options: Any) -> Initializer:
     base, _, start = name.partition("@")
     if start:
         options["start"] = start
-    factory = _factory(base)
+    return build_initializer(_factory(base), name, options)
+
+
+def build_initializer(factory: Callable[..., Initializer], name: str,
+                      options: dict[str, Any]) -> Initializer:
+    """``factory(**options)`` named ``name``; options it does not take are an error that
+    names them (every registry's factories are made here).
+
+    Raises:
+        RlpgoError: options the factory does not take.
+    """
+    base = name.partition("@")[0]
     accepted = inspect.signature(factory).parameters
     unknown = sorted(set(options) - set(accepted))
     if unknown and not any(p.kind is p.VAR_KEYWORD for p in accepted.values()):

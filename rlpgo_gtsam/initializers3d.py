@@ -7,21 +7,33 @@ an :class:`~rlpgo_gtsam.initializers.InitResult` whose ``poses`` is an (n, 3, 4)
 :class:`~rlpgo_gtsam.initializers.Estimate`. The anchor and FIXed poses keep their poses.
 Rotation initializers get positions from
 :func:`~rlpgo_gtsam.translations3d.poses_with_rotations` (GTSAM's cost minimized exactly
-for the rotations). They are not in the planar registry: :data:`INITIALIZERS_3D` names them.
+for the rotations). They are not in the planar registry: :data:`INITIALIZERS_3D` names them
+(the one list of 3D method names), :func:`make_initializer_3d` makes one by name, and
+:func:`make_initializer_for` one for a graph of either dimension.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from typing import Any
 
 import gtsam
 import numpy as np
 
 from rlpgo_gtsam.chordal3d import chordal_rotations
-from rlpgo_gtsam.errors import SolverError, one_line
+from rlpgo_gtsam.errors import RlpgoError, SolverError, one_line
 from rlpgo_gtsam.graph import chi2
-from rlpgo_gtsam.graph3d import PoseGraph3D, rotation_weights
-from rlpgo_gtsam.initializers import Estimate, Initializer, InitResult
+from rlpgo_gtsam.graph3d import AnyPoseGraph, PoseGraph3D, rotation_weights
+from rlpgo_gtsam.initializers import (
+    Estimate,
+    Initializer,
+    InitResult,
+    build_initializer,
+    check_method,
+    initializer_names,
+    make_initializer,
+)
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.translations3d import poses_with_rotations
 
@@ -35,7 +47,13 @@ __all__ = [
     "FastSync3D",
     "Shonan3D",
     "INITIALIZERS_3D",
+    "COMPARISON_3D",
     "pose_matrices",
+    "method_names",
+    "check_method_3d",
+    "check_method_for",
+    "make_initializer_3d",
+    "make_initializer_for",
 ]
 
 
@@ -100,15 +118,19 @@ class Certified3D(Initializer3D):
     Args:
         max_rank: highest rank of the Riemannian staircase.
         time_limit_s: the staircase's time limit, or None.
+        progress: called with one short line per rank (and inside a long trust region);
+            None: silent.
         max_iterations: trust-region iterations per rank.
     """
 
     name = "certified"
 
     def __init__(self, max_rank: int = 10, time_limit_s: float | None = None,
+                 progress: Callable[[str], None] | None = None,
                  max_iterations: int = 300) -> None:
         self.max_rank = max_rank
         self.time_limit_s = time_limit_s
+        self.progress = progress
         self.max_iterations = max_iterations
 
     def estimate(self, pose_graph: PoseGraph3D, start_poses: np.ndarray | None) -> Estimate:
@@ -117,6 +139,7 @@ class Certified3D(Initializer3D):
         start = None if start_poses is None else start_poses[:, :, :3]
         rotations, certificate = synchronize3d(pose_graph, start, max_rank=self.max_rank,
                                                time_limit_s=self.time_limit_s,
+                                               progress=self.progress,
                                                max_iterations=self.max_iterations)
         return Estimate(pose_matrices(*poses_with_rotations(pose_graph, rotations)),
                         certificate=certificate)
@@ -192,12 +215,14 @@ class Shonan3D(RotationInitializer3D):
 
     Args:
         max_p: highest rank of Shonan's staircase.
+        progress: called with one line when the run ends (its seconds, or its failure).
     """
 
     name = "shonan"
 
-    def __init__(self, max_p: int = 10) -> None:
+    def __init__(self, max_p: int = 10, progress: Callable[[str], None] | None = None) -> None:
         self.max_p = max_p
+        self.progress = progress
 
     def rotations(self, pose_graph: PoseGraph3D, start: np.ndarray | None) -> np.ndarray:
         g = pose_graph
@@ -212,10 +237,15 @@ class Shonan3D(RotationInitializer3D):
         initial = gtsam.Values()
         for k, r in enumerate(chordal_rotations(g) if start is None else start):
             initial.insert(k, gtsam.Rot3(r))
+        began = time.perf_counter()
         try:
             result, _ = shonan.run(initial, 3, self.max_p)
         except RuntimeError as error:
+            if self.progress is not None:
+                self.progress(f"failed after {time.perf_counter() - began:.2f} s")
             raise SolverError(f"ShonanAveraging3 failed: {one_line(error)}") from None
+        if self.progress is not None:
+            self.progress(f"done in {time.perf_counter() - began:.2f} s")
         return np.array([result.atRot3(k).matrix() for k in range(g.num_poses)])
 
 
@@ -223,3 +253,51 @@ INITIALIZERS_3D: dict[str, type[Initializer3D]] = {
     cls.name: cls for cls in (Odometry3D, Chordal3D, Certified3D, InitializePose3, FastSync3D,
                               Shonan3D)
 }
+# The 3D comparison rows, the certified relaxation first (ties go to the earlier row):
+# rlpgo-compare's default on a 3D file and rlpgo-init --method all's.
+COMPARISON_3D = ("certified", *(name for name in INITIALIZERS_3D if name != "certified"))
+
+
+def method_names(dimension: int) -> list[str]:
+    """The method names of graphs of ``dimension`` (2: the planar registry's, 3:
+    :data:`INITIALIZERS_3D`'s)."""
+    return list(INITIALIZERS_3D) if dimension == 3 else initializer_names()
+
+
+def check_method_3d(name: str) -> None:
+    """Raise :class:`RlpgoError` unless ``name`` is a 3D method; a planar one (the agent
+    included) is named as such."""
+    if name in INITIALIZERS_3D:
+        return
+    base = name.partition("@")[0]
+    choose = f"the 3D methods are {', '.join(INITIALIZERS_3D)}"
+    if base == "rl":
+        raise RlpgoError(f"'{name}': the agent is planar (it runs on 2D graphs only); {choose}")
+    if base in initializer_names():
+        raise RlpgoError(f"'{name}' is a planar method; {choose}")
+    raise RlpgoError(f"unknown method '{name}'; {choose}")
+
+
+def check_method_for(dimension: int, name: str) -> None:
+    """:func:`~rlpgo_gtsam.initializers.check_method` on a planar graph, else
+    :func:`check_method_3d`."""
+    (check_method_3d if dimension == 3 else check_method)(name)
+
+
+def make_initializer_3d(name: str, **options: Any) -> Initializer:
+    """A new 3D initializer of a name in :data:`INITIALIZERS_3D`; ``options`` go to its
+    factory.
+
+    Raises:
+        RlpgoError: an unknown or planar name, or options the method does not take.
+    """
+    check_method_3d(name)
+    return build_initializer(INITIALIZERS_3D[name], name, options)
+
+
+def make_initializer_for(pose_graph: AnyPoseGraph, name: str, **options: Any) -> Initializer:
+    """:func:`~rlpgo_gtsam.initializers.make_initializer` for a planar graph,
+    :func:`make_initializer_3d` for a 3D one."""
+    if pose_graph.dimension == 3:
+        return make_initializer_3d(name, **options)
+    return make_initializer(name, **options)

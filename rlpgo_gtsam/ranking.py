@@ -1,4 +1,5 @@
-"""Side-by-side comparison of initializers, each followed by the same GTSAM refinement."""
+"""Side-by-side comparison of initializers, each followed by the same GTSAM refinement; a
+planar graph's methods or a 3D graph's, by the extraction it is given."""
 
 from __future__ import annotations
 
@@ -13,8 +14,9 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import RlpgoError, one_line
-from rlpgo_gtsam.graph import PoseGraph2D
-from rlpgo_gtsam.initializers import InitResult, make_initializer
+from rlpgo_gtsam.graph3d import AnyPoseGraph, extract_pose_graph
+from rlpgo_gtsam.initializers import InitResult
+from rlpgo_gtsam.initializers3d import make_initializer_for, pose_matrices
 from rlpgo_gtsam.solvers import RefineResult, refine
 
 __all__ = ["MethodResult", "compare_methods", "best_of", "tied_best", "run_method",
@@ -87,7 +89,7 @@ class MethodResult:
 
 
 def initialize_row(
-    pose_graph: PoseGraph2D,
+    pose_graph: AnyPoseGraph,
     method: str,
     solver: str | None = "lm",
     dataset: str = "graph",
@@ -99,7 +101,8 @@ def initialize_row(
     row = MethodResult(dataset, pose_graph.num_poses, pose_graph.num_edges, method, None, solver)
     began = time.perf_counter()
     try:
-        row.init = make_initializer(method, **(options or {})).run(pose_graph, start)
+        row.init = make_initializer_for(pose_graph, method, **(options or {})).run(pose_graph,
+                                                                                  start)
     except RlpgoError as error:
         row.failure = str(error)
     except (RuntimeError, ArithmeticError, ValueError, np.linalg.LinAlgError) as error:
@@ -114,7 +117,7 @@ def initialize_row(
 def refine_row(
     row: MethodResult,
     graph: gtsam.NonlinearFactorGraph,
-    pose_graph: PoseGraph2D,
+    pose_graph: AnyPoseGraph,
     iters: int = 30,
     deadline: float | None = None,
 ) -> MethodResult:
@@ -150,7 +153,7 @@ def refine_until(
     solver: str,
     iters: int,
     deadline: float,
-    pose_graph: PoseGraph2D | None = None,
+    pose_graph: AnyPoseGraph | None = None,
 ) -> tuple[RefineResult, str | None]:
     """:func:`~rlpgo_gtsam.solvers.refine` in chunks that end by ``deadline``
     (a ``time.perf_counter()`` time), and what the deadline cut (None: nothing).
@@ -161,7 +164,7 @@ def refine_until(
     ended before its cap), at a failure, or when not one more iteration fits. The chunks
     restart LM's damping, so the path may differ slightly from one ``refine`` call.
     """
-    g = pose_graph if pose_graph is not None else PoseGraph2D.from_gtsam(graph, values)
+    g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
     current = refine(graph, values, solver=solver, iters=0, pose_graph=g)
     trace, done, per_iteration = list(current.chi2_trace), 0, 0.0
     while done < iters:
@@ -184,7 +187,7 @@ def refine_until(
 
 def run_method(
     graph: gtsam.NonlinearFactorGraph,
-    pose_graph: PoseGraph2D,
+    pose_graph: AnyPoseGraph,
     method: str,
     solver: str | None = "lm",
     iters: int = 30,
@@ -206,11 +209,13 @@ def run_method(
     return refine_row(row, graph, pose_graph, iters, deadline)
 
 
-def start_from(row: MethodResult, pose_graph: PoseGraph2D) -> InitResult:
+def start_from(row: MethodResult, pose_graph: AnyPoseGraph) -> InitResult:
     """``row``'s refined result as a start for another initializer (its seconds not
     charged again: the row already counts them)."""
-    return InitResult(row.method, row.refined, pose_graph.poses_of(row.refined),
-                      row.refined_chi2, 0.0)
+    poses = pose_graph.poses_of(row.refined)
+    if pose_graph.dimension == 3:
+        poses = pose_matrices(*poses)
+    return InitResult(row.method, row.refined, poses, row.refined_chi2, 0.0)
 
 
 # Methods that, in a comparison, start from the lowest refined chi2 of the rows before them
@@ -236,14 +241,16 @@ def compare_methods(
     iters: int = 30,
     dataset: str = "graph",
     options: dict[str, dict[str, Any]] | None = None,
-    pose_graph: PoseGraph2D | None = None,
+    pose_graph: AnyPoseGraph | None = None,
     start_from_best: Collection[str] = FROM_BEST,
     on_row: Callable[[MethodResult], None] | None = None,
 ) -> list[MethodResult]:
     """Run each named initializer on one extraction of the graph, then ``refine`` each guess.
 
     Args:
-        methods: initializer names (``rl@chordal`` names a start).
+        methods: initializer names (``rl@chordal`` names a start): the planar registry's
+            for a planar graph, :data:`~rlpgo_gtsam.initializers3d.INITIALIZERS_3D`'s for a
+            3D one.
         solver: "lm", "gn", or None for no refinement.
         options: per base method name, options for its factory (``{"rl": {"episodes": 4}}``).
         pose_graph: the graph's extraction, if the caller has it.
@@ -258,7 +265,7 @@ def compare_methods(
     indeterminate system, a diverging solver) gets a row with ``failure`` set; the others
     still run.
     """
-    g = pose_graph if pose_graph is not None else PoseGraph2D.from_gtsam(graph, values)
+    g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
     rows: dict[str, MethodResult] = {}
     results: list[MethodResult] = []
     for method in methods:

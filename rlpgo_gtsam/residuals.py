@@ -13,32 +13,39 @@ import math
 import gtsam
 import numpy as np
 
-from rlpgo_gtsam.graph import PoseGraph2D, edge_chi2
+from rlpgo_gtsam.graph import edge_chi2
+from rlpgo_gtsam.graph3d import AnyPoseGraph
+from rlpgo_gtsam.graph3d import edge_chi2 as edge_chi2_3d
 
-__all__ = ["outlier_suspicion", "SUSPICION_CHI2"]
+__all__ = ["outlier_suspicion", "SUSPICION_CHI2", "SUSPICION_CHI2_3D"]
 
-# Per-edge chi2 (3 dof) above this has probability 0.001 under Gaussian noise.
+# Per-edge chi2 above these has probability 0.001 under Gaussian noise: 3 dof (planar
+# edges) and 6 dof (3D edges).
 SUSPICION_CHI2 = 16.266
+SUSPICION_CHI2_3D = 22.458
 _SUSPICION_P = 0.001
 
 
-def outlier_suspicion(pose_graph: PoseGraph2D, values: gtsam.Values) -> str | None:
+def outlier_suspicion(pose_graph: AnyPoseGraph, values: gtsam.Values) -> str | None:
     """A one-line hint when ``values`` (a refined result) fits the edges with a heavier tail
     than Gaussian noise allows; None when the residuals look Gaussian.
 
-    Each edge's chi2 (3 dof) is compared with :data:`SUSPICION_CHI2`, which Gaussian noise
-    exceeds with probability 0.001. The hint fires when more edges exceed it than a Gaussian
-    model makes plausible (its expected count plus four standard deviations, and at least
-    three edges).
+    Each edge's chi2 (3 dof; 6 on a 3D graph) is compared with :data:`SUSPICION_CHI2`
+    (:data:`SUSPICION_CHI2_3D`), which Gaussian noise exceeds with probability 0.001. The
+    hint fires when more edges exceed it than a Gaussian model makes plausible (its expected
+    count plus four standard deviations, and at least three edges).
     """
     g = pose_graph
-    residuals = edge_chi2(g, g.poses_of(values))
-    high = residuals > SUSPICION_CHI2
+    if g.dimension == 3:
+        residuals, bound = edge_chi2_3d(g, *g.poses_of(values)), SUSPICION_CHI2_3D
+    else:
+        residuals, bound = edge_chi2(g, g.poses_of(values)), SUSPICION_CHI2
+    high = residuals > bound
     count, expected = int(high.sum()), _SUSPICION_P * g.num_edges
     if count < 3 or count <= expected + 4.0 * math.sqrt(expected):
         return None
     worst = np.argsort(-residuals, kind="stable")[:3]
     shown = ", ".join(f"{g.keys[a]}-{g.keys[b]}" for a, b in g.edges[worst].tolist())
-    return (f"{count} of {g.num_edges} edges fit with chi2 > {SUSPICION_CHI2:g} (Gaussian noise "
+    return (f"{count} of {g.num_edges} edges fit with chi2 > {bound:g} (Gaussian noise "
             f"gives about {expected:.0f}; worst: edges {shown}): wrong loop closures are likely; "
             "try --robust")

@@ -1,4 +1,5 @@
-"""GTSAM Gauss-Newton and Levenberg-Marquardt on the whole graph, with a chi2 trace."""
+"""GTSAM Gauss-Newton and Levenberg-Marquardt on the whole graph (planar or 3D), with a chi2
+trace."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ from dataclasses import dataclass, field
 import gtsam
 
 from rlpgo_gtsam.errors import SolverError, one_line
-from rlpgo_gtsam.graph import PoseGraph2D, chi2
-from rlpgo_gtsam.graph3d import PoseGraph3D
+from rlpgo_gtsam.graph import chi2
+from rlpgo_gtsam.graph3d import AnyPoseGraph, extract_pose_graph
 
 __all__ = ["RefineResult", "refine", "solver_params", "gauge_prior", "SOLVERS"]
 
@@ -64,9 +65,9 @@ def refine(
     values: gtsam.Values,
     solver: str | Params = "lm",
     iters: int = 30,
-    pose_graph: PoseGraph2D | PoseGraph3D | None = None,
+    pose_graph: AnyPoseGraph | None = None,
 ) -> RefineResult:
-    """Run GTSAM's GN or LM on ``graph`` from ``values``.
+    """Run GTSAM's GN or LM on ``graph`` (Pose2 or Pose3) from ``values``.
 
     The graph is optimized as it is, every prior included. If it has no prior, the gauge
     is fixed by a tight prior on the anchor pose (the first key), which adds nothing to the
@@ -81,20 +82,19 @@ def refine(
             step; "gn" keeps iterating (GTSAM's ``iterate()``) until the error changes by
             less than 1e-10 (relative or absolute) or ``iters`` steps ran.
         iters: iteration cap of "lm" / "gn".
-        pose_graph: the graph's extraction, if the caller has it (saves a second one); a
-            :class:`~rlpgo_gtsam.graph3d.PoseGraph3D` for a Pose3 graph (without one the
-            graph is extracted as a planar one).
+        pose_graph: the graph's extraction, if the caller has it (saves a second one).
 
     A failure of the linear solver (an indeterminate system) or a non-finite error ends the
     run with ``failure`` set instead of raising.
 
     Raises:
         SolverError: an unknown solver name or a negative iteration cap.
-        GraphError: a graph the package cannot work on (see :class:`PoseGraph2D`).
+        GraphError: a graph the package cannot work on (see
+            :func:`~rlpgo_gtsam.graph3d.extract_pose_graph`).
     """
     params = solver if isinstance(solver, Params) else solver_params(solver, iters)
     name = "GN" if isinstance(params, gtsam.GaussNewtonParams) else "LM"
-    g = pose_graph if pose_graph is not None else PoseGraph2D.from_gtsam(graph, values)
+    g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
     start_chi2 = chi2(graph, values)
     if params.getMaxIterations() == 0:
         return RefineResult(gtsam.Values(values), start_chi2, 0, [start_chi2])
@@ -143,12 +143,12 @@ def _iterate_through_increases(optimizer, iters: int, after_iteration: dict) -> 
         previous = current
 
 
-def gauge_prior(pose_graph: PoseGraph2D | PoseGraph3D, values: gtsam.Values,
+def gauge_prior(pose_graph: AnyPoseGraph, values: gtsam.Values,
                 sigma: float) -> gtsam.NonlinearFactor:
     """A prior holding the anchor at its pose in ``values``, isotropic ``sigma``: a
     ``PriorFactorPose2`` or, for a 3D graph, a ``PriorFactorPose3``."""
     key = int(pose_graph.keys[pose_graph.anchor])
-    if isinstance(pose_graph, PoseGraph3D):
+    if pose_graph.dimension == 3:
         return gtsam.PriorFactorPose3(key, values.atPose3(key),
                                       gtsam.noiseModel.Isotropic.Sigma(6, sigma))
     return gtsam.PriorFactorPose2(key, values.atPose2(key),

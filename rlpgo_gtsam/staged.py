@@ -1,6 +1,9 @@
 """Certify, else search: the staged default of ``rlpgo-init`` (``--method auto``).
 
-1. ``certified``: the SE(2) synchronization relaxation + GTSAM refinement. If its
+On a planar graph or a 3D one alike (dispatched on what the graph holds, extracted once:
+:func:`~rlpgo_gtsam.graph3d.extract_pose_graph`); the stages are that dimension's methods.
+
+1. ``certified``: the SE(d) synchronization relaxation + GTSAM refinement. If its
    certificate holds, the rounded estimate is the global optimum of the relaxation's cost
    and the run stops there.
 2. Otherwise the default searches no further (:data:`DEFAULT_SEARCHES` is empty): the
@@ -22,8 +25,9 @@
 
    No search lowered the best refined chi2 on any of the six; Shonan from random starts
    (38-98 s), LAGO and fastSync did not either; issue 20 reports the same on the 21 arena
-   graphs and the hold-outs. The searches stay reachable: ``searches=SEARCHES`` here,
-   ``--method all`` or a method's own name (``--method rl``) on the command line.
+   graphs and the hold-outs. The searches stay reachable: ``searches=SEARCHES`` here
+   (:data:`SEARCHES_3D` on a 3D graph: the agent is planar), ``--method all`` or a
+   method's own name (``--method rl``) on the command line.
 3. With ``searches``, each runs refined the same way, cheapest first; the lowest refined
    chi2 wins; ties go to the earlier, cheaper stage.
 4. Without a certificate, the winner's per-edge residuals are tested for a heavier tail than
@@ -48,18 +52,21 @@ from typing import Any
 import gtsam
 
 from rlpgo_gtsam.errors import RlpgoError
-from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.graph3d import AnyPoseGraph, extract_pose_graph
 from rlpgo_gtsam.initializers import InitResult
+from rlpgo_gtsam.initializers3d import check_method_for
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.ranking import MethodResult, best_of, initialize_row, refine_row, start_from
 from rlpgo_gtsam.residuals import outlier_suspicion
 
 __all__ = ["StagedResult", "staged_initialize", "DEFAULT_BUDGET_S", "DEFAULT_SEARCHES",
-           "SEARCHES", "REFINE_RESERVE"]
+           "SEARCHES", "SEARCHES_3D", "REFINE_RESERVE"]
 
 DEFAULT_BUDGET_S = 120.0
 # The searches after a failed certificate, cheapest first: (method, starts from the best?)
 SEARCHES = (("chordal", False), ("shonan", True), ("rl", True))
+# The same on a 3D graph: the agent is planar.
+SEARCHES_3D = (("chordal", False), ("shonan", True))
 # The default's searches: none (see the module docstring for the measurement).
 DEFAULT_SEARCHES: tuple[tuple[str, bool], ...] = ()
 # The share of the budget kept for the refinement after the certified stage.
@@ -112,13 +119,15 @@ def staged_initialize(
     budget_s: float = DEFAULT_BUDGET_S,
     options: dict[str, dict[str, Any]] | None = None,
     dataset: str = "graph",
-    pose_graph: PoseGraph2D | None = None,
+    pose_graph: AnyPoseGraph | None = None,
     on_stage: Callable[[MethodResult, str], None] | None = None,
     searches: Sequence[tuple[str, bool]] = DEFAULT_SEARCHES,
 ) -> StagedResult:
-    """Run the stages; see the module docstring.
+    """Run the stages on a planar or a 3D graph; see the module docstring.
 
     Args:
+        graph, values: a ``BetweenFactorPose2`` or a ``BetweenFactorPose3`` graph and its
+            values.
         solver, iters: the refinement after every stage.
         budget_s: the whole run's time limit (the certified stage's included).
         options: per base method name, options for its factory (``{"rl": {...}}``). The
@@ -126,12 +135,20 @@ def staged_initialize(
             here is kept); its ``progress`` is passed on.
         on_stage: called with each finished row and the reason it ran.
         searches: the stages after a failed certificate, as ``(method, starts from the
-            best so far?)``; :data:`SEARCHES` is every one, the default none.
+            best so far?)``, each a method of the graph's dimension; :data:`SEARCHES` is
+            every one (:data:`SEARCHES_3D` on a 3D graph), the default none.
+
+    Raises:
+        RlpgoError: a search that is not a method of the graph's dimension (before any
+            stage runs); every stage failing.
+        GraphError: a graph the package cannot work on.
     """
     began = time.perf_counter()
     deadline = began + budget_s
     into_reserve = began + budget_s * (1.0 - REFINE_RESERVE)
-    g = pose_graph if pose_graph is not None else PoseGraph2D.from_gtsam(graph, values)
+    g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
+    for method, _ in searches:
+        check_method_for(g.dimension, method)
     options = options or {}
     run = StagedResult()
     cuts: list[str] = []

@@ -1,4 +1,5 @@
-"""The RL-PGO paper's synthetic pose graphs: a lawn-mower path with vertical loop closures.
+"""The RL-PGO paper's synthetic pose graphs: a lawn-mower path with vertical loop closures,
+in the plane (:func:`generate`) and stacked in layers in 3D (:func:`generate3d`).
 
 Poses run in rows of ten, ``d`` metres apart, rows ``d`` apart, alternating direction; the
 motion into the last pose of a row and the one into the first pose of the next each end
@@ -44,10 +45,25 @@ edge if there is none). Two earlier modes remain:
 These two get the noise model (information) of a randomly chosen true loop closure (of an
 odometry edge if the graph has none). No wrong closure joins two poses adjacent on the chain
 or a pair the graph already joins.
+
+3D (:func:`generate3d`, :func:`add_outliers3d`). The planar path folded into layers:
+``LAYER_ROWS`` rows a layer, layers ``d`` apart, each layer run back over the one below it,
+so that the poses fill a 10 x 10 x k lattice, the first layer the planar path itself. Each
+pose faces its next motion (x axis along it, z axis up; the pose that climbs to the next
+layer looks up). Loop-closure candidates join each pose to every lattice neighbour earlier on
+the path but its predecessor: the pose beside it in the previous row and the one under it in
+the previous layer (1.7 a pose in a full stack, a grid like SE-Sync's grid sets). Noise is
+``Exp([N(0, sigma_R) x 3, N(0, sigma_t) x 3])`` in GTSAM's tangent order (rotation first),
+the information ``diag(1 / sigma_R^2 x 3, 1 / sigma_t^2 x 3)``. The wrong closures are drawn
+by the same policies and pairs as in the plane; Vertigo's small relative pose in 3D is a
+translation N(0, 0.3 m) per axis and roll, pitch, yaw N(0, 10 deg) each (its
+``generateDataset.py``); ``"uniform"`` draws the translation in ``[-s, s]^3`` and the rotation
+uniformly on SO(3).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import gtsam
@@ -55,11 +71,14 @@ import numpy as np
 
 from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import MAX_CONDITION, PoseGraph2D, odometry_edges
+from rlpgo_gtsam.graph3d import PoseGraph3D
 
-__all__ = ["SyntheticGraph", "generate", "add_outliers", "OUTLIER_MODES", "VERTIGO_MODES",
-           "ROW_LENGTH", "GROUP_SIZE", "LOCAL_RANGE"]
+__all__ = ["SyntheticGraph", "generate", "generate3d", "add_outliers", "add_outliers3d",
+           "OUTLIER_MODES", "VERTIGO_MODES", "ROW_LENGTH", "LAYER_ROWS", "GROUP_SIZE",
+           "LOCAL_RANGE"]
 
 ROW_LENGTH = 10
+LAYER_ROWS = 10  # 3D: rows of a layer
 # Vertigo's policies, then the project's earlier two; the first is the default.
 VERTIGO_MODES = ("random", "local", "group", "localgroup")
 OUTLIER_MODES = (*VERTIGO_MODES, "uniform", "plausible")
@@ -109,9 +128,46 @@ def _candidates(n: int) -> list[tuple[int, int]]:
     return pairs
 
 
-def _perturb(pose: gtsam.Pose2, sigma_r: float, sigma_t: float, rng: np.random.Generator):
-    noise = rng.normal(0.0, [sigma_t, sigma_t, sigma_r])
-    return pose.compose(gtsam.Pose2.Expmap(noise))
+def _lattice_path(n: int) -> np.ndarray:
+    """(n, 3) integer lattice cells of the 3D path: the planar rows in each layer, every
+    other layer run backwards, so that each cell is a neighbour of the one before."""
+    layer, rest = np.divmod(np.arange(n), ROW_LENGTH * LAYER_ROWS)
+    row, col = np.divmod(rest, ROW_LENGTH)
+    x = np.where((layer * LAYER_ROWS + row) % 2 == 0, col, ROW_LENGTH - 1 - col)
+    y = np.where(layer % 2 == 0, row, LAYER_ROWS - 1 - row)
+    return np.stack([x, y, layer], axis=1)
+
+
+def _true_poses3d(n: int, d: float) -> list[gtsam.Pose3]:
+    cells = _lattice_path(n)
+    moves = np.diff(cells, axis=0).astype(float)
+    x_axis = np.vstack([moves, moves[-1:]])  # the last pose keeps the last motion's direction
+    # z up; for a climb (x up) the z axis is x cross the world's y
+    z_axis = np.where(x_axis[:, 2:] == 0, [0.0, 0.0, 1.0], np.cross(x_axis, [0.0, 1.0, 0.0]))
+    rotations = np.stack([x_axis, np.cross(z_axis, x_axis), z_axis], axis=2)
+    positions = d * cells.astype(float)
+    return [gtsam.Pose3(gtsam.Rot3(r), t) for r, t in zip(rotations, positions, strict=True)]
+
+
+def _candidates3d(n: int) -> list[tuple[int, int]]:
+    """(k, m): pose k and each lattice neighbour m earlier on the path than its
+    predecessor, by k, then m."""
+    cells = _lattice_path(n)
+    index = np.full(cells.max(axis=0) + 1, -1, np.int64)
+    index[tuple(cells.T)] = np.arange(n)
+    pairs = []
+    for axis in range(3):
+        below = cells.copy()
+        below[:, axis] -= 1
+        inside = below[:, axis] >= 0
+        k = np.flatnonzero(inside)
+        m = index[tuple(below[inside].T)]
+        for a, b in ((k, m), (m, k)):  # the neighbour on either side of k along the axis
+            keep = (b >= 0) & (b < a - 1)
+            pairs.append(np.stack([a[keep], b[keep]], axis=1))
+    joined = np.concatenate(pairs)
+    joined = joined[np.lexsort((joined[:, 1], joined[:, 0]))]
+    return [(int(a), int(b)) for a, b in joined]
 
 
 def generate(
@@ -142,50 +198,75 @@ def generate(
         outlier_mode: how they are drawn, one of :data:`OUTLIER_MODES`.
         group_size: closures per group in the group modes (>= 1).
     """
-    if n < 2:
-        raise RlpgoError(f"a graph needs at least 2 poses, got n={n}")
-    if sigma_r <= 0 or sigma_t <= 0 or d <= 0:
-        raise RlpgoError("sigma_r, sigma_t and d must be positive")
-    if max(sigma_r, sigma_t) ** 2 > MAX_CONDITION * min(sigma_r, sigma_t) ** 2:
-        raise RlpgoError(f"sigma_t = {sigma_t:g} m and sigma_r = {sigma_r:g} rad give an "
-                         f"information matrix with a condition number above {MAX_CONDITION:g}, "
-                         "which no method can use; bring them closer")
-    if not 0.0 <= lc <= 1.0:
-        raise RlpgoError(f"lc must lie in [0, 1], got {lc}")
-    _check_outliers(outliers, outlier_mode, group_size)
-    truth = _true_poses(n, d)
-    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma_t, sigma_t, sigma_r]))
+    _check_settings(n, sigma_r, sigma_t, d, lc, outliers, outlier_mode, group_size)
+    return _generate(_true_poses(n, d), _candidates(n), np.array([sigma_t, sigma_t, sigma_r]),
+                     gtsam.BetweenFactorPose2, add_outliers, lc, rng, noisy_measurements,
+                     outliers, outlier_mode, group_size)
+
+
+def generate3d(
+    n: int,
+    sigma_r: float,
+    sigma_t: float,
+    d: float,
+    lc: float,
+    rng: np.random.Generator,
+    noisy_measurements: bool = False,
+    outliers: float = 0.0,
+    outlier_mode: str = OUTLIER_MODES[0],
+    group_size: int = GROUP_SIZE,
+) -> SyntheticGraph:
+    """Generate one 3D pose graph: the lawn-mower path in layers (see the module docstring),
+    ``BetweenFactorPose3`` factors and ``Pose3`` values; the arguments are
+    :func:`generate`'s, ``sigma_r`` per rotation axis and ``sigma_t`` per translation axis."""
+    _check_settings(n, sigma_r, sigma_t, d, lc, outliers, outlier_mode, group_size)
+    sigmas = np.array([sigma_r, sigma_r, sigma_r, sigma_t, sigma_t, sigma_t])
+    return _generate(_true_poses3d(n, d), _candidates3d(n), sigmas, gtsam.BetweenFactorPose3,
+                     add_outliers3d, lc, rng, noisy_measurements, outliers, outlier_mode,
+                     group_size)
+
+
+def _generate(truth: list, candidates: list[tuple[int, int]], sigmas: np.ndarray, factor: type,
+              add: Callable, lc: float, rng: np.random.Generator, noisy_measurements: bool,
+              outliers: float, outlier_mode: str, group_size: int) -> SyntheticGraph:
+    """The generator of both dimensions: ``truth`` (Pose2 or Pose3), the loop-closure
+    ``candidates``, the noise ``sigmas`` in the tangent order of the poses' ``Expmap``."""
+    n = len(truth)
+    expmap = type(truth[0]).Expmap
+    noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
+
+    def perturb(pose):
+        return pose.compose(expmap(rng.normal(0.0, sigmas)))
+
     odometry = [truth[k].between(truth[k + 1]) for k in range(n - 1)]
-    candidates = _candidates(n)
     count = int(lc * len(candidates))
     chosen = sorted(rng.choice(len(candidates), size=count, replace=False)) if count else []
     closures = [candidates[c] for c in chosen]
 
-    def measure(between: gtsam.Pose2) -> gtsam.Pose2:
-        return _perturb(between, sigma_r, sigma_t, rng) if noisy_measurements else between
+    def measure(between):
+        return perturb(between) if noisy_measurements else between
 
     graph = gtsam.NonlinearFactorGraph()
     measured_odometry = []
     for k, between in enumerate(odometry):
         measured = measure(between)
         measured_odometry.append(measured)
-        graph.add(gtsam.BetweenFactorPose2(k, k + 1, measured, noise))
+        graph.add(factor(k, k + 1, measured, noise))
     for i, j in closures:
-        graph.add(gtsam.BetweenFactorPose2(i, j, measure(truth[i].between(truth[j])), noise))
+        graph.add(factor(i, j, measure(truth[i].between(truth[j])), noise))
 
     initial, ground_truth = gtsam.Values(), gtsam.Values()
     pose = truth[0]
     initial.insert(0, pose)
     for k, measured in enumerate(measured_odometry):
-        step = measured if noisy_measurements else _perturb(measured, sigma_r, sigma_t, rng)
+        step = measured if noisy_measurements else perturb(measured)
         pose = pose.compose(step)
         initial.insert(k + 1, pose)
     for k, true_pose in enumerate(truth):
         ground_truth.insert(k, true_pose)
     outlier_edges: list[int] = []
     if outliers > 0:
-        graph, outlier_edges = add_outliers(graph, ground_truth, outliers, rng, outlier_mode,
-                                            group_size)
+        graph, outlier_edges = add(graph, ground_truth, outliers, rng, outlier_mode, group_size)
     return SyntheticGraph(graph, initial, ground_truth, outlier_edges)
 
 
@@ -220,28 +301,96 @@ def add_outliers(
     """
     _check_outliers(fraction, mode, group_size)
     g = PoseGraph2D.from_gtsam(graph, values)
+
+    def measure(source: int, side: float) -> gtsam.Pose2:
+        if mode in VERTIGO_MODES:
+            return gtsam.Pose2(*rng.normal(0.0, [_VERTIGO_SIGMA_T_M, _VERTIGO_SIGMA_T_M,
+                                                 _VERTIGO_SIGMA_R_RAD]).tolist())
+        if mode == "uniform":
+            dx, dy = rng.uniform(-side, side, size=2).tolist()
+            return gtsam.Pose2(dx, dy, float(rng.uniform(-np.pi, np.pi)))
+        return gtsam.Pose2(*g.measured[source])
+
+    return _add_wrong_closures(graph, g, g.poses[:, :2], g.measured[:, :2], fraction, rng, mode,
+                               group_size, gtsam.BetweenFactorPose2, measure)
+
+
+def add_outliers3d(
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
+    fraction: float,
+    rng: np.random.Generator,
+    mode: str = OUTLIER_MODES[0],
+    group_size: int = GROUP_SIZE,
+) -> tuple[gtsam.NonlinearFactorGraph, list[int]]:
+    """:func:`add_outliers` for a 3D graph (what :class:`~rlpgo_gtsam.graph3d.PoseGraph3D`
+    accepts): the same pairs and policies, ``BetweenFactorPose3`` closures measured as the
+    module docstring says. Raises as :func:`add_outliers` does."""
+    _check_outliers(fraction, mode, group_size)
+    g = PoseGraph3D.from_gtsam(graph, values)
+
+    def measure(source: int, side: float) -> gtsam.Pose3:
+        if mode in VERTIGO_MODES:
+            x, y, z, roll, pitch, yaw = rng.normal(0.0, [_VERTIGO_SIGMA_T_M] * 3
+                                                   + [_VERTIGO_SIGMA_R_RAD] * 3).tolist()
+            return gtsam.Pose3(gtsam.Rot3.Ypr(yaw, pitch, roll), np.array([x, y, z]))
+        if mode == "uniform":
+            t = rng.uniform(-side, side, size=3)
+            q = rng.normal(size=4)  # a uniform rotation: a uniform unit quaternion
+            q /= np.linalg.norm(q)
+            return gtsam.Pose3(gtsam.Rot3.Quaternion(*q.tolist()), t)
+        return gtsam.Pose3(gtsam.Rot3(g.measured_rotations[source]),
+                           g.measured_translations[source])
+
+    return _add_wrong_closures(graph, g, g.translations, g.measured_translations, fraction, rng,
+                               mode, group_size, gtsam.BetweenFactorPose3, measure)
+
+
+def _add_wrong_closures(graph: gtsam.NonlinearFactorGraph, g: PoseGraph2D | PoseGraph3D,
+                        positions: np.ndarray, moves: np.ndarray, fraction: float,
+                        rng: np.random.Generator, mode: str, group_size: int, factor: type,
+                        measure: Callable[[int, float], object]):
+    """The policies of both dimensions. ``positions`` (n, dim) are the poses' positions,
+    ``moves`` (m, dim) each edge's measured translation; ``measure(source, side)`` draws one
+    group's measurement, ``source`` the edge whose information it takes (the one
+    ``"plausible"`` copies), ``side`` the map's longest side."""
     count = int(fraction * g.num_edges)
     result = gtsam.NonlinearFactorGraph(graph)
     if count == 0:
         return result, []
+    start = result.size()
+    keys = g.keys.astype(np.int64)
+    extent = positions.max(axis=0) - positions.min(axis=0)
+    side = float(np.max(extent))
+    side = side if side > 0 else 1.0
+    for pairs, source in _wrong_pairs(g, positions, moves, count, mode, group_size, rng):
+        measured = measure(source, side)
+        noise = gtsam.noiseModel.Gaussian.Information(g.information[source])
+        for i, j in pairs:
+            result.add(factor(int(keys[i]), int(keys[j]), measured, noise))
+    return result, list(range(start, start + count))
+
+
+def _wrong_pairs(g: PoseGraph2D | PoseGraph3D, positions: np.ndarray, moves: np.ndarray,
+                 count: int, mode: str, group_size: int,
+                 rng: np.random.Generator) -> Iterator[tuple[list[tuple[int, int]], int]]:
+    """The one definition of the policies: per group, the pose index pairs of its wrong
+    closures and the edge whose information they take (the graph's first loop closure for
+    Vertigo's modes, a random true closure for the others). Pairs and that edge are drawn
+    from ``rng`` before each yield; the caller draws the group's measurement before the
+    next, so the draws interleave as one sequence."""
     chain = odometry_edges(g)
     order = _chain_order(g, chain)  # pose index at each place along the chain
     place = np.empty(g.num_poses, np.int64)
     place[order] = np.arange(g.num_poses)
-    keys = g.keys.astype(np.int64)
     joined = {(min(a, b), max(a, b)) for a, b in place[g.edges].tolist()}
     is_closure = ~chain
     templates = np.flatnonzero(is_closure) if is_closure.any() else np.arange(g.num_edges)
     first_closure = int(templates[0])
-    positions = g.poses[:, :2]
-    side = float(np.max(positions.max(axis=0) - positions.min(axis=0)))
-    side = side if side > 0 else 1.0
-    far = max(0.1 * np.hypot(*(positions.max(axis=0) - positions.min(axis=0))),
-              3.0 * float(np.max(np.hypot(*g.measured[templates, :2].T))))
-    grouped = mode in ("group", "localgroup")
-    size = group_size if grouped else 1
+    far = max(0.1 * float(np.linalg.norm(positions.max(axis=0) - positions.min(axis=0))),
+              3.0 * float(np.max(np.linalg.norm(moves[templates], axis=1))))
+    size = group_size if mode in ("group", "localgroup") else 1
     n = g.num_poses
-    start = result.size()
     drawn = 0
     while drawn < count:
         members = min(size, count - drawn)
@@ -257,35 +406,21 @@ def add_outliers(
             if any((min(p), max(p)) in joined for p in pairs):
                 continue
             i, j = order[a], order[b]
-            if mode == "plausible" and np.hypot(*(positions[i] - positions[j])) < far:
+            if mode == "plausible" and np.linalg.norm(positions[i] - positions[j]) < far:
                 continue
             break
         else:
             raise RlpgoError(
                 f"could not place wrong closure {drawn + 1} of {count} ({mode}) after "
                 f"{_TRIES_PER_OUTLIER} tries: the graph has too few pose pairs that qualify")
-        if mode in VERTIGO_MODES:
-            measured = gtsam.Pose2(*rng.normal(0.0, [_VERTIGO_SIGMA_T_M, _VERTIGO_SIGMA_T_M,
-                                                     _VERTIGO_SIGMA_R_RAD]).tolist())
-            information = g.information[first_closure]
-        else:
-            template = int(templates[rng.integers(len(templates))])
-            if mode == "uniform":
-                dx, dy = rng.uniform(-side, side, size=2).tolist()
-                measured = gtsam.Pose2(dx, dy, float(rng.uniform(-np.pi, np.pi)))
-            else:
-                measured = gtsam.Pose2(*g.measured[template])
-            information = g.information[template]
-        noise = gtsam.noiseModel.Gaussian.Information(information)
-        for p, q in pairs:
-            joined.add((min(p, q), max(p, q)))
-            result.add(gtsam.BetweenFactorPose2(int(keys[order[p]]), int(keys[order[q]]),
-                                                measured, noise))
+        joined.update((min(p, q), max(p, q)) for p, q in pairs)
+        source = first_closure if mode in VERTIGO_MODES else \
+            int(templates[rng.integers(len(templates))])
+        yield [(int(order[p]), int(order[q])) for p, q in pairs], source
         drawn += members
-    return result, list(range(start, start + count))
 
 
-def _chain_order(g: PoseGraph2D, chain: np.ndarray) -> np.ndarray:
+def _chain_order(g: PoseGraph2D | PoseGraph3D, chain: np.ndarray) -> np.ndarray:
     """Pose indices in the order a walk along the chain meets them: depth first from the
     anchor, the lower index first (sorted keys on a path)."""
     neighbours: list[list[int]] = [[] for _ in range(g.num_poses)]
@@ -303,6 +438,21 @@ def _chain_order(g: PoseGraph2D, chain: np.ndarray) -> np.ndarray:
                 seen[b] = True
                 stack.append(b)
     return np.array(order, dtype=np.int64)
+
+
+def _check_settings(n: int, sigma_r: float, sigma_t: float, d: float, lc: float,
+                    outliers: float, outlier_mode: str, group_size: int) -> None:
+    if n < 2:
+        raise RlpgoError(f"a graph needs at least 2 poses, got n={n}")
+    if sigma_r <= 0 or sigma_t <= 0 or d <= 0:
+        raise RlpgoError("sigma_r, sigma_t and d must be positive")
+    if max(sigma_r, sigma_t) ** 2 > MAX_CONDITION * min(sigma_r, sigma_t) ** 2:
+        raise RlpgoError(f"sigma_t = {sigma_t:g} m and sigma_r = {sigma_r:g} rad give an "
+                         f"information matrix with a condition number above {MAX_CONDITION:g}, "
+                         "which no method can use; bring them closer")
+    if not 0.0 <= lc <= 1.0:
+        raise RlpgoError(f"lc must lie in [0, 1], got {lc}")
+    _check_outliers(outliers, outlier_mode, group_size)
 
 
 def _check_outliers(fraction: float, mode: str, group_size: int = GROUP_SIZE) -> None:

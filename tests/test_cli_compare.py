@@ -7,7 +7,7 @@ from rlpgo_gtsam import OrientationInitializer, SolverError, initializers, regis
 from tests.conftest import cli_error, dataset
 
 RECORD_KEYS = {"dataset", "poses", "edges", "method", "init_chi2", "init_seconds", "solver",
-               "iters", "refined_chi2", "refine_seconds", "failure"}
+               "iters", "refined_chi2", "refine_seconds", "failure", "dimension"}
 
 
 def test_compare_runs_out_of_the_box(tmp_path):

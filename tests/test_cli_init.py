@@ -159,14 +159,15 @@ def test_init_budget_cuts_the_certified_stage_and_writes_its_estimate(tmp_path, 
     assert time.perf_counter() - began < 30  # the stage alone takes 5 s or more
     lines = result.stdout.splitlines()
     assert any(line.startswith("  certified: ") for line in lines)  # its progress
-    assert "stopped: time budget of 0.2 s spent during the certified stage: its best " \
-           "estimate so far, not certified" in result.stdout
+    assert re.search(r"stopped: time budget of [0-9.e-]+ s spent during the certified stage: "
+                     r"its best estimate so far, not certified; .*\(the stages' share of "
+                     r"--budget 0\.2 s after reading", result.stdout)
     assert "NOT certified: time limit reached" in result.stdout
     assert not any(line.startswith("hint: ") for line in lines)
     assert re.search(r"; certified \+ LM30 \(cut after \d+\): chi2 ", lines[-1])
     graph, values = read_g2o(hard_1000)
     out_graph, out_values = read_g2o(output)
-    assert chi2(out_graph, out_values) < chi2(graph, values) / 100  # a guess, not the input
+    assert chi2(out_graph, out_values) < chi2(graph, values) / 10  # a guess, not the input
 
 
 def test_init_rl_without_refinement_writes_the_agents_guess(tmp_path, graph_file, agent):

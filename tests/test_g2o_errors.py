@@ -171,15 +171,15 @@ CASES = [
     # tags
     Case("vertex_se3_quat", replace(1, "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1"), 1,
          "VERTEX_SE3:QUAT: 3D graphs are not supported by the planar reader (read them with "
-         "rlpgo_gtsam.read_g2o3d)"),
+         "rlpgo_gtsam.read_g2o3d or read_pose_graph)"),
     Case("edge_se3_quat",
          replace(4, "EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 " + " ".join(["1", "0", "0", "0", "0", "0",
                                                                   "1", "0", "0", "0", "0",
                                                                   "1", "0", "0", "0",
                                                                   "1", "0", "0",
                                                                   "1", "0", "1"])),
-         4, "EDGE_SE3:QUAT: 3D graphs are not supported by the planar reader (read them with "
-         "rlpgo_gtsam.read_g2o3d)"),
+         4, "EDGE_SE3:QUAT: a 3D line in a planar file (a file holds 2D or 3D lines, not "
+         "both)"),
     Case("unknown_tag_vertex_xy", insert(7, "VERTEX_XY 3 1 1"), 7,
          f"unknown tag 'VERTEX_XY' {UNKNOWN_TAG}"),
     Case("unknown_tag_foo", replace(1, "FOO 1 2 3"), 1, f"unknown tag 'FOO' {UNKNOWN_TAG}"),

@@ -15,21 +15,11 @@ import os
 import sys
 from pathlib import Path
 
-import gtsam
-
-from benchmarks.sesync.runner import SesyncRun, default_binary, run_sesync
+from benchmarks.sesync.runner import default_binary, run_sesync, to_values
 
 NAMES = ["M3500", "M3500A", "M3500B", "M3500C", "City10K", "Intel", "MIT", "FR079"]
 DATASETS = Path(os.environ.get("RLPGO_DATASETS",
                                Path(__file__).resolve().parents[3] / "shared" / "datasets"))
-
-
-def values_from(run: SesyncRun) -> gtsam.Values:
-    """gtsam.Values keyed by the file's ids, holding the re-anchored rounded estimate."""
-    values = gtsam.Values()
-    for key, (x, y, theta) in zip(run.ids.tolist(), run.poses.tolist(), strict=True):
-        values.insert(int(key), gtsam.Pose2(x, y, theta))
-    return values
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -50,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     for path in files:
         graph, _ = read_g2o(path)
         run = run_sesync(args.binary, path)
-        values = values_from(run)
+        values = to_values(run.ids, run.poses)
         start = chi2(graph, values)
         refined = refine(graph, values, "lm", args.iters)
         yes_no = {True: "yes", False: "no"}

@@ -1,5 +1,5 @@
 """Run the SE-Sync driver (``sesync_rounded``: ``benchmarks/sesync/sesync_rounded.cpp`` built
-with SE-Sync) on a planar g2o file and read its result back.
+with SE-Sync) on a planar or 3D g2o file and read its result back.
 
 SE-Sync (Rosen, Carlone, Bandeira, Leonard, IJRR 2019) is the project's certified anchor:
 when it certifies, its rounded estimate is the global optimum of *its* cost (isotropic
@@ -9,11 +9,13 @@ benchmarks compare against. The binary is optional: nothing in the package needs
     from benchmarks.sesync.runner import run_sesync
     run = run_sesync("/work/sesync-build/build/bin/sesync_rounded", "M3500A.g2o")
     run.certified, run.suboptimality_bound, run.poses   # poses: (n, 3) x y theta
+    values = to_values(run.ids, run.poses)              # gtsam.Values of Pose2 / Pose3
 
 The poses come in the order of the file's sorted vertex ids (``run.ids``), moved by one
 rigid transform so that the first of them equals the file's first vertex (its
-``VERTEX_SE2`` line; the origin if the file has none): SE-Sync returns its estimate in an
-arbitrary gauge. ``run.raw_poses`` is the estimate as SE-Sync returned it.
+``VERTEX_SE2`` / ``VERTEX_SE3:QUAT`` line; the origin if the file has none): SE-Sync returns
+its estimate in an arbitrary gauge. ``run.raw_poses`` is the estimate as SE-Sync returned it.
+A 3D file's poses (``run.dim == 3``) are (n, 3, 4) matrices ``[R | t]``.
 """
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SesyncRun", "run_sesync", "default_binary", "BINARY_ENV"]
+__all__ = ["SesyncRun", "run_sesync", "default_binary", "reanchor", "reanchor3d",
+           "record_poses", "to_values", "BINARY_ENV", "THREAD_VARIABLES"]
 
 BINARY_ENV = "RLPGO_SESYNC_BINARY"
 """Environment variable naming the ``sesync_rounded`` binary (see :func:`default_binary`)."""
@@ -53,7 +56,8 @@ class SesyncRun:
             cost when the certificate is PSD.
         suboptimality_bound: objective - lower_bound (SE-Sync's bound; about 0 when certified).
         rank: final level of the Riemannian staircase.
-        poses: (n, 3) array of x, y, theta, re-anchored (see the module docstring).
+        poses: re-anchored estimate (see the module docstring): (n, 3) x, y, theta in 2D,
+            (n, 3, 4) ``[R | t]`` in 3D.
         ids: the file's vertex ids, sorted; row k of ``poses`` is vertex ``ids[k]``.
         verification_passed: SE-Sync's test passed (status ``GlobalOpt``): the certificate
             matrix at the final rank is PSD up to SE-Sync's tolerance eta = 1e-3, i.e. the
@@ -62,8 +66,9 @@ class SesyncRun:
             MaxRank, ElapsedTime).
         sdp_value: F(Y'Y), the relaxation's value at SE-Sync's solution.
         sesync_seconds: SE-Sync's own total_computation_time (problem construction excluded).
-        raw_poses: (n, 3) rounded estimate in SE-Sync's own gauge.
+        raw_poses: the rounded estimate in SE-Sync's own gauge, shaped like ``poses``.
         record: the driver's whole JSON record, poses and ids left out.
+        dim: 2 or 3.
     """
 
     seconds: float
@@ -81,6 +86,7 @@ class SesyncRun:
     sesync_seconds: float
     raw_poses: np.ndarray
     record: dict
+    dim: int
 
 
 def default_binary() -> Path | None:
@@ -91,7 +97,8 @@ def default_binary() -> Path | None:
     return None
 
 
-_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+"""The BLAS / OpenMP thread variables that ``threads`` sets for a run."""
 
 
 def run_sesync(binary: str | os.PathLike[str], g2o_path: str | os.PathLike[str],
@@ -124,7 +131,7 @@ def run_sesync(binary: str | os.PathLike[str], g2o_path: str | os.PathLike[str],
         out = Path(tmp) / "result.json"
         env = dict(os.environ)
         if threads is not None:
-            env.update({name: str(int(threads)) for name in _THREAD_VARIABLES})
+            env.update({name: str(int(threads)) for name in THREAD_VARIABLES})
         try:
             proc = subprocess.run([str(binary.resolve()), str(g2o_path.resolve()), str(out)],
                                   cwd=tmp, env=env, capture_output=True, text=True,
@@ -146,9 +153,9 @@ def run_sesync(binary: str | os.PathLike[str], g2o_path: str | os.PathLike[str],
 
 
 def _parse_record(record: dict, g2o_path: Path,
-                  first_vertex: tuple[int, tuple[float, float, float]] | None) -> SesyncRun:
+                  first_vertex: tuple[int, np.ndarray] | None) -> SesyncRun:
     try:
-        raw = np.asarray(record["poses"], dtype=float).reshape(-1, 3)
+        raw = record_poses(record)
         ids = np.asarray(record["ids"], dtype=np.int64)
         n = int(record["num_poses"])
 
@@ -172,6 +179,7 @@ def _parse_record(record: dict, g2o_path: Path,
             sesync_seconds=number("sesync_reported_seconds"),
             raw_poses=raw,
             record={k: v for k, v in record.items() if k not in ("poses", "ids")},
+            dim=int(record.get("dim", 2)),
         )
     except (KeyError, TypeError, ValueError) as error:
         raise RuntimeError(
@@ -184,9 +192,29 @@ def _parse_record(record: dict, g2o_path: Path,
     if first_vertex is not None and first_vertex[0] != int(ids[0]):
         raise RuntimeError(f"SE-Sync's first pose is vertex {int(ids[0])}, the file's first "
                            f"vertex is {first_vertex[0]} ({g2o_path})")
-    anchor = (0.0, 0.0, 0.0) if first_vertex is None else first_vertex[1]
-    run.poses = reanchor(raw, anchor)
+    if first_vertex is not None and first_vertex[1].shape != raw.shape[1:]:
+        raise RuntimeError(f"SE-Sync's record is {run.dim}D, the file's first vertex is not "
+                           f"({g2o_path})")
+    if run.dim == 3:
+        anchor3d = np.eye(3, 4) if first_vertex is None else first_vertex[1]
+        run.poses = reanchor3d(raw, anchor3d)
+    else:
+        anchor = (0.0, 0.0, 0.0) if first_vertex is None else tuple(first_vertex[1])
+        run.poses = reanchor(raw, anchor)
     return run
+
+
+def record_poses(record: dict) -> np.ndarray:
+    """The poses of a driver record as written, in SE-Sync's gauge: (n, 3) x, y, theta when
+    its ``dim`` is 2 (or absent), (n, 3, 4) ``[R | t]`` when it is 3 (the record's rows are
+    ``x y z r11 r12 r13 r21 ... r33``)."""
+    dim = int(record.get("dim", 2))
+    if dim == 2:
+        return np.asarray(record["poses"], dtype=float).reshape(-1, 3)
+    if dim != 3:
+        raise ValueError(f"dim {dim} is neither 2 nor 3")
+    rows = np.asarray(record["poses"], dtype=float).reshape(-1, 12)
+    return np.concatenate([rows[:, 3:].reshape(-1, 3, 3), rows[:, :3, None]], axis=2)
 
 
 def reanchor(poses: np.ndarray, anchor: tuple[float, float, float]) -> np.ndarray:
@@ -207,24 +235,68 @@ def reanchor(poses: np.ndarray, anchor: tuple[float, float, float]) -> np.ndarra
     return out
 
 
-def _first_vertex(path: Path) -> tuple[int, tuple[float, float, float]] | None:
-    """The VERTEX_SE2 with the smallest id and its pose, or None if the file has none."""
-    best: tuple[int, tuple[float, float, float]] | None = None
+def reanchor3d(poses: np.ndarray, anchor: np.ndarray) -> np.ndarray:
+    """:func:`reanchor` in 3D: ``poses`` (n, 3, 4) and ``anchor`` (3, 4) matrices ``[R | t]``;
+    T = anchor * poses[0]^-1, pose_k -> T * pose_k (``rlpgo_gtsam.se3``'s compose and
+    inverse), so that pose 0 becomes the anchor."""
+    from rlpgo_gtsam.se3 import compose, inverse
+
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3, 4)
+    anchor = np.asarray(anchor, dtype=float).reshape(1, 3, 4)
+    r, t = poses[:, :, :3], poses[:, :, 3]
+    r_shift, t_shift = compose(anchor[:, :, :3], anchor[:, :, 3], *inverse(r[:1], t[:1]))
+    r, t = compose(np.broadcast_to(r_shift, r.shape), np.broadcast_to(t_shift, t.shape), r, t)
+    out = np.concatenate([r, t[:, :, None]], axis=2)
+    out[0] = anchor[0]
+    return out
+
+
+def to_values(ids: np.ndarray, poses: np.ndarray):
+    """``gtsam.Values`` keyed by ``ids`` holding ``poses`` (rows of :class:`SesyncRun`'s
+    ``poses``): ``Pose2(x, y, theta)`` for (n, 3), ``Pose3(Rot3(R), t)`` for (n, 3, 4)."""
+    import gtsam
+
+    poses = np.asarray(poses, dtype=float)
+    values = gtsam.Values()
+    if poses.ndim == 3:
+        for key, pose in zip(np.asarray(ids).tolist(), poses, strict=True):
+            values.insert(int(key), gtsam.Pose3(gtsam.Rot3(pose[:, :3]), pose[:, 3]))
+    else:
+        for key, (x, y, theta) in zip(np.asarray(ids).tolist(), poses.tolist(), strict=True):
+            values.insert(int(key), gtsam.Pose2(x, y, theta))
+    return values
+
+
+def _first_vertex(path: Path) -> tuple[int, np.ndarray] | None:
+    """The vertex with the smallest id and its pose, or None if the file has none: a
+    ``VERTEX_SE2`` as (3,) x, y, theta; a ``VERTEX_SE3:QUAT`` (x y z qx qy qz qw) as the
+    (3, 4) matrix ``[R | t]``."""
+    best: tuple[int, tuple[float, ...]] | None = None
+    widths = {"VERTEX_SE2": 3, "VERTEX_SE3:QUAT": 7}  # numbers after the id
     try:
         with path.open("r", encoding="utf-8", errors="replace") as handle:
             for line in handle:
                 tokens = line.split()
-                if len(tokens) >= 5 and tokens[0] == "VERTEX_SE2":
+                width = widths.get(tokens[0], 0) if tokens else 0
+                if width and len(tokens) >= 2 + width:
                     try:
                         key = int(tokens[1])
-                        pose = (float(tokens[2]), float(tokens[3]), float(tokens[4]))
+                        pose = tuple(float(v) for v in tokens[2:2 + width])
                     except ValueError:
                         continue  # the driver reports malformed lines itself
                     if best is None or key < best[0]:
                         best = (key, pose)
     except OSError as error:
         raise RuntimeError(f"cannot read {path}: {_one_line(error)}") from None
-    return best
+    if best is None:
+        return None
+    numbers = np.array(best[1])
+    if len(numbers) == 3:
+        return best[0], numbers
+    from rlpgo_gtsam.se3 import quaternions_to_rotations
+
+    rotation = quaternions_to_rotations(numbers[3:])[0]
+    return best[0], np.concatenate([rotation, numbers[:3, None]], axis=1)
 
 
 def _last_line(text: str | None) -> str:

@@ -1,5 +1,6 @@
 // sesync_rounded: run SE-Sync (Rosen, Carlone, Bandeira, Leonard; IJRR 2019) on a
-// planar g2o pose graph and write its rounded estimate plus its certificate data.
+// planar (EDGE_SE2) or 3D (EDGE_SE3:QUAT) g2o pose graph and write its rounded
+// estimate plus its certificate data.
 //
 //   usage: sesync_rounded INPUT.g2o OUTPUT.json
 //
@@ -43,19 +44,24 @@
 //   suboptimality_bound     objective - lower_bound (SE-Sync's definition)
 //   rank                    rows of Yopt (final staircase level)
 //   num_poses, num_measurements
+//   dim                     2 or 3
 //   ids                     the file's vertex ids, sorted ascending
-//   poses                   [[x, y, theta], ...] in that order: SE-Sync's rounded
-//                           estimate exactly as returned, i.e. in SE-Sync's
-//                           arbitrary gauge (NOT anchored to the file's vertices)
+//   poses                   in that order, SE-Sync's rounded estimate exactly as
+//                           returned, i.e. in SE-Sync's arbitrary gauge (NOT
+//                           anchored to the file's vertices): [x, y, theta] per
+//                           pose in 2D; [x, y, z, r11, r12, r13, r21, ..., r33]
+//                           (the rotation matrix row by row) in 3D
 //
-// The g2o file is parsed here (EDGE_SE2 only; VERTEX_SE2 lines only contribute
-// ids; FIX lines, comments and blank lines are ignored; anything else is an error)
-// into SE-Sync's RelativePoseMeasurement with exactly the precisions that SE-Sync's
-// own read_g2o_file assigns: tau = 2 / tr(inverse translational information),
-// kappa = rotational information I33.  Unlike read_g2o_file (which uses the raw
-// ids as indices and silently re-uses the previous line on unknown tokens or
-// blank lines), ids are mapped to 0..n-1 in sorted order and malformed input is
-// rejected.
+// The g2o file is parsed here (EDGE_SE2 or EDGE_SE3:QUAT, not both; VERTEX_SE2 /
+// VERTEX_SE3:QUAT lines only contribute ids; FIX lines, comments and blank lines
+// are ignored; anything else is an error) into SE-Sync's RelativePoseMeasurement
+// with exactly the precisions that SE-Sync's own read_g2o_file assigns: in 2D
+// tau = 2 / tr(inverse translational information), kappa = rotational information
+// I33; in 3D tau = 3 / tr(inverse of the 3x3 translational information block),
+// kappa = 3 / (2 tr(inverse of the 3x3 rotational block)).  Unlike read_g2o_file
+// (which uses the raw ids as indices and silently re-uses the previous line on
+// unknown tokens or blank lines), ids are mapped to 0..n-1 in sorted order and
+// malformed input is rejected.
 //
 // Errors: one line on stderr, exit status 1.
 
@@ -76,6 +82,7 @@
 
 #include <Eigen/CholmodSupport>
 #include <Eigen/Dense>
+#include <Eigen/Geometry>
 #include <Eigen/Sparse>
 
 #include "SESync/SESync.h"
@@ -94,21 +101,23 @@ using SESync::SparseMatrix;
 using SESync::Vector;
 
 struct Graph {
+  size_t dim = 2;
   SESync::measurements_t measurements;
   std::vector<long long> ids; // sorted file ids; index = SE-Sync pose index
 };
 
-Graph read_planar_g2o(const std::string &path) {
+Graph read_g2o(const std::string &path) {
   std::ifstream in(path);
   if (!in)
     throw std::runtime_error("cannot open " + path);
 
   struct RawEdge {
     long long i, j;
-    double dx, dy, dth, I11, I12, I13, I22, I23, I33;
+    SESync::RelativePoseMeasurement m; // i, j filled in once ids are indexed
   };
   std::vector<RawEdge> edges;
   std::vector<long long> ids;
+  size_t dim = 0;
 
   std::string line;
   size_t lineno = 0;
@@ -119,30 +128,80 @@ Graph read_planar_g2o(const std::string &path) {
     if (!(ss >> tok) || tok[0] == '#')
       continue;
     auto where = [&]() { return path + ":" + std::to_string(lineno); };
+    auto set_dim = [&](size_t d) {
+      if (dim != 0 && dim != d)
+        throw std::runtime_error("2D and 3D lines mixed at " + where());
+      dim = d;
+    };
     if (tok == "EDGE_SE2") {
+      set_dim(2);
       RawEdge e;
-      if (!(ss >> e.i >> e.j >> e.dx >> e.dy >> e.dth >> e.I11 >> e.I12 >>
-            e.I13 >> e.I22 >> e.I23 >> e.I33))
+      double dx, dy, dth, I11, I12, I13, I22, I23, I33;
+      if (!(ss >> e.i >> e.j >> dx >> dy >> dth >> I11 >> I12 >> I13 >> I22 >>
+            I23 >> I33))
         throw std::runtime_error("malformed EDGE_SE2 at " + where());
       if (e.i == e.j)
         throw std::runtime_error("self-loop edge at " + where());
+      e.m.t = Eigen::Matrix<Scalar, 2, 1>(dx, dy);
+      e.m.R = Eigen::Rotation2D<Scalar>(dth).toRotationMatrix();
+      Eigen::Matrix<Scalar, 2, 2> tran_info;
+      tran_info << I11, I12, I12, I22;
+      Eigen::LLT<Eigen::Matrix<Scalar, 2, 2>> llt(tran_info);
+      if (llt.info() != Eigen::Success || !(I33 > 0))
+        throw std::runtime_error("non-positive-definite information at " +
+                                 where());
+      e.m.tau = 2 / tran_info.inverse().trace(); // as SESync::read_g2o_file
+      e.m.kappa = I33;                           // as SESync::read_g2o_file
       edges.push_back(e);
       ids.push_back(e.i);
       ids.push_back(e.j);
-    } else if (tok == "VERTEX_SE2") {
+    } else if (tok == "EDGE_SE3:QUAT") {
+      set_dim(3);
+      RawEdge e;
+      double t[3], q[4], I[21];
+      if (!(ss >> e.i >> e.j >> t[0] >> t[1] >> t[2] >> q[0] >> q[1] >> q[2] >>
+            q[3]))
+        throw std::runtime_error("malformed EDGE_SE3:QUAT at " + where());
+      for (double &v : I)
+        if (!(ss >> v))
+          throw std::runtime_error("malformed EDGE_SE3:QUAT at " + where());
+      if (e.i == e.j)
+        throw std::runtime_error("self-loop edge at " + where());
+      // g2o's order: x y z qx qy qz qw; information upper triangle row by row,
+      // translation block first.
+      Eigen::Matrix<Scalar, 6, 6> info;
+      for (int r = 0, k = 0; r < 6; ++r)
+        for (int c = r; c < 6; ++c, ++k)
+          info(r, c) = info(c, r) = I[k];
+      const Eigen::Quaternion<Scalar> quat(q[3], q[0], q[1], q[2]);
+      e.m.t = Eigen::Matrix<Scalar, 3, 1>(t[0], t[1], t[2]);
+      e.m.R = quat.normalized().toRotationMatrix();
+      const Eigen::Matrix<Scalar, 3, 3> tran_info = info.topLeftCorner<3, 3>();
+      const Eigen::Matrix<Scalar, 3, 3> rot_info = info.bottomRightCorner<3, 3>();
+      // as SESync::read_g2o_file
+      e.m.tau = 3 / tran_info.inverse().trace();
+      e.m.kappa = 3 / (2 * rot_info.inverse().trace());
+      if (!(e.m.tau > 0) || !(e.m.kappa > 0) || !std::isfinite(e.m.tau) ||
+          !std::isfinite(e.m.kappa))
+        throw std::runtime_error("non-positive precision at " + where());
+      edges.push_back(e);
+      ids.push_back(e.i);
+      ids.push_back(e.j);
+    } else if (tok == "VERTEX_SE2" || tok == "VERTEX_SE3:QUAT") {
+      set_dim(tok == "VERTEX_SE2" ? 2 : 3);
       long long id;
       if (!(ss >> id))
-        throw std::runtime_error("malformed VERTEX_SE2 at " + where());
+        throw std::runtime_error("malformed " + tok + " at " + where());
       ids.push_back(id);
     } else if (tok == "FIX") {
       continue;
     } else {
       throw std::runtime_error("unsupported g2o token '" + tok + "' at " +
-                               where() + " (planar EDGE_SE2 graphs only)");
+                               where());
     }
   }
   if (edges.empty())
-    throw std::runtime_error("no EDGE_SE2 in " + path);
+    throw std::runtime_error("no edge in " + path);
 
   std::sort(ids.begin(), ids.end());
   ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
@@ -163,21 +222,11 @@ Graph read_planar_g2o(const std::string &path) {
   Graph g;
   g.ids = ids;
   g.measurements.reserve(edges.size());
+  g.dim = dim;
   for (const RawEdge &e : edges) {
-    SESync::RelativePoseMeasurement m;
+    SESync::RelativePoseMeasurement m = e.m;
     m.i = index.at(e.i);
     m.j = index.at(e.j);
-    m.t = Eigen::Matrix<Scalar, 2, 1>(e.dx, e.dy);
-    m.R = Eigen::Rotation2D<Scalar>(e.dth).toRotationMatrix();
-    Eigen::Matrix<Scalar, 2, 2> tran_info;
-    tran_info << e.I11, e.I12, e.I12, e.I22;
-    Eigen::LLT<Eigen::Matrix<Scalar, 2, 2>> llt(tran_info);
-    if (llt.info() != Eigen::Success || !(e.I33 > 0))
-      throw std::runtime_error("edge " + std::to_string(e.i) + "-" +
-                               std::to_string(e.j) +
-                               " has a non-positive-definite information matrix");
-    m.tau = 2 / tran_info.inverse().trace(); // as SESync::read_g2o_file
-    m.kappa = e.I33;                         // as SESync::read_g2o_file
     g.measurements.push_back(m);
 
     size_t a = find(m.i), b = find(m.j);
@@ -289,7 +338,7 @@ int main(int argc, char **argv) {
     return 2;
   }
   try {
-    const Graph g = read_planar_g2o(argv[1]);
+    const Graph g = read_g2o(argv[1]);
     const size_t n = g.ids.size();
 
     SESync::SESyncOpts opts; // defaults throughout
@@ -300,7 +349,7 @@ int main(int argc, char **argv) {
     const auto t1 = std::chrono::steady_clock::now();
     const double seconds = std::chrono::duration<double>(t1 - t0).count();
 
-    const size_t d = 2;
+    const size_t d = g.dim;
     if (static_cast<size_t>(res.xhat.rows()) != d ||
         static_cast<size_t>(res.xhat.cols()) != (d + 1) * n)
       throw std::runtime_error("unexpected shape of SE-Sync's rounded estimate");
@@ -366,16 +415,25 @@ int main(int argc, char **argv) {
     out << "  \"rank\": " << res.Yopt.rows() << ",\n";
     out << "  \"num_poses\": " << n << ",\n";
     out << "  \"num_measurements\": " << g.measurements.size() << ",\n";
+    out << "  \"dim\": " << d << ",\n";
     out << "  \"ids\": [";
     for (size_t i = 0; i < n; ++i)
       out << (i ? ", " : "") << g.ids[i];
     out << "],\n";
     out << "  \"poses\": [\n";
     for (size_t i = 0; i < n; ++i) {
-      const Eigen::Matrix<Scalar, 2, 2> R = res.xhat.block(0, n + d * i, d, d);
-      const double theta = std::atan2(R(1, 0), R(0, 0));
-      out << "    [" << num(res.xhat(0, i)) << ", " << num(res.xhat(1, i))
-          << ", " << num(theta) << "]" << (i + 1 < n ? ",\n" : "\n");
+      out << "    [";
+      for (size_t r = 0; r < d; ++r)
+        out << (r ? ", " : "") << num(res.xhat(r, i));
+      if (d == 2) {
+        const Eigen::Matrix<Scalar, 2, 2> R = res.xhat.block(0, n + d * i, d, d);
+        out << ", " << num(std::atan2(R(1, 0), R(0, 0)));
+      } else {
+        for (size_t r = 0; r < d; ++r)
+          for (size_t c = 0; c < d; ++c)
+            out << ", " << num(res.xhat(r, n + d * i + c));
+      }
+      out << "]" << (i + 1 < n ? ",\n" : "\n");
     }
     out << "  ]\n}\n";
     out.close();

@@ -1,4 +1,5 @@
-"""rlpgo-compare: initial guesses side by side, each refined by the same GTSAM solver."""
+"""rlpgo-compare: initial guesses side by side, each refined by the same GTSAM solver, on
+planar or 3D g2o files (each file gets its own dimension's methods)."""
 
 from __future__ import annotations
 
@@ -8,15 +9,20 @@ import click
 import numpy as np
 
 from rlpgo_cli.errors import RlpgoCommand
+from rlpgo_cli.inputs import read_input
 from rlpgo_cli.output import RunFiles, json_text
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, OutputFile
 from rlpgo_gtsam.accuracy import TrajectoryErrors, trajectory_errors
 from rlpgo_gtsam.errors import OutputError, RlpgoError
 from rlpgo_gtsam.files import check_name
 from rlpgo_gtsam.g2o import read_g2o
-from rlpgo_gtsam.graph import PoseGraph2D, chi2
+from rlpgo_gtsam.g2o3d import g2o_dimension
+from rlpgo_gtsam.graph import chi2
+from rlpgo_gtsam.graph3d import extract_pose_graph
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
+from rlpgo_gtsam.initializers3d import COMPARISON_3D, INITIALIZERS_3D, check_method_3d
 from rlpgo_gtsam.ranking import (
+    FROM_BEST,
     TIE_RELATIVE,
     MethodResult,
     compare_methods,
@@ -32,6 +38,8 @@ from rlpgo_gtsam.synthetic import generate
 # certified start it took 22 s on M3500 and 99 s on City10K, three quarters of the whole
 # comparison, and lowered the refined chi2 on neither (nor on any graph in staged.py's table).
 DEFAULT_METHODS = ",".join([*CLASSICAL, "fastsync", "certified"])
+# On a 3D file: the 3D rows, certified first (--methods not given).
+DEFAULT_METHODS_3D = list(COMPARISON_3D)
 # The graph compared when no file is given: the paper's n = 300 lawn mower with heavy
 # rotation noise and noisy measurements, where odometry and the classical starts differ.
 DEMO = dict(n=300, sigma_r=0.3, sigma_t=0.05, d=3.0, lc=0.5, noisy_measurements=True)
@@ -54,19 +62,26 @@ def _accuracy_cells(errors: TrajectoryErrors | None) -> str:
     return f"{_format(ape, '.4g'):>10}{_format(rpe, '.4g'):>10}"
 
 
-def _header(accuracy: bool) -> str:
+def method_width(methods: list[str]) -> int:
+    """The method column's width: 14, or wider for longer names (``initialize_pose3``, a
+    ``@best`` row)."""
+    return max(14, *(len(m) + (5 if m in FROM_BEST else 0) + 2 for m in methods))
+
+
+def _header(accuracy: bool, width: int = 14) -> str:
     """The table's two header lines; with ``accuracy``, the APE and RPE columns."""
     extra = f"{'APE m':>10}{'RPE m':>10}" if accuracy else ""
-    header = (f"  {'method':<14}{'init chi2':>14}{'init s':>9}{'refined chi2':>15}"
+    header = (f"  {'method':<{width}}{'init chi2':>14}{'init s':>9}{'refined chi2':>15}"
               f"{'refine s':>10}{'iters':>7}{extra}  certified (bound)")
     return header + "\n" + "-" * len(header)
 
 
-def _row(r: MethodResult, errors: TrajectoryErrors | None, accuracy: bool) -> str:
+def _row(r: MethodResult, errors: TrajectoryErrors | None, accuracy: bool,
+         width: int = 14) -> str:
     """One method's line, printed as soon as it is done (a failed one's seconds included).
     With ``accuracy``: the refined result's APE and RPE against the ground truth."""
     cells = _accuracy_cells(errors) if accuracy else ""
-    return (f"  {r.method:<14}{_format(r.init_chi2, '.6g'):>14}"
+    return (f"  {r.method:<{width}}{_format(r.init_chi2, '.6g'):>14}"
             f"{_format(r.init_seconds, '.3f'):>9}{_format(r.refined_chi2, '.6g'):>15}"
             f"{_format(r.refine_seconds, '.3f'):>10}{_format(r.iters, 'd'):>7}{cells}  "
             f"{_certificate(r)}" + (f"  FAILED: {r.failure}" if r.failure else ""))
@@ -85,16 +100,35 @@ def _best_line(results: list[MethodResult]) -> str:
 
 
 def _methods(text: str, start: str) -> list[str]:
+    """The --methods list, each a method of either dimension (a usage error otherwise);
+    ``rl`` is ``rl@<start>``."""
     methods = [m.strip() for m in text.split(",") if m.strip()]
     if not methods:
         raise click.BadParameter("give at least one method", param_hint="--methods")
     methods = [f"rl@{start}" if m == "rl" else m for m in methods]
     for method in methods:
+        if method in INITIALIZERS_3D:
+            continue
         try:
             check_method(method)
         except RlpgoError as error:
-            raise click.BadParameter(str(error), param_hint="--methods") from None
+            raise click.BadParameter(f"{error} (3D files: {', '.join(INITIALIZERS_3D)})",
+                                     param_hint="--methods") from None
     return methods
+
+
+def _methods_for(path: Path, dimension: int, given: list[str] | None) -> list[str]:
+    """The methods run on the file at ``path``: the --methods given, each checked against
+    the file's dimension (an error that names the file), or that dimension's default."""
+    if given is None:
+        return DEFAULT_METHODS_3D if dimension == 3 else _methods(DEFAULT_METHODS, "odometry")
+    if dimension == 3:
+        for method in given:
+            try:
+                check_method_3d(method)
+            except RlpgoError as error:
+                raise RlpgoError(f"{path} holds a 3D pose graph: {error}") from None
+    return given
 
 
 @click.command(cls=RlpgoCommand)
@@ -104,7 +138,8 @@ def _methods(text: str, start: str) -> list[str]:
 @click.option("--iters", type=ITERATIONS, default=30, show_default=True,
               help="Iteration cap of the solver.")
 @click.option("--methods", default=DEFAULT_METHODS, show_default=True,
-              help="Comma-separated initializers to compare.")
+              help="Comma-separated initializers to compare (a 3D file's default: "
+                   + ",".join(DEFAULT_METHODS_3D) + ").")
 @click.option("--json", "json_path", type=OutputFile(),
               help="Write every row as a JSON list of records.")
 @click.option("--plot", "plot_dir", type=click.Path(path_type=Path),
@@ -122,13 +157,17 @@ def _methods(text: str, start: str) -> list[str]:
 @click.option("--ground-truth", "truth_path", type=click.Path(path_type=Path),
               help="True poses (g2o) of the one FILE: adds evo's APE and RPE (rmse, m) of each "
                    "refined result. With no FILE, the generated graph's own are used.")
-def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episodes, start,
+@click.pass_context
+def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, episodes, start,
          cycles, truth_path):
-    """Compare initial guesses for the planar pose graphs in FILES (g2o).
+    """Compare initial guesses for the pose graphs in FILES (g2o, planar or 3D).
 
     Each method's guess is refined by the same GTSAM solver; costs are g2o chi2
-    (2 x GTSAM error). With no FILE, a generated lawn-mower graph is compared.
+    (2 x GTSAM error). A 3D file's default methods are the 3D rows, certified first.
+    With no FILE, a generated lawn-mower graph is compared.
     """
+    given = ctx.get_parameter_source("methods") not in (
+        None, click.core.ParameterSource.DEFAULT, click.core.ParameterSource.DEFAULT_MAP)
     method_list = _methods(methods, start)
     run = RunFiles(files)
     if truth_path is not None:
@@ -152,13 +191,26 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episod
             check_name(plot)
     # One check of every output: a PNG that is an input or is also --json is refused.
     run.check(*(plots if plot_dir is not None and plot_dir.is_dir() else []), json_path)
-    inputs = [(path.name, *read_g2o(path)) for path in files]  # all validated before any run
+    dimensions = [g2o_dimension(path) for path in files]
+    per_file = [_methods_for(path, dimension, method_list if given else None)
+                for path, dimension in zip(files, dimensions, strict=True)]
+    three = [path for path, dimension in zip(files, dimensions, strict=True) if dimension == 3]
+    for option, used in (("--ground-truth", truth_path), ("--plot", plot_dir)):
+        if used is not None and three:
+            raise RlpgoError(f"{three[0]} holds a 3D pose graph: {option} is planar so far "
+                             "(trajectory errors and plots of 2D graphs)")
+    read = [read_input(path) for path in files]  # all validated before any run
+    for one in read:
+        for note in one.notes:
+            click.echo(f"note: {note}")
+    inputs = [(path.name, one.graph, one.values) for path, one in zip(files, read, strict=True)]
     truth = None if truth_path is None else read_g2o(truth_path)[1]
     if not inputs:
         demo = generate(rng=np.random.default_rng(seed), **DEMO)
         settings = " ".join(f"{key}={value}" for key, value in DEMO.items())
         inputs = [(f"generated lawn mower ({settings} seed={seed}; rlpgo-generate's model)",
                    demo.graph, demo.initial)]
+        per_file = [method_list if given else _methods(DEFAULT_METHODS, "odometry")]
         truth = demo.ground_truth
     if truth is not None:  # its keys checked before any run
         trajectory_errors(inputs[0][2], truth, align=False)
@@ -170,28 +222,30 @@ def main(files, solver, iters, methods, json_path, plot_dir, seed, model, episod
     records, failed = [], False
     pngs: list[tuple[Path, bytes]] = []
     for index, (name, graph, values) in enumerate(inputs):
-        pose_graph = PoseGraph2D.from_gtsam(graph, values)
+        pose_graph = extract_pose_graph(graph, values)
         click.echo(f"\n{name}: {pose_graph.num_poses} poses, {pose_graph.num_edges} edges, "
                    f"{solver.upper()}{iters}")
-        click.echo(_header(truth is not None))
+        width = method_width(per_file[index])
+        click.echo(_header(truth is not None, width))
         accuracy: list[TrajectoryErrors | None] = []
 
         def show(row: MethodResult,
-                 accuracy: list[TrajectoryErrors | None] = accuracy) -> None:
+                 accuracy: list[TrajectoryErrors | None] = accuracy,
+                 width: int = width) -> None:
             errors = None
             if truth is not None and row.refined is not None and not row.failure:
                 errors = trajectory_errors(row.refined, truth)
             accuracy.append(errors)
-            click.echo(_row(row, errors, truth is not None))
+            click.echo(_row(row, errors, truth is not None, width))
 
-        results = compare_methods(graph, values, method_list, solver, iters, dataset=name,
+        results = compare_methods(graph, values, per_file[index], solver, iters, dataset=name,
                                   options=options, pose_graph=pose_graph, on_row=show)
         click.echo(_best_line(results))
         for r in results:
             if r.init is not None and r.init.certificate is not None:
                 click.echo(f"  certificate ({r.method}): {r.init.certificate.describe()}")
         for r, errors in zip(results, accuracy, strict=True):
-            record = r.record()
+            record = {**r.record(), "dimension": pose_graph.dimension}
             if truth is not None:
                 record["accuracy"] = None if errors is None else errors.record()
             records.append(record)

@@ -1,4 +1,5 @@
-"""rlpgo-generate: write one of the paper's synthetic lawn-mower pose graphs as g2o."""
+"""rlpgo-generate: write one of the paper's synthetic lawn-mower pose graphs as g2o (planar,
+or its layers in 3D with ``--dim 3``)."""
 
 from __future__ import annotations
 
@@ -9,19 +10,36 @@ from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import SEED, FiniteFloat, OutputFile
 from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text, g2o_text, g2o_text_lines
+from rlpgo_gtsam.g2o3d import g2o3d_text, g2o3d_text_lines
 from rlpgo_gtsam.graph import chi2
-from rlpgo_gtsam.synthetic import GROUP_SIZE, LOCAL_RANGE, OUTLIER_MODES, generate
+from rlpgo_gtsam.synthetic import (
+    GROUP_SIZE,
+    LAYER_ROWS,
+    LOCAL_RANGE,
+    OUTLIER_MODES,
+    ROW_LENGTH,
+    generate,
+    generate3d,
+)
+
+# --dim: the generator, the g2o text (and each factor's line) and the edge lists' tag
+_DIMENSIONS = {2: (generate, g2o_text_lines, g2o_text, "EDGE_SE2"),
+               3: (generate3d, g2o3d_text_lines, g2o3d_text, "EDGE_SE3:QUAT")}
 
 
 @click.command(cls=RlpgoCommand)
+@click.option("--dim", type=click.IntRange(2, 3), default=2, show_default=True,
+              help=f"2: the planar lawn mower (EDGE_SE2); 3: the lawn mower in layers of "
+                   f"{LAYER_ROWS} rows of {ROW_LENGTH}, d apart, with loop closures to the "
+                   "poses beside and under each pose (EDGE_SE3:QUAT, VERTEX_SE3:QUAT).")
 @click.option("--n", type=click.IntRange(2, 1_000_000), default=300, show_default=True,
               help="Number of poses (a million take minutes and about 1.5 GB).")
 @click.option("--sigma-r", type=FiniteFloat(1e-9, 3.2), default=0.3,
-              show_default=True, help="Rotation noise, radians.")
+              show_default=True, help="Rotation noise, radians (per axis in 3D).")
 @click.option("--sigma-t", type=FiniteFloat(1e-9, 1e6), default=0.05,
               show_default=True, help="Translation noise per axis, metres.")
 @click.option("--d", type=FiniteFloat(1e-6, 1e6), default=3.0,
-              show_default=True, help="Spacing of poses and rows, metres.")
+              show_default=True, help="Spacing of poses, rows and layers, metres.")
 @click.option("--lc", type=FiniteFloat(0.0, 1.0), default=0.5, show_default=True,
               help="Fraction of loop-closure candidates kept.")
 @click.option("--noisy-measurements", is_flag=True,
@@ -47,23 +65,25 @@ from rlpgo_gtsam.synthetic import GROUP_SIZE, LOCAL_RANGE, OUTLIER_MODES, genera
               show_default=True, help="Wrong closures per group (group, localgroup).")
 @click.option("--outliers-out", type=OutputFile(),
               help=f"Text file listing the wrong loop closures, one a line as "
-                   f"'{EDGE_LIST_LINE}' (L: the edge's line in OUTPUT, from 1), after one '#' "
-                   "line: the format of rlpgo-init --outliers-out.")
-def main(n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_truth, outliers,
-         outlier_mode, group_size, outliers_out):
-    """Generate a lawn-mower pose graph as in the RL-PGO paper."""
+                   f"'{EDGE_LIST_LINE}' (EDGE_SE3:QUAT with --dim 3; L: the edge's line in "
+                   "OUTPUT, from 1), after one '#' line: the format of rlpgo-init "
+                   "--outliers-out.")
+def main(dim, n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_truth,
+         outliers, outlier_mode, group_size, outliers_out):
+    """Generate a lawn-mower pose graph as in the RL-PGO paper (in layers in 3D: --dim 3)."""
     run = RunFiles()
     run.check(output, ground_truth, outliers_out)
-    sample = generate(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
-                      noisy_measurements=noisy_measurements, outliers=outliers,
-                      outlier_mode=outlier_mode, group_size=group_size)
-    text, lines = g2o_text_lines(sample.graph, sample.initial)
+    make, text_lines, text_of, tag = _DIMENSIONS[dim]
+    sample = make(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
+                  noisy_measurements=noisy_measurements, outliers=outliers,
+                  outlier_mode=outlier_mode, group_size=group_size)
+    text, lines = text_lines(sample.graph, sample.initial)
     files = [(output, text.encode())]
     if ground_truth is not None:
-        files.append((ground_truth, g2o_text(sample.graph, sample.ground_truth).encode()))
+        files.append((ground_truth, text_of(sample.graph, sample.ground_truth).encode()))
     if outliers_out is not None:
         listed = edge_list_text(sample.graph, sample.outlier_edges, lines, g2o_name=output.name,
-                                title="wrong loop closures that rlpgo-generate added")
+                                title="wrong loop closures that rlpgo-generate added", tag=tag)
         files.append((outliers_out, listed.encode("utf-8", "surrogateescape")))
     run.write_together(files)  # every file or none
     click.echo(f"{output}: {n} poses, {sample.graph.size()} edges, initial chi2 "

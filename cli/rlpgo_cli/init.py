@@ -1,20 +1,27 @@
-"""rlpgo-init: write an initial guess for a g2o pose graph (same edges, new vertices)."""
+"""rlpgo-init: write an initial guess for a planar or 3D g2o pose graph (same edges, new
+vertices)."""
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from pathlib import Path
 
 import click
 
+from rlpgo_cli.compare import method_width
 from rlpgo_cli.errors import RlpgoCommand
-from rlpgo_cli.output import RunFiles
+from rlpgo_cli.inputs import read_input
+from rlpgo_cli.output import RunFiles, json_text
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, FiniteFloat, OutputFile
 from rlpgo_gtsam.errors import RlpgoError
-from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text, g2o_text, read_g2o, read_g2o_lines
-from rlpgo_gtsam.graph import PoseGraph2D, chi2
+from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text, read_g2o_lines
+from rlpgo_gtsam.g2o3d import g2o_dimension, pose_graph_text
+from rlpgo_gtsam.graph import chi2
+from rlpgo_gtsam.graph3d import extract_pose_graph
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
+from rlpgo_gtsam.initializers3d import COMPARISON_3D, INITIALIZERS_3D, check_method_3d
 from rlpgo_gtsam.ranking import (
     MethodResult,
     best_of,
@@ -27,7 +34,8 @@ from rlpgo_gtsam.rl.models import DEFAULT_MODEL, model_path
 from rlpgo_gtsam.robust import robust_initialize
 from rlpgo_gtsam.staged import DEFAULT_BUDGET_S, DEFAULT_SEARCHES, staged_initialize
 
-# --method all: every initializer, and the agent from each classical start.
+# --method all: every initializer, and the agent from each classical start; on a 3D graph
+# the 3D rows (COMPARISON_3D).
 ALL = [*CLASSICAL, "fastsync", "certified", *(f"rl@{s}" for s in (*CLASSICAL, "certified"))]
 # Options of the staged default and the methods, which --robust does not use.
 NOT_ROBUST = ("budget", "model", "cycles", "episodes", "start", "iters", "seed")
@@ -55,17 +63,42 @@ def _progress_bar():
     return progress
 
 
-def _method_list(method: str, start: str) -> list[str]:
-    if method == "auto":
-        return ["certified", *(name for name, _ in DEFAULT_SEARCHES)]
-    if method == "all":
-        return ALL
+def _check_method_name(method: str, start: str) -> None:
+    """A usage error for a --method that is no method of either dimension."""
     name = f"rl@{start}" if method == "rl" else method
+    if method in ("auto", "all") or name in INITIALIZERS_3D:
+        return
     try:
         check_method(name)
     except RlpgoError as error:
-        raise click.BadParameter(str(error), param_hint="--method") from None
+        raise click.BadParameter(f"{error} (3D graphs: {', '.join(INITIALIZERS_3D)})",
+                                 param_hint="--method") from None
+
+
+def _method_list(method: str, start: str, dimension: int, input_path: Path) -> list[str]:
+    """The methods --method runs on a graph of ``dimension``; a method of the other
+    dimension is an error that names the file."""
+    if method == "auto":
+        return ["certified", *(name for name, _ in DEFAULT_SEARCHES)]
+    if method == "all":
+        return ALL if dimension == 2 else list(COMPARISON_3D)
+    if dimension == 3:
+        try:
+            check_method_3d(method)
+        except RlpgoError as error:
+            raise RlpgoError(f"{input_path} holds a 3D pose graph: {error}") from None
+        return [method]
+    name = f"rl@{start}" if method == "rl" else method
+    check_method(name)
     return [name]
+
+
+def _check_3d_options(ctx: click.Context, input_path: Path) -> None:
+    """The agent's options name nothing on a 3D graph: the agent is planar."""
+    given = [f"--{name}" for name in (*AGENT_OPTIONS, "start") if _given(ctx, name)]
+    if given:
+        raise RlpgoError(f"{input_path} holds a 3D pose graph, and the agent is planar (it runs "
+                         f"on 2D graphs only): {', '.join(given)} cannot apply")
 
 
 def _ranking(results: list[MethodResult]) -> list[tuple[str, MethodResult]]:
@@ -87,15 +120,24 @@ def _ranking(results: list[MethodResult]) -> list[tuple[str, MethodResult]]:
     return ranked + [("-", r) for r in results if r not in usable]
 
 
-ROW_HEADER = f"{'method':<14}{'guess chi2':>14}{'result chi2':>14}{'seconds':>9}"
+def _row_header(width: int) -> str:
+    return f"{'method':<{width}}{'guess chi2':>14}{'result chi2':>14}{'seconds':>9}"
 
 
-def _print_row(row: MethodResult) -> None:
+def _print_row(row: MethodResult, width: int = 14) -> None:
     """One method's row of --method all, printed as soon as the method is done."""
     guess = "-" if row.init_chi2 is None else f"{row.init_chi2:.6g}"
     result = "-" if row.refined_chi2 is None else f"{row.refined_chi2:.6g}"
     tail = f"  FAILED: {row.failure}" if row.failure else ""
-    click.echo(f"{row.method:<14}{guess:>14}{result:>14}{row.seconds:>9.2f}{tail}")
+    click.echo(f"{row.method:<{width}}{guess:>14}{result:>14}{row.seconds:>9.2f}{tail}")
+
+
+def _stages_budget(budget: float, command_began: float) -> float:
+    """What --budget leaves the stages: the whole budget less the time spent so far (options,
+    reading, extraction) and as much again for writing the guess, which costs about what
+    reading did; at least a tenth of the budget, so that a run always has a guess."""
+    spent = time.perf_counter() - command_began
+    return max(budget - 2.0 * spent, 0.1 * budget)
 
 
 def _print_progress(method: str, line: str) -> None:
@@ -108,12 +150,13 @@ def _given(ctx: click.Context, name: str) -> bool:
         None, click.core.ParameterSource.DEFAULT, click.core.ParameterSource.DEFAULT_MAP)
 
 
-def _check_method_options(ctx: click.Context, methods: list[str], method: str) -> None:
+def _check_method_options(ctx: click.Context, method: str) -> None:
     """A usage error for options that would change nothing: agent options when no method
-    of the run is the agent, --start without --method rl, --budget without --method auto."""
+    of the run is the agent (rl, rl@<start>, all on a planar graph), --start without
+    --method rl, --budget without --method auto."""
 
-    unused = [] if any(m.partition("@")[0] == "rl" for m in methods) else \
-        [f"--{name}" for name in AGENT_OPTIONS if _given(ctx, name)]
+    agent = method in ("all", "rl") or method.startswith("rl@")
+    unused = [] if agent else [f"--{name}" for name in AGENT_OPTIONS if _given(ctx, name)]
     if method != "rl" and _given(ctx, "start"):
         unused.append("--start")
     if method != "auto" and _given(ctx, "budget"):
@@ -168,30 +211,58 @@ def _few(indices: list[int], limit: int = 5) -> str:
     return shown + (f", ... ({len(indices)})" if len(indices) > limit else "")
 
 
+def _print_notes(notes: list[str]) -> None:
+    for note in notes:
+        click.echo(f"note: {note}")
+
+
 def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
-                trust_odometry: bool) -> None:
+                trust_odometry: bool, json_path: Path | None) -> None:
     run = RunFiles([input_path])
-    run.check(output, outliers_out)  # fail before the work, not after
-    graph, values, lines = read_g2o_lines(input_path)
+    run.check(output, outliers_out, json_path)  # fail before the work, not after
+    dimension = g2o_dimension(input_path)
+    if dimension == 3 and outliers_out is not None:
+        raise RlpgoError(f"{input_path} holds a 3D pose graph: --outliers-out lists planar "
+                         "edges (EDGE_SE2 lines) only, so far")
+    notes: list[str] = []
+    if dimension == 3:
+        read = read_input(input_path)
+        graph, values, lines, notes = read.graph, read.values, [], read.notes
+        _print_notes(notes)
+    else:
+        graph, values, lines = read_g2o_lines(input_path)
     began = time.perf_counter()
-    pose_graph = PoseGraph2D.from_gtsam(graph, values)
-    result = robust_initialize(graph, values, trust_odometry=trust_odometry,
-                               pose_graph=pose_graph)
+    pose_graph = extract_pose_graph(graph, values)
+    if pose_graph.dimension == 3:  # the robust path takes what it can: its error otherwise
+        try:
+            result = robust_initialize(graph, values, trust_odometry=trust_odometry)
+        except RlpgoError as error:
+            raise RlpgoError(f"--robust on {input_path} (a 3D pose graph): {error}") from None
+    else:
+        result = robust_initialize(graph, values, trust_odometry=trust_odometry,
+                                   pose_graph=pose_graph)
     for step in result.steps:
         click.echo(_describe_step(step))
     for kept, other in result.ambiguous:
         click.echo(f"ambiguous: {len(kept)} loop closures kept conflict with {len(other)} "
                    "others that agree among themselves and are nearly as well supported; the "
                    f"map's fit decided (kept factors {_few(kept)}; the others {_few(other)})")
-    files = [(output, g2o_text(graph, result.values).encode())]  # every edge, new vertices
+    files = [(output, pose_graph_text(graph, result.values).encode())]  # every edge, new vertices
     if outliers_out is not None:
         listed = edge_list_text(graph, result.rejected, lines, g2o_name=input_path.name,
                                 title="edges that rlpgo-init --robust judged wrong")
         # a file name that is not UTF-8 comes back as the bytes it was
         files.append((outliers_out, listed.encode("utf-8", "surrogateescape")))
-    run.write_together(files)  # the guess and its list, or neither
     seconds = time.perf_counter() - began
     judged = pose_graph.num_edges - len(result.trusted)
+    if json_path is not None:
+        files.append((json_path, json_text({
+            "input": str(input_path), "output": str(output), "dimension": pose_graph.dimension,
+            "poses": pose_graph.num_poses, "edges": pose_graph.num_edges, "method": "robust",
+            "input_chi2": chi2(graph, values), "chi2": result.chi2, "judged": judged,
+            "rejected": list(result.rejected), "steps": result.steps, "seconds": seconds,
+            "notes": notes}).encode()))
+    run.write_together(files)  # the guess, its list and its record, or none
     what = "loop closures" if trust_odometry else "edges"
     also = "" if outliers_out is None else f" and {outliers_out}"
     click.echo(f"rejected {len(result.rejected)} of {judged} {what} as wrong; chi2 "
@@ -215,7 +286,8 @@ def _print_stage(row: MethodResult, reason: str) -> None:
 @click.option("--method", default="auto", show_default=True,
               help="auto (certify, then refine), all (every method, keep the lowest chi2), rl, "
                    "rl@<start>, or one initializer: " + ", ".join(
-                       [*CLASSICAL, "fastsync", "certified"]) + ".")
+                       [*CLASSICAL, "fastsync", "certified"]) + "; on a 3D graph auto, all "
+                   "or one of " + ", ".join(INITIALIZERS_3D) + ".")
 @click.option("--budget", type=FiniteFloat(0.0, 1e6), default=DEFAULT_BUDGET_S,
               show_default=True,
               help="--method auto: the whole run's time limit, the certified stage's included; "
@@ -226,6 +298,9 @@ def _print_stage(row: MethodResult, reason: str) -> None:
               "only none may be given, and changes nothing.")
 @click.option("--iters", type=ITERATIONS, default=30, show_default=True,
               help="Iteration cap of the refinement.")
+@click.option("--json", "json_path", type=OutputFile(),
+              help="Also write the run as JSON: the input, the result's chi2, certificate "
+                   "status and seconds, and every row (written with OUTPUT, or neither).")
 @click.option("--robust", is_flag=True,
               help="Reject wrong loop closures instead of running --method: a start from the "
                    "closures that agree with each other, finished by GTSAM's GNC-LM. The "
@@ -253,68 +328,100 @@ def _print_stage(row: MethodResult, reason: str) -> None:
               help="[agent] Seed of the rollouts' initial last actions.")
 @click.pass_context
 def main(ctx, input_path, output, method, budget, model, cycles, episodes, start, refine,
-         iters, seed, robust, trust_odometry, outliers_out):
-    """Write an initial guess for INPUT.g2o to OUTPUT.
+         iters, json_path, seed, robust, trust_odometry, outliers_out):
+    """Write an initial guess for INPUT.g2o (planar or 3D) to OUTPUT.
 
-    The default, --method auto, runs the certified SE(2) relaxation, refines its estimate
+    The default, --method auto, runs the certified SE(d) relaxation, refines its estimate
     with --refine and writes it; the certificate says whether it is the global optimum (if
     not, a hint follows when wrong loop closures are likely). No search runs after it: on
     graphs it did not certify, none lowered the chi2 (rlpgo_gtsam/staged.py). --budget
     bounds the whole run. --method all runs every initializer, prints each row as it is
     done, then the ranking. The paper's behaviour is --method rl --start odometry --refine
-    none. --robust rejects wrong loop closures and writes the guess from the edges kept.
+    none (planar graphs: the agent is planar). --robust rejects wrong loop closures and
+    writes the guess from the edges kept. A 3D file (VERTEX_SE3:QUAT, EDGE_SE3:QUAT) is
+    told from its lines and written back as one.
     """
+    command_began = time.perf_counter()
     _check_robust_options(ctx, robust, method, refine, outliers_out)
     if robust:
-        _run_robust(input_path, output, outliers_out, trust_odometry)
+        _run_robust(input_path, output, outliers_out, trust_odometry, json_path)
         return
-    methods = _method_list(method, start)
-    _check_method_options(ctx, methods, method)
+    _check_method_name(method, start)
+    _check_method_options(ctx, method)
+    dimension = g2o_dimension(input_path)
+    if dimension == 3:
+        _check_3d_options(ctx, input_path)
+    methods = _method_list(method, start, dimension, input_path)
     run = RunFiles([input_path])
     uses_agent = any(m.partition("@")[0] == "rl" for m in methods)
     if uses_agent:
         run.add_input(model_path(model))
-    run.check(output)  # fail before minutes of work, not after
+    run.check(output, json_path)  # fail before minutes of work, not after
     if uses_agent:
         from rlpgo_gtsam.rl.models import resolve_model
 
         resolve_model(model)  # a bad --model is an error, not a row of failed methods
-    graph, values = read_g2o(input_path)
+    read = read_input(input_path)
+    graph, values = read.graph, read.values
+    _print_notes(read.notes)
     began = time.perf_counter()
-    pose_graph = PoseGraph2D.from_gtsam(graph, values)
+    pose_graph = extract_pose_graph(graph, values)
     solver = None if refine == "none" else refine
     options = line_progress_options(_print_progress)
     options["rl"] = {"model": model, "cycles": cycles, "episodes": episodes, "seed": seed,
                      "progress": _progress_bar()}
     if method == "auto":
+        stages_budget = _stages_budget(budget, command_began)
         staged = staged_initialize(graph, values, solver=solver or "lm",
-                                   iters=iters if solver else 0, budget_s=budget,
+                                   iters=iters if solver else 0,
+                                   budget_s=stages_budget,
                                    options=options, dataset=input_path.name,
                                    pose_graph=pose_graph, on_stage=_print_stage)
-        click.echo(f"stopped: {staged.stopped}")
+        share = "" if "budget" not in staged.stopped else (
+            f" (the stages' share of --budget {budget:g} s after reading {input_path.name},"
+            " with as much again kept for writing)")
+        click.echo(f"stopped: {staged.stopped}{share}")
         if staged.hint is not None:
             click.echo(f"hint: {staged.hint}")
         results, chosen = staged.rows, staged.best
     else:
         several = len(methods) > 1
+        width = method_width(methods)
         if several:
-            click.echo(ROW_HEADER)
+            click.echo(_row_header(width))
         results = compare_methods(graph, values, methods, solver, iters,
                                   dataset=input_path.name, options=options,
                                   pose_graph=pose_graph,
-                                  on_row=_print_row if several else None)
+                                  on_row=functools.partial(_print_row, width=width)
+                                  if several else None)
         chosen = best_of(results)
         if several:
             click.echo("ranking: " + ", ".join(f"{rank} {r.method}" for rank, r in
                                                _ranking(results)))
         elif chosen.init.certificate is not None:
             click.echo(f"certificate: {chosen.init.certificate.describe()}")
-    run.write_g2o(output, graph, chosen.refined)
+    files = [(output, pose_graph_text(graph, chosen.refined).encode())]
     seconds = time.perf_counter() - began
+    input_chi2 = chi2(graph, values)
+    if json_path is not None:
+        certificate = None if chosen.init is None else chosen.init.certificate
+        files.append((json_path, json_text({
+            "input": str(input_path), "output": str(output), "dimension": pose_graph.dimension,
+            "poses": pose_graph.num_poses, "edges": pose_graph.num_edges, "method": method,
+            "input_chi2": input_chi2, "result": chosen.method,
+            "refine": solver, "iters": iters if solver else 0, "chi2": chosen.refined_chi2,
+            "certified": staged.certified if method == "auto" else (
+                None if certificate is None else bool(certificate.certified)),
+            "status": None if certificate is None else str(certificate.status),
+            "stopped": staged.stopped if method == "auto" else None,
+            "hint": staged.hint if method == "auto" else None,
+            "seconds": seconds, "notes": read.notes,
+            "rows": [row.record() for row in results]}).encode()))
+    run.write_together(files)  # the guess and its record, or neither
     step = "" if solver is None else f" + {solver.upper()}{iters}"
     if chosen.cut is not None:
         step += f" (cut after {chosen.iters})"
-    click.echo(f"input chi2 {chi2(graph, values):.6g}; {chosen.method}{step}: chi2 "
+    click.echo(f"input chi2 {input_chi2:.6g}; {chosen.method}{step}: chi2 "
                f"{chosen.refined_chi2:.6g}; {seconds:.2f} s; wrote {output}")
 
 

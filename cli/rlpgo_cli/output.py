@@ -10,11 +10,8 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
-import gtsam
-
 from rlpgo_gtsam.errors import OutputError
 from rlpgo_gtsam.files import check_output, write_bytes, write_text, write_together
-from rlpgo_gtsam.g2o import write_g2o
 
 
 def _same_place(a: Path, b: Path) -> bool:
@@ -93,11 +90,6 @@ class RunFiles:
             if not self.overwrite and path.is_file():
                 raise OutputError(f"{path}: exists; give --overwrite to replace it")
             seen.append(path)
-
-    def write_g2o(self, path: Path, graph: gtsam.NonlinearFactorGraph,
-                  values: gtsam.Values) -> None:
-        self.check(path)
-        write_g2o(path, graph, values)
 
     def write_json(self, path: Path, data: object) -> None:
         self.check(path)

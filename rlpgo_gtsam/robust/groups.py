@@ -22,10 +22,9 @@ import numpy as np
 
 import rlpgo_gtsam.se2 as se2
 import rlpgo_gtsam.se3 as se3
-from rlpgo_gtsam.graph import PoseGraph2D
 from rlpgo_gtsam.graph import edge_chi2 as edge_chi2_2d
 from rlpgo_gtsam.graph import edge_errors as edge_errors_2d
-from rlpgo_gtsam.graph3d import PoseGraph3D
+from rlpgo_gtsam.graph3d import AnyPoseGraph
 from rlpgo_gtsam.graph3d import edge_chi2 as edge_chi2_3d
 from rlpgo_gtsam.graph3d import edge_errors as edge_errors_3d
 from rlpgo_gtsam.initializers import Initializer, make_initializer
@@ -34,7 +33,7 @@ from rlpgo_gtsam.linear import PairwiseSystem
 from rlpgo_gtsam.translations import whitened_system
 from rlpgo_gtsam.translations3d import TranslationStep3D, solve_block_pairwise
 
-__all__ = ["Group", "PLANAR", "SPATIAL", "group_of", "extract", "TranslationSystem"]
+__all__ = ["Group", "PLANAR", "SPATIAL", "group_of", "TranslationSystem"]
 
 # The SE(3) relaxations the robust steps run stop at rank 3 after this many trust-region
 # iterations: SE-Sync's seven 3D files certify at rank 3 in 4-8, while with 5% wrong closures
@@ -42,7 +41,7 @@ __all__ = ["Group", "PLANAR", "SPATIAL", "group_of", "extract", "TranslationSyst
 # and the staircase then climbed to rank 10 (250 s) without a certificate.
 _RELAXATION_ITERATIONS = 20
 
-PoseGraph = PoseGraph2D | PoseGraph3D
+PoseGraph = AnyPoseGraph
 # The translation step at fixed rotations: (m, d, d) blocks A_e and (m, d) b_e of the whitened
 # residuals A_e (t_j - t_i) - b_e, and solve(weights) -> (n, d) positions.
 TranslationSystem = tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray]]
@@ -268,20 +267,4 @@ SPATIAL: Group = _Spatial()
 
 def group_of(g: PoseGraph) -> Group:
     """The group of a pose graph's extraction."""
-    return SPATIAL if isinstance(g, PoseGraph3D) else PLANAR
-
-
-def extract(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> PoseGraph:
-    """The graph's extraction: a :class:`PoseGraph3D` when its first pose factor is a Pose3
-    one, else a :class:`PoseGraph2D` (whose errors name what it refuses).
-
-    Raises:
-        GraphError: a graph either extraction refuses.
-    """
-    for k in range(graph.size()):
-        factor = graph.at(k)
-        if isinstance(factor, gtsam.BetweenFactorPose3 | gtsam.PriorFactorPose3):
-            return PoseGraph3D.from_gtsam(graph, values)
-        if isinstance(factor, gtsam.BetweenFactorPose2 | gtsam.PriorFactorPose2):
-            break
-    return PoseGraph2D.from_gtsam(graph, values)
+    return SPATIAL if g.dimension == 3 else PLANAR

@@ -70,10 +70,11 @@ import numpy as np
 
 from rlpgo_gtsam.errors import GraphError, SolverError, one_line
 from rlpgo_gtsam.graph import chi2, odometry_edges
+from rlpgo_gtsam.graph3d import extract_pose_graph
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.robust.consistency import pairwise_consistency
 from rlpgo_gtsam.robust.gnc import robust_positions
-from rlpgo_gtsam.robust.groups import PoseGraph, extract, group_of
+from rlpgo_gtsam.robust.groups import PoseGraph, group_of
 from rlpgo_gtsam.solvers import gauge_prior, refine, solver_params
 
 __all__ = ["RobustResult", "robust_initialize", "DEFAULT_INLIER_PROBABILITY", "REJECTED_BELOW"]
@@ -174,7 +175,7 @@ def robust_initialize(
         raise SolverError(f"gnc_iterations must be >= 1, got {gnc_iterations}")
     from scipy.stats import chi2 as chi2_distribution  # scipy: loaded when first used
 
-    g = pose_graph if pose_graph is not None else extract(graph, values)
+    g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
     group = group_of(g)
     factor_of_edge = _edge_factor_indices(graph, g.num_edges, group.between_factor)
     chain = odometry_edges(g)

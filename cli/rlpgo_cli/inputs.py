@@ -1,0 +1,44 @@
+"""A command's g2o inputs: each file's dimension, its graph, and what the reader noted."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import gtsam
+
+from rlpgo_gtsam.errors import InformationWarning
+from rlpgo_gtsam.g2o3d import read_pose_graph
+
+
+@dataclass
+class InputGraph:
+    """One g2o input as read.
+
+    Attributes:
+        graph, values: what the reader of the file's dimension made of it.
+        notes: what the reader changed, one line each (its
+            :class:`~rlpgo_gtsam.errors.InformationWarning` messages): a command prints them
+            as ``note:`` lines.
+    """
+
+    graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    notes: list[str] = field(default_factory=list)
+
+
+def read_input(path: Path) -> InputGraph:
+    """Read a planar or a 3D g2o file (:func:`~rlpgo_gtsam.g2o3d.read_pose_graph`), with the
+    reader's information warnings as notes; any other warning is passed on."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", InformationWarning)
+        graph, values = read_pose_graph(path)
+    notes = []
+    for warning in caught:
+        if issubclass(warning.category, InformationWarning):
+            notes.append(str(warning.message))
+        else:
+            warnings.warn_explicit(warning.message, warning.category, warning.filename,
+                                   warning.lineno)
+    return InputGraph(graph, values, notes)
