@@ -3,14 +3,19 @@ walked twice whose loop closures are known true or wrong by construction."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import gtsam
-import pytest
 import numpy as np
+import pytest
 
 from rlpgo_gtsam import PoseGraph2D
 from rlpgo_gtsam.graph import odometry_edges
+from rlpgo_gtsam.graph3d import PoseGraph3D
 from rlpgo_gtsam.robust.consistency import ChainTree, pairwise_consistency
+from rlpgo_gtsam.robust.groups import group_of
 from rlpgo_gtsam.se2 import adjoint, compose, inverse
+from rlpgo_gtsam.se3 import exp_so3
 
 THRESHOLD = 21.1  # chi-square, 3 dof, 0.9999
 
@@ -94,9 +99,6 @@ def test_chain_segments_carry_their_propagated_covariance():
 def _random_chain_graph(dim: int, rng: np.random.Generator, n: int = 14):
     """A random chain of n poses (2D or 3D) with loop closures that lie apart along the chain,
     nest and cross, each measured exactly, every edge with its own diagonal covariance."""
-    from rlpgo_gtsam.graph3d import PoseGraph3D
-    from rlpgo_gtsam.se3 import exp_so3
-
     dof = 3 if dim == 2 else 6
     closures = [(0, 3), (8, 12), (2, 10), (4, 7), (1, 5), (9, 13)]
 
@@ -123,11 +125,6 @@ def test_cycle_covariance_is_the_first_order_one(dim):
     """Every pair of closures' cycle covariance equals J Sigma J^T, J the cycle error's
     derivative in each measurement (finite differences): segments that overlap along the
     chain (closures far apart), nest or cross alike."""
-    from dataclasses import replace
-
-    from rlpgo_gtsam.robust.groups import group_of
-    from rlpgo_gtsam.se3 import exp_so3
-
     g = _random_chain_graph(dim, np.random.default_rng(dim))
     group = group_of(g)
     chain = odometry_edges(g)
