@@ -33,6 +33,7 @@ __all__ = [
     "PoseGraph2D",
     "chi2",
     "edge_chi2",
+    "edge_errors",
     "rotation_weights",
     "odometry_edges",
     "information_problem",
@@ -437,11 +438,17 @@ def chi2(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> float:
 
 def edge_chi2(pose_graph: PoseGraph2D, poses: np.ndarray) -> np.ndarray:
     """(m,) each edge's chi2 at ``poses`` (n, 3), as GTSAM's BetweenFactorPose2 charges it:
-    ``e^T Lambda e`` with ``e = Logmap(measured^-1 (X_i^-1 X_j))``."""
+    ``e^T Lambda e`` with ``e`` from :func:`edge_errors`."""
+    error = edge_errors(pose_graph, poses)
+    return np.einsum("ea,eab,eb->e", error, pose_graph.information, error)
+
+
+def edge_errors(pose_graph: PoseGraph2D, poses: np.ndarray) -> np.ndarray:
+    """(m, 3) each edge's error at ``poses`` (n, 3), GTSAM's BetweenFactorPose2's:
+    ``e = Logmap(measured^-1 (X_i^-1 X_j))``."""
     g = pose_graph
     relative = between(poses[g.edges[:, 0]], poses[g.edges[:, 1]])
-    error = logmap(between(g.measured, relative))
-    return np.einsum("ea,eab,eb->e", error, g.information, error)
+    return logmap(between(g.measured, relative))
 
 
 def disconnection(keys: Iterable[int] | np.ndarray,

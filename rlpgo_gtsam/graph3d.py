@@ -41,6 +41,7 @@ __all__ = [
     "extract_pose_graph",
     "graph_dimension",
     "edge_chi2",
+    "edge_errors",
     "rotation_weights",
     "translation_weights",
     "information_problem_6",
@@ -181,13 +182,20 @@ class PoseGraph3D(PoseArrays):
 def edge_chi2(pose_graph: PoseGraph3D, rotations: np.ndarray,
               translations: np.ndarray) -> np.ndarray:
     """(m,) each edge's chi2 at the given poses, as GTSAM's BetweenFactorPose3 charges it:
-    ``e^T Lambda e`` with ``e = Logmap(measured^-1 X_i^-1 X_j)``."""
+    ``e^T Lambda e`` with ``e`` from :func:`edge_errors`."""
+    error = edge_errors(pose_graph, rotations, translations)
+    return np.einsum("ea,eab,eb->e", error, pose_graph.information, error)
+
+
+def edge_errors(pose_graph: PoseGraph3D, rotations: np.ndarray,
+                translations: np.ndarray) -> np.ndarray:
+    """(m, 6) each edge's error at the given poses, GTSAM's BetweenFactorPose3's:
+    ``e = Logmap(measured^-1 X_i^-1 X_j)`` (rotation first)."""
     g = pose_graph
     i, j = g.edges[:, 0], g.edges[:, 1]
     r_rel, t_rel = between(rotations[i], translations[i], rotations[j], translations[j])
     r_err, t_err = between(g.measured_rotations, g.measured_translations, r_rel, t_rel)
-    error = logmap(r_err, t_err)
-    return np.einsum("ea,eab,eb->e", error, g.information, error)
+    return logmap(r_err, t_err)
 
 
 def rotation_weights(pose_graph: PoseGraph3D) -> np.ndarray:

@@ -120,15 +120,18 @@ class Certified3D(Initializer3D):
         time_limit_s: the staircase's time limit, or None.
         progress: called with one short line per rank (and inside a long trust region);
             None: silent.
+        max_iterations: trust-region iterations per rank.
     """
 
     name = "certified"
 
     def __init__(self, max_rank: int = 10, time_limit_s: float | None = None,
-                 progress: Callable[[str], None] | None = None) -> None:
+                 progress: Callable[[str], None] | None = None,
+                 max_iterations: int = 300) -> None:
         self.max_rank = max_rank
         self.time_limit_s = time_limit_s
         self.progress = progress
+        self.max_iterations = max_iterations
 
     def estimate(self, pose_graph: PoseGraph3D, start_poses: np.ndarray | None) -> Estimate:
         from rlpgo_gtsam.certified3d import synchronize3d
@@ -136,7 +139,8 @@ class Certified3D(Initializer3D):
         start = None if start_poses is None else start_poses[:, :, :3]
         rotations, certificate = synchronize3d(pose_graph, start, max_rank=self.max_rank,
                                                time_limit_s=self.time_limit_s,
-                                               progress=self.progress)
+                                               progress=self.progress,
+                                               max_iterations=self.max_iterations)
         return Estimate(pose_matrices(*poses_with_rotations(pose_graph, rotations)),
                         certificate=certificate)
 

@@ -20,12 +20,12 @@ import numpy as np
 
 from rlpgo_gtsam.errors import SolverError
 
-__all__ = ["PairwiseSystem", "solve_pairwise"]
+__all__ = ["PairwiseSystem", "solve_pairwise", "WEIGHT_FLOOR"]
 
 # Weights at or below this leave an edge out of a weighted solve: even at a tiny weight a
 # wrong closure joins two random poses, and such joins ruin the factorization's fill
 # (City10K: 0.1 s -> 20 s).
-_WEIGHT_FLOOR = 1e-12
+WEIGHT_FLOOR = 1e-12
 # A pivot below this fraction of its diagonal entry means the system is indeterminate there.
 _PIVOT_FLOOR = 1e-10
 # (row, col) offsets of a 2x2 block's entries, row-major.
@@ -91,7 +91,7 @@ class PairwiseSystem:
         kept = None
         if weights is not None:
             weights = np.asarray(weights, dtype=float)
-            kept = weights > _WEIGHT_FLOOR
+            kept = weights > WEIGHT_FLOOR
             if kept.all():
                 kept = None
             a_i, a_j, b = (weights[:, None, None] ** 0.5 * a_i, weights[:, None, None] ** 0.5

@@ -3,7 +3,7 @@
 first, then translation). Every function works on stacks of k elements.
 
 The one home of the spatial group operations (Exp/Log of SO(3), compose, inverse, between,
-GTSAM's Pose3 Logmap) and of the projection onto SO(3). Nothing here imports GTSAM; the
+GTSAM's Pose3 Logmap and adjoint) and of the projection onto SO(3). Nothing here imports GTSAM; the
 conventions are GTSAM's (``gtsam.Rot3``, ``gtsam.Pose3`` built with GTSAM_POSE3_EXPMAP, as the
 wheels are: a BetweenFactorPose3's error is ``Pose3.Logmap(measured^-1 X_i^-1 X_j)``).
 """
@@ -22,6 +22,7 @@ __all__ = [
     "inverse",
     "between",
     "logmap",
+    "adjoint",
     "project_to_so3",
     "rotation_angles",
 ]
@@ -147,6 +148,15 @@ def logmap(r: np.ndarray, t: np.ndarray) -> np.ndarray:
     ``w = Log(R)``."""
     w = log_so3(r)
     return np.hstack([w, np.einsum("kab,kb->ka", inverse_left_jacobians(w), t)])
+
+
+def adjoint(r: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(k, 6, 6) GTSAM's Pose3 adjoint maps (rotation first): ``[[R, 0], [[t]_x R, R]]``,
+    so that ``X Exp(d) X^-1 = Exp(Ad(X) d)``."""
+    result = np.zeros((len(r), 6, 6))
+    result[:, :3, :3] = result[:, 3:, 3:] = r
+    result[:, 3:, :3] = skew(t) @ r
+    return result
 
 
 def project_to_so3(matrices: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ from rlpgo_gtsam.errors import SolverError, one_line
 from rlpgo_gtsam.graph import chi2
 from rlpgo_gtsam.graph3d import AnyPoseGraph, extract_pose_graph
 
-__all__ = ["RefineResult", "refine", "solver_params", "SOLVERS"]
+__all__ = ["RefineResult", "refine", "solver_params", "gauge_prior", "SOLVERS"]
 
 SOLVERS = ("lm", "gn")
 # A gauge prior this tight holds the anchor without changing the chi2 of the other factors.
@@ -101,15 +101,7 @@ def refine(
     optimized = graph
     if not _has_prior(graph):
         optimized = gtsam.NonlinearFactorGraph(graph)
-        anchor_key = int(g.keys[g.anchor])
-        if g.dimension == 3:
-            optimized.add(gtsam.PriorFactorPose3(
-                anchor_key, values.atPose3(anchor_key),
-                gtsam.noiseModel.Isotropic.Sigma(6, _ANCHOR_SIGMA)))
-        else:
-            optimized.add(gtsam.PriorFactorPose2(
-                anchor_key, values.atPose2(anchor_key),
-                gtsam.noiseModel.Isotropic.Sigma(3, _ANCHOR_SIGMA)))
+        optimized.add(gauge_prior(g, values, _ANCHOR_SIGMA))
     after_iteration: dict[int, float] = {}  # GTSAM's LM may report an iteration twice
     caller_hook = params.iterationHook  # the caller's params get their own hook back
     params.iterationHook = lambda k, _before, after: after_iteration.__setitem__(k, 2.0 * after)
@@ -149,6 +141,18 @@ def _iterate_through_increases(optimizer, iters: int, after_iteration: dict) -> 
         if decrease <= _TOLERANCE or decrease <= _TOLERANCE * previous:
             return
         previous = current
+
+
+def gauge_prior(pose_graph: AnyPoseGraph, values: gtsam.Values,
+                sigma: float) -> gtsam.NonlinearFactor:
+    """A prior holding the anchor at its pose in ``values``, isotropic ``sigma``: a
+    ``PriorFactorPose2`` or, for a 3D graph, a ``PriorFactorPose3``."""
+    key = int(pose_graph.keys[pose_graph.anchor])
+    if pose_graph.dimension == 3:
+        return gtsam.PriorFactorPose3(key, values.atPose3(key),
+                                      gtsam.noiseModel.Isotropic.Sigma(6, sigma))
+    return gtsam.PriorFactorPose2(key, values.atPose2(key),
+                                  gtsam.noiseModel.Isotropic.Sigma(3, sigma))
 
 
 def _has_prior(graph: gtsam.NonlinearFactorGraph) -> bool:

@@ -17,6 +17,7 @@ import numpy as np
 
 from rlpgo_gtsam.errors import SolverError
 from rlpgo_gtsam.graph3d import PoseGraph3D, edge_chi2
+from rlpgo_gtsam.linear import WEIGHT_FLOOR
 from rlpgo_gtsam.se3 import inverse_left_jacobians, log_so3
 
 __all__ = ["solve_block_pairwise", "solve_translations", "poses_with_rotations",
@@ -26,8 +27,9 @@ _PIVOT_FLOOR = 1e-10  # a pivot below this fraction of its diagonal: the system 
 
 
 def solve_block_pairwise(num_poses: int, edges: np.ndarray, a_i: np.ndarray, a_j: np.ndarray,
-                         b: np.ndarray, held: np.ndarray, held_values: np.ndarray) -> np.ndarray:
-    """Minimize ``sum_e ||A_i x_i + A_j x_j - b_e||^2`` over d-vectors, some held.
+                         b: np.ndarray, held: np.ndarray, held_values: np.ndarray,
+                         weights: np.ndarray | None = None) -> np.ndarray:
+    """Minimize ``sum_e w_e ||A_i x_i + A_j x_j - b_e||^2`` over d-vectors, some held.
 
     Args:
         num_poses: number n of unknowns, indexed 0..n-1.
@@ -36,6 +38,8 @@ def solve_block_pairwise(num_poses: int, edges: np.ndarray, a_i: np.ndarray, a_j
         b: (m, d) right-hand sides, or (m, d, k) for k problems with the same blocks.
         held: (h,) indices held fixed (h >= 1 fixes the gauge).
         held_values: (h, d) or (h, d, k) their values.
+        weights: (m,) per-residual weights, or None for 1; residuals weighted at or below
+            :data:`~rlpgo_gtsam.linear.WEIGHT_FLOOR` are left out (as the planar system's).
 
     Returns:
         (n, d) or (n, d, k): the minimizer, held unknowns at their values.
@@ -51,6 +55,12 @@ def solve_block_pairwise(num_poses: int, edges: np.ndarray, a_i: np.ndarray, a_j
     m, d = a_i.shape[0], a_i.shape[1]
     single = np.ndim(b) == 2
     b = np.asarray(b, float).reshape(m, d, -1)
+    if weights is not None:
+        weights = np.asarray(weights, float).reshape(m)
+        kept = weights > WEIGHT_FLOOR
+        root = np.sqrt(weights[kept])[:, None, None]
+        edges, a_i, a_j, b = edges[kept], root * a_i[kept], root * a_j[kept], root * b[kept]
+        m = len(edges)
     k = b.shape[2]
     x = np.zeros((num_poses, d, k))
     held = np.asarray(held, dtype=np.int64).reshape(-1)
@@ -112,9 +122,9 @@ class TranslationStep3D:
         self.shift = np.linalg.solve(info[:, 3:, 3:], info[:, 3:, :3])  # Lambda_tt^-1 Lambda_tR
         self.measured_t = np.transpose(g.measured_rotations, (0, 2, 1))  # R~^T
 
-    def positions(self, rotations: np.ndarray) -> np.ndarray:
-        """(n, 3) positions of least cost for (n, 3, 3) ``rotations`` (held poses keep
-        theirs; the rotations are used as given)."""
+    def whitened(self, rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The residuals ``A_e (t_j - t_i) - b_e`` (whitened, 3 dof: ``W (e_t + Lambda_tt^-1
+        Lambda_tR e_R)``) at (n, 3, 3) ``rotations``: (m, 3, 3) blocks ``A_e``, (m, 3) ``b_e``."""
         g = self.pose_graph
         i, j = g.edges[:, 0], g.edges[:, 1]
         error_r = log_so3(self.measured_t @ np.transpose(rotations[i], (0, 2, 1)) @ rotations[j])
@@ -123,6 +133,13 @@ class TranslationStep3D:
         b = np.einsum("eab,eb->ea", self.w,
                       np.einsum("eab,eb->ea", v_inv @ self.measured_t, g.measured_translations)
                       - np.einsum("eab,eb->ea", self.shift, error_r))
+        return a_j, b
+
+    def positions(self, rotations: np.ndarray) -> np.ndarray:
+        """(n, 3) positions of least cost for (n, 3, 3) ``rotations`` (held poses keep
+        theirs; the rotations are used as given)."""
+        g = self.pose_graph
+        a_j, b = self.whitened(rotations)
         held, _, held_t = g.held
         return solve_block_pairwise(g.num_poses, g.edges, -a_j, a_j, b, held, held_t)
 

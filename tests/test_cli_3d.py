@@ -235,8 +235,8 @@ def test_robust_on_3d_is_one_line_or_a_3d_guess(tmp_path):
     else:
         cli_ok(result)
         assert_same_edges_3d(source, output)
-    message = cli_error(run_init(source, "-o", output, "--robust", "--outliers-out",
-                                 tmp_path / "list.txt"))
+    message = cli_error(run_init(source, "-o", tmp_path / "other.g2o", "--robust",
+                                 "--outliers-out", tmp_path / "list.txt"))
     assert "--outliers-out lists planar edges" in message
 
 

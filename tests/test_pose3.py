@@ -92,6 +92,9 @@ def test_se3_against_gtsam():
     projected = se3.project_to_so3(noisy)
     assert np.allclose(np.linalg.det(projected), 1.0)
     assert np.allclose(projected @ np.transpose(projected, (0, 2, 1)), np.eye(3), atol=1e-14)
+    adjoints = np.array([gtsam.Pose3(gtsam.Rot3(r), v).AdjointMap()
+                         for r, v in zip(expected, t, strict=True)])
+    assert np.allclose(se3.adjoint(expected, t), adjoints, atol=1e-12)
     r_ab, t_ab = se3.between(expected[:5], t[:5], expected[5:10], t[5:10])
     for k in range(5):
         a = gtsam.Pose3(gtsam.Rot3(expected[k]), t[k])

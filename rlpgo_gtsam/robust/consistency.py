@@ -2,9 +2,11 @@
 
 Two loop closures ``e = (i, j)`` and ``f = (k, l)`` close a cycle through the odometry
 chain: ``Z_e^-1 D(i, k) Z_f D(l, j)`` is the identity up to noise (``D(a, b)`` the chained
-odometry from pose a to pose b). Its error (the cycle's Logmap, 3 dof) is scored against
-the cycle's covariance, propagated to first order from every measurement in it. A score
-above the bar is evidence that one of the two is wrong: a *conflict*.
+odometry from pose a to pose b). Its error (the cycle's Logmap: 3 dof on SE(2), 6 on SE(3))
+is scored against the cycle's covariance, propagated to first order from every measurement
+in it through the group's adjoints. A score above the bar is evidence that one of the two is
+wrong: a *conflict*. The group is the graph's (:mod:`rlpgo_gtsam.robust.groups`): the same
+code for planar and 3D graphs.
 
 Following pairwise consistency maximization (Mangelson et al., ICRA 2018) the closures are
 the nodes of a graph; here its edges are the conflicts, and the consistent set is a large
@@ -40,9 +42,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rlpgo_gtsam.graph import PoseGraph2D
-from rlpgo_gtsam.se2 import adjoint, compose, inverse, logmap
-from rlpgo_gtsam.se2 import between as relative_pose
+from rlpgo_gtsam.robust.groups import Group, PoseGraph, group_of
 
 __all__ = ["Consistency", "ChainTree", "pairwise_consistency", "NEAR", "FAR",
            "LOOSE_SUPPORT", "WINDOW", "AMBIGUOUS_RATIO"]
@@ -110,10 +110,12 @@ class ChainTree:
     Attributes:
         parent: (n,) each pose's parent (the root its own).
         depth: (n,) steps from the root.
-        poses: (n, 3) each pose chained from the root (the root at the origin).
-        prefix: (n, 3, 3) the covariance of the steps from the root, in the root's frame.
+        poses: (n, ...) each pose chained from the root (the root at the identity), the
+            group's pose rows.
+        prefix: (n, dof, dof) the covariance of the steps from the root, in the root's frame.
         position: (n,) depth-first preorder index (a path's order; subtrees contiguous).
         up: (levels, n) ancestors 2^k steps up (binary lifting).
+        group: the group the poses live in.
     """
 
     parent: np.ndarray
@@ -122,9 +124,11 @@ class ChainTree:
     prefix: np.ndarray
     position: np.ndarray
     up: np.ndarray
+    group: Group
 
     @classmethod
-    def build(cls, g: PoseGraph2D, chain_mask: np.ndarray, covariance: np.ndarray) -> ChainTree:
+    def build(cls, g: PoseGraph, chain_mask: np.ndarray, covariance: np.ndarray) -> ChainTree:
+        group = group_of(g)
         n = g.num_poses
         neighbours: list[list[tuple[int, int]]] = [[] for _ in range(n)]
         for e in np.flatnonzero(chain_mask).tolist():
@@ -134,8 +138,8 @@ class ChainTree:
         parent = np.arange(n)
         depth = np.zeros(n, np.int64)
         position = np.full(n, -1, np.int64)
-        steps = np.zeros((n, 3))
-        step_cov = np.zeros((n, 3, 3))
+        steps = group.identity(n)
+        step_cov = np.zeros((n, group.dof, group.dof))
         reverse = np.zeros(n, bool)
         via = np.full(n, -1, np.int64)
         order: list[int] = []
@@ -154,13 +158,13 @@ class ChainTree:
             raise ValueError("the odometry chain does not span the graph")
         position[np.array(order)] = np.arange(n)
         child = np.flatnonzero(via >= 0)
-        steps[child], step_cov[child] = _oriented(g.measured[via[child]],
+        steps[child], step_cov[child] = _oriented(group, group.measured(g)[via[child]],
                                                   covariance[via[child]], reverse[child])
-        poses = np.zeros((n, 3))
+        poses = group.identity(n)
         for a in order[1:]:  # chain the steps in preorder (parents first)
-            poses[a] = compose(poses[parent[a]][None], steps[a][None])[0]
-        moved = _sandwich(adjoint(poses), step_cov)
-        prefix = np.zeros((n, 3, 3))
+            poses[a] = group.compose(poses[parent[a]][None], steps[a][None])[0]
+        moved = _sandwich(group.adjoint(poses), step_cov)
+        prefix = np.zeros_like(step_cov)
         for a in order[1:]:
             prefix[a] = prefix[parent[a]] + moved[a]
         levels = max(1, int(depth.max()).bit_length())
@@ -168,7 +172,7 @@ class ChainTree:
         up[0] = parent
         for k in range(1, levels):
             up[k] = up[k - 1][up[k - 1]]
-        return cls(parent, depth, poses, prefix, position, up)
+        return cls(parent, depth, poses, prefix, position, up, group)
 
     def ancestor(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Lowest common ancestors of index arrays ``a`` and ``b``."""
@@ -188,6 +192,39 @@ class ChainTree:
         """Steps along the tree between index arrays ``a`` and ``b``."""
         return self.depth[a] + self.depth[b] - 2 * self.depth[self.ancestor(a, b)]
 
+    def cycles(self, i: np.ndarray, j: np.ndarray, k: np.ndarray, m: np.ndarray,
+               z_e: np.ndarray, cov_e: np.ndarray, z_f: np.ndarray,
+               cov_f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Errors (Logmap) and covariances of the cycles ``Z_e^-1 D(i, k) Z_f D(m, j)`` that
+        closures ``e = (i, j)`` and ``f = (k, m)`` (measured ``z``, right-frame covariances
+        ``cov``) close through the tree, in the cycle's end frame, to first order.
+
+        Each measurement's error reaches the end frame through the adjoint of the inverse of
+        what follows it. The chain's steps enter through ``D(i, k) = X_i^-1 X_k`` and
+        ``D(m, j)``: with ``X_a = Exp(eps_a) X_a`` (``eps_a`` the root-frame sum of the steps
+        above a), the error is ``A1 (eps_k - eps_i) + A2 (eps_j - eps_m)``, ``A1 = Ad((X_k
+        Z_f D(m, j))^-1)``, ``A2 = Ad(X_j^-1)``, and its covariance is ``sum_ab c_a
+        P(lca(a, b)) c_b^T`` over the four ends (``c_k = A1 = -c_i``, ``c_j = A2 = -c_m``):
+        steps that both segments pass (the segments overlap where the closures lie apart
+        along the chain) are counted once, with the coefficient ``A1 - A2``, not twice.
+        """
+        g, x, p = self.group, self.poses, self.prefix
+        d_ik, d_mj = g.between(x[i], x[k]), g.between(x[m], x[j])
+        z_inv, cov_inv = _oriented(g, z_e, cov_e, True)
+        tail = g.compose(z_f, d_mj)  # what follows D(i, k)
+        after = g.compose(d_ik, tail)  # what follows Z_e^-1
+        a1 = g.adjoint(g.inverse(g.compose(x[k], tail)))
+        a2 = g.adjoint(g.inverse(x[j]))
+        near = p[i] + p[k] - 2.0 * p[self.ancestor(i, k)]
+        far = p[j] + p[m] - 2.0 * p[self.ancestor(j, m)]
+        shared = (p[self.ancestor(k, j)] - p[self.ancestor(k, m)] - p[self.ancestor(i, j)]
+                  + p[self.ancestor(i, m)])
+        cross = a1 @ shared @ np.transpose(a2, (0, 2, 1))
+        total = (_sandwich(g.adjoint(g.inverse(after)), cov_inv)
+                 + _sandwich(g.adjoint(g.inverse(d_mj)), cov_f) + _sandwich(a1, near)
+                 + _sandwich(a2, far) + cross + np.transpose(cross, (0, 2, 1)))
+        return g.logmap(g.compose(z_inv, after)), total
+
     def between(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``D(a, b)`` along the tree and its covariance in b's frame.
 
@@ -197,18 +234,18 @@ class ChainTree:
         """
         lca = self.ancestor(a, b)
         total = self.prefix[a] + self.prefix[b] - 2.0 * self.prefix[lca]
-        inv = np.linalg.inv(adjoint(self.poses[b]))
-        return relative_pose(self.poses[a], self.poses[b]), _sandwich(inv, total)
+        inv = np.linalg.inv(self.group.adjoint(self.poses[b]))
+        return self.group.between(self.poses[a], self.poses[b]), _sandwich(inv, total)
 
 
-def pairwise_consistency(g: PoseGraph2D, chain_mask: np.ndarray, threshold: float,
+def pairwise_consistency(g: PoseGraph, chain_mask: np.ndarray, threshold: float,
                          near: int = NEAR, far: int = FAR) -> Consistency:
     """The consistent set of loop closures; see the module docstring.
 
     Args:
         g: the graph.
         chain_mask: (m,) the odometry chain (a spanning tree; the rest are closures).
-        threshold: chi-square bar (3 dof) of a consistent cycle.
+        threshold: chi-square bar of a consistent cycle (the group's dof: 3 planar, 6 3D).
         near, far: closures tested per closure next to it in chain order / spread out.
     """
     closures = np.flatnonzero(~chain_mask)
@@ -219,9 +256,11 @@ def pairwise_consistency(g: PoseGraph2D, chain_mask: np.ndarray, threshold: floa
         return result
     covariance = np.linalg.inv(g.information)
     tree = ChainTree.build(g, chain_mask, covariance)
+    group = tree.group
     i, j = g.edges[closures, 0].copy(), g.edges[closures, 1].copy()
     flip = tree.position[i] > tree.position[j]
-    measured, closure_cov = _oriented(g.measured[closures], covariance[closures], flip)
+    measured, closure_cov = _oriented(group, group.measured(g)[closures], covariance[closures],
+                                      flip)
     i[flip], j[flip] = j[flip], i[flip].copy()
     a_idx, b_idx = _pairs(np.lexsort((tree.position[j], tree.position[i])), near, far)
 
@@ -231,16 +270,8 @@ def pairwise_consistency(g: PoseGraph2D, chain_mask: np.ndarray, threshold: floa
     parallel = np.empty(len(a_idx), bool)
     for start in range(0, len(a_idx), _CHUNK):
         a, b = a_idx[start:start + _CHUNK], b_idx[start:start + _CHUNK]
-        # the cycle Z_e^-1 D(i, k) Z_f D(l, j); a factor's error reaches the cycle's end
-        # frame through the adjoint of the inverse of the factors after it
-        factors = [_oriented(measured[a], closure_cov[a], True),
-                   tree.between(i[a], i[b]), (measured[b], closure_cov[b]),
-                   tree.between(j[b], j[a])]
-        after, total = factors[-1][0], factors[-1][1].copy()
-        for pose, cov in factors[-2::-1]:
-            total += _sandwich(adjoint(inverse(after)), cov)
-            after = compose(pose, after)
-        error = logmap(after)
+        error, total = tree.cycles(i[a], j[a], i[b], j[b], measured[a], closure_cov[a],
+                                   measured[b], closure_cov[b])
         scores[start:start + _CHUNK] = np.einsum(
             "ea,ea->e", error, np.linalg.solve(total, error[..., None])[..., 0])
         volume[start:start + _CHUNK] = np.sqrt(np.maximum(np.linalg.det(total), 0.0))
@@ -259,9 +290,9 @@ def pairwise_consistency(g: PoseGraph2D, chain_mask: np.ndarray, threshold: floa
     agree = np.bincount(np.concatenate([a_idx[agreed], b_idx[agreed]]),
                         minlength=len(closures))
     # the chance that a wrong closure agrees anyway: the agreement ellipsoid's volume over
-    # that of the wrong closures' distribution (a square of the chain's extent, 2 pi)
-    side = max(float(np.ptp(tree.poses[:, 0])), float(np.ptp(tree.poses[:, 1])), 1e-9)
-    chance = 4.0 / 3.0 * np.pi * bar ** 1.5 * volume / (4.0 * side ** 2 * 2.0 * np.pi)
+    # that of the wrong closures' distribution (a square or cube of the chain's extent)
+    side = max(float(np.ptp(group.translations(tree.poses), axis=0).max()), 1e-9)
+    chance = group.agreement_chance(bar, volume, side)
     sharp = agreed & (chance < _CHANCE)
     ca, cb = a_idx[conflict], b_idx[conflict]
     removed = _greedy_removal(len(closures), ca, cb, agree)
@@ -374,12 +405,12 @@ def _sandwich(a: np.ndarray, covariance: np.ndarray) -> np.ndarray:
     return a @ covariance @ np.transpose(a, (0, 2, 1))
 
 
-def _oriented(poses: np.ndarray, covariance: np.ndarray,
+def _oriented(group: Group, poses: np.ndarray, covariance: np.ndarray,
               reverse: np.ndarray | bool) -> tuple[np.ndarray, np.ndarray]:
-    """(k, 3) relative poses and their right-frame covariances, inverted where ``reverse``:
-    ``(T Exp(d))^-1 = T^-1 Exp(-Ad(T) d)``."""
+    """Relative poses (one per row) and their right-frame covariances, inverted where
+    ``reverse``: ``(T Exp(d))^-1 = T^-1 Exp(-Ad(T) d)``."""
     reverse = np.broadcast_to(np.asarray(reverse, bool), (len(poses),))
     poses, covariance = poses.copy(), covariance.copy()
-    covariance[reverse] = _sandwich(adjoint(poses[reverse]), covariance[reverse])
-    poses[reverse] = inverse(poses[reverse])
+    covariance[reverse] = _sandwich(group.adjoint(poses[reverse]), covariance[reverse])
+    poses[reverse] = group.inverse(poses[reverse])
     return poses, covariance

@@ -2,8 +2,8 @@
 least-squares problem, and its use on the translation step.
 
 :func:`gnc_tls` takes any weighted solve and residual function; :func:`robust_positions`
-runs it on the translation step with fixed orientations, through the one pairwise
-least-squares system (:class:`~rlpgo_gtsam.linear.PairwiseSystem`).
+runs it on the translation step with fixed rotations, planar or 3D: the group's whitened
+system and weighted solve (:meth:`~rlpgo_gtsam.robust.groups.Group.translation_system`).
 """
 
 from __future__ import annotations
@@ -12,9 +12,7 @@ import math
 
 import numpy as np
 
-from rlpgo_gtsam.graph import PoseGraph2D
-from rlpgo_gtsam.linear import PairwiseSystem
-from rlpgo_gtsam.translations import whitened_system
+from rlpgo_gtsam.robust.groups import PoseGraph, group_of
 
 __all__ = ["gnc_tls", "tls_weights", "robust_positions"]
 
@@ -23,21 +21,19 @@ _MU_MIN = 1e-6
 _WEIGHTS_TOL = 1e-4
 
 
-def robust_positions(g: PoseGraph2D, theta: np.ndarray, known: np.ndarray,
+def robust_positions(g: PoseGraph, rotations: np.ndarray, known: np.ndarray,
                       excluded: np.ndarray, threshold: float,
                       iterations: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """GNC-TLS on the translation step with ``theta`` fixed: positions, weights, solves.
+    """GNC-TLS on the translation step with ``rotations`` fixed (planar angles (n,) or 3D
+    matrices (n, 3, 3)): positions, weights, solves.
 
-    The residuals are those of :func:`~rlpgo_gtsam.translations.whitened_system`
-    (whitened, 2 dof); known edges keep weight 1, excluded edges 0.
+    The residuals are the translation step's, whitened (2 dof planar:
+    :func:`~rlpgo_gtsam.translations.whitened_system`; 3 dof in 3D:
+    :meth:`~rlpgo_gtsam.translations3d.TranslationStep3D.whitened`); known edges keep
+    weight 1, excluded edges 0.
     """
     i, j = g.edges[:, 0], g.edges[:, 1]
-    a_j, b, _ = whitened_system(g, theta)
-    held, held_poses = g.held
-    system = PairwiseSystem(g.num_poses, g.edges, held)
-
-    def solve(w: np.ndarray) -> np.ndarray:
-        return system.solve(-a_j, a_j, b, held_poses[:, :2], w)
+    a_j, b, solve = group_of(g).translation_system(g, rotations)
 
     def residuals(t: np.ndarray) -> np.ndarray:
         r = np.einsum("eab,eb->ea", a_j, t[j] - t[i]) - b

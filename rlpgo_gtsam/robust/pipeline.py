@@ -9,7 +9,10 @@ and lets GTSAM's GNC-LM (truncated least squares) finish from it:
    convergence). When the relaxation is certified and every edge's chi2 lies within the
    inlier bound, nothing speaks against any closure: the run stops there, rejects nothing
    and hands over that optimum (the clean default's). A closure is rejected only on
-   evidence against it, never for lack of support.
+   evidence against it, never for lack of support. The chi2 is taken at the noise level
+   the odometry chain shows where that is above the nominal one (:func:`noise_scale`:
+   sphere_bignoise_vertex3's rotations are noisier than its informations say, about 110x
+   in variance, so every one of its edges' nominal chi2 is far above the bound).
 1. ``consistency``: pairwise consistency maximization with bounded tests
    (:func:`~rlpgo_gtsam.robust.consistency.pairwise_consistency`): closures whose cycle
    through the odometry conflicts go, the one with most conflicts first, until none is
@@ -46,6 +49,11 @@ The anchor (and any FIXed pose) keeps its pose.
 
 Thresholds are chi-square quantiles at ``inlier_probability`` (2 dof in step 2, 3 dof after).
 
+3D graphs (``BetweenFactorPose3``, :class:`~rlpgo_gtsam.graph3d.PoseGraph3D`) run the same
+steps in SE(3) (:mod:`rlpgo_gtsam.robust.groups`): the SE(3) relaxation
+(:mod:`rlpgo_gtsam.certified3d`), cycles of 6 dof, the 3D translation step (3 dof), GTSAM's
+GN/LM and GNC-LM on Pose3; edges are judged at 6 dof.
+
 :func:`outlier_suspicion` is the cheap test for the staged default: after a failed
 certificate, are the refined result's per-edge residuals what Gaussian noise gives, or is the
 tail too heavy (wrong closures)?
@@ -54,19 +62,20 @@ tail too heavy (wrong closures)?
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError, SolverError, one_line
-from rlpgo_gtsam.graph import PoseGraph2D, chi2, edge_chi2, odometry_edges
-from rlpgo_gtsam.initializers import make_initializer
+from rlpgo_gtsam.graph import chi2, odometry_edges
+from rlpgo_gtsam.graph3d import extract_pose_graph
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.robust.consistency import pairwise_consistency
 from rlpgo_gtsam.robust.gnc import robust_positions
-from rlpgo_gtsam.solvers import refine, solver_params
+from rlpgo_gtsam.robust.groups import PoseGraph, group_of
+from rlpgo_gtsam.solvers import gauge_prior, refine, solver_params
 
 __all__ = ["RobustResult", "robust_initialize", "DEFAULT_INLIER_PROBABILITY", "REJECTED_BELOW"]
 
@@ -85,6 +94,9 @@ _LOOSE_LM_ITERS = 4
 _LOOSE_LM_TOLERANCE = 1e-4
 _ANCHOR_SIGMA = 1e-8
 _TOLERANCE = 1e-10  # the final rounds' relative error tolerance (the project's)
+# The clean stop takes noise up to this many times its stated variance for noise
+# (sphere_bignoise_vertex3's rotations: 105-117x), see noise_scale.
+_MAX_NOISE_SCALE = 1000.0
 
 
 
@@ -136,19 +148,21 @@ def robust_initialize(
     trust_odometry: bool = True,
     inlier_probability: float = DEFAULT_INLIER_PROBABILITY,
     gnc_iterations: int = _MAX_GNC_ITERATIONS,
-    pose_graph: PoseGraph2D | None = None,
+    pose_graph: PoseGraph | None = None,
 ) -> RobustResult:
     """Reject wrong loop closures and return the refined guess; see the module docstring.
 
     Args:
-        graph: a planar pose graph (what :class:`PoseGraph2D` accepts).
+        graph: a planar or 3D pose graph (what :class:`~rlpgo_gtsam.graph.PoseGraph2D` or
+            :class:`~rlpgo_gtsam.graph3d.PoseGraph3D` accepts; a Pose3 factor makes it 3D).
         values: its initial values (they give the anchor's pose; the estimate itself starts
             from the seed's certified relaxation, not from them).
         trust_odometry: edges between consecutive keys (k, k+1) are known inliers.
         inlier_probability: the chi-square quantile that separates inliers, in (0, 1).
         gnc_iterations: cap on the outer iterations of each GNC (the translation step's and
             GTSAM's).
-        pose_graph: the graph's extraction, if the caller has it.
+        pose_graph: the graph's extraction, if the caller has it (a ``PoseGraph3D`` read with
+            ``check_information=False`` lets through informations the reader refuses).
 
     Raises:
         GraphError: a graph the package cannot work on.
@@ -161,18 +175,21 @@ def robust_initialize(
         raise SolverError(f"gnc_iterations must be >= 1, got {gnc_iterations}")
     from scipy.stats import chi2 as chi2_distribution  # scipy: loaded when first used
 
-    g = pose_graph if pose_graph is not None else PoseGraph2D.from_gtsam(graph, values)
-    factor_of_edge = _edge_factor_indices(graph, g.num_edges)
+    g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
+    group = group_of(g)
+    factor_of_edge = _edge_factor_indices(graph, g.num_edges, group.between_factor)
     chain = odometry_edges(g)
     known = chain if trust_odometry else np.zeros(g.num_edges, bool)
-    thresholds = {dof: float(chi2_distribution.ppf(inlier_probability, dof)) for dof in (1, 2, 3)}
+    # an edge's or a cycle's bar (the group's dof) and the translation step's (d dof)
+    bar, translation_bar = (float(chi2_distribution.ppf(inlier_probability, dof))
+                            for dof in (group.dof, group.dims))
     steps: list[dict[str, Any]] = []
 
     step_began = time.perf_counter()
-    clean = _all_edges(graph, g, thresholds[3])
+    clean = _all_edges(graph, g, bar, chain)
     steps.append({"step": "all edges", "seconds": time.perf_counter() - step_began,
                   "certified": clean.certified, "worst_edge_chi2": clean.worst,
-                  "passed": clean.passed})
+                  "noise_scale": clean.noise_scale, "passed": clean.passed})
     if clean.passed:  # no evidence against any edge: keep them all
         return _result(graph, factor_of_edge, clean.values, np.ones(g.num_edges, bool),
                        np.ones(g.num_edges), known, began, steps, [],
@@ -180,7 +197,7 @@ def robust_initialize(
                        "residual lies within the inlier bound after refinement")
 
     step_began = time.perf_counter()
-    consistency = pairwise_consistency(g, chain, thresholds[3])
+    consistency = pairwise_consistency(g, chain, bar)
     kept, loose = consistency.seed | chain, consistency.supported
     steps.append(_step("consistency", step_began, None, kept, known) |
                  {"pairs": consistency.pairs, "conflicts": consistency.conflicts,
@@ -189,23 +206,21 @@ def robust_initialize(
                  for k, r in consistency.ambiguous]
 
     step_began = time.perf_counter()
-    seed = replace(g, edges=g.edges[kept], measured=g.measured[kept],
-                   information=g.information[kept])
-    theta = make_initializer("certified").run(seed).poses[:, 2]
-    positions, weights, iterations = robust_positions(g, theta, known, ~kept, thresholds[2],
-                                                       gnc_iterations)
+    rotations = group.relaxation_rotations(group.subgraph(g, kept))
+    positions, weights, iterations = robust_positions(g, rotations, known, ~kept,
+                                                      translation_bar, gnc_iterations)
     kept &= weights >= REJECTED_BELOW
-    poses = np.column_stack([positions, theta])
+    poses = group.with_positions(rotations, positions)
     steps.append(_step("start", step_began, iterations, kept, known))
 
     step_began = time.perf_counter()
     poses, kept, rounds, solver_iterations = _verify(graph, g, factor_of_edge, poses, kept, known,
-                                                 loose, thresholds[3])
+                                                 loose, bar)
     steps.append(_step("verify", step_began, rounds, kept, known) |
                  {"solver_iterations": solver_iterations})
 
     step_began = time.perf_counter()
-    result, gnc_weights = _gnc_lm(graph, g, factor_of_edge, g.to_values(poses), kept, known,
+    result, gnc_weights = _gnc_lm(graph, g, factor_of_edge, group.to_values(g, poses), kept, known,
                                   inlier_probability, gnc_iterations)
     kept &= gnc_weights >= REJECTED_BELOW
     steps.append(_step("gnc", step_began, None, kept, known))
@@ -244,13 +259,16 @@ class _AllEdges:
     certified: bool
     worst: float | None  # None: not computed (no refined optimum to judge the edges at)
     passed: bool
+    noise_scale: list[float] | None = None  # per tangent component, see noise_scale
 
 
-def _all_edges(graph, g: PoseGraph2D, threshold: float) -> _AllEdges:
+def _all_edges(graph, g: PoseGraph, threshold: float, trusted: np.ndarray) -> _AllEdges:
     """The clean default on every edge: the certified relaxation, then LM to convergence
-    (only when certified); it passes when certified and every edge's chi2 (3 dof, whitened)
-    lies below ``threshold``. Wrong closures break one or the other."""
-    init = make_initializer("certified").run(g)
+    (only when certified); it passes when certified and every edge's chi2 (the group's dof,
+    its error scaled by the ``trusted`` edges' :func:`noise_scale`) lies below
+    ``threshold``. Wrong closures break one or the other."""
+    group = group_of(g)
+    init = group.certified().run(g)
     certified = bool(init.certificate is not None and init.certificate.certified)
     if not certified:
         return _AllEdges(init.values, False, None, False)
@@ -259,11 +277,31 @@ def _all_edges(graph, g: PoseGraph2D, threshold: float) -> _AllEdges:
     refined = refine(graph, init.values, params, pose_graph=g)
     if refined.failure is not None:
         return _AllEdges(init.values, True, None, False)
-    worst = float(edge_chi2(g, g.poses_of(refined.values)).max())
-    return _AllEdges(refined.values, True, worst, worst < threshold)
+    errors = group.edge_errors(g, group.poses_of(g, refined.values))
+    scale = noise_scale(errors[trusted], g.information[trusted])
+    errors = errors / np.sqrt(scale)
+    worst = float(np.einsum("ea,eab,eb->e", errors, g.information, errors).max())
+    return _AllEdges(refined.values, True, worst, worst < threshold, scale.tolist())
 
 
-def _verify(graph, g: PoseGraph2D, factor_of_edge: np.ndarray, poses: np.ndarray,
+def noise_scale(errors: np.ndarray, information: np.ndarray) -> np.ndarray:
+    """(dof,) per tangent component, how much noisier than its information says the
+    ``errors`` (k, dof) are, at least 1: ``median(e_c^2 Lambda_cc)`` over the median of
+    chi-square with 1 dof (1 for Gaussian errors at their stated noise, below 1 at an
+    optimum, where the residuals are smaller than the noise). The median is left alone by
+    a minority of bent edges. Above ``_MAX_NOISE_SCALE`` in any component the errors are
+    not taken for noise (a map that closures squeeze: two contradicting groups in the
+    tests put the whole chain 130 sigma off) and every scale is 1."""
+    from scipy.stats import chi2 as chi2_distribution
+
+    whitened = errors ** 2 * np.diagonal(information, axis1=1, axis2=2)
+    if len(whitened) == 0:
+        return np.ones(errors.shape[1])
+    scale = np.maximum(np.median(whitened, axis=0) / chi2_distribution.median(1), 1.0)
+    return scale if scale.max() <= _MAX_NOISE_SCALE else np.ones_like(scale)
+
+
+def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, poses: np.ndarray,
             kept: np.ndarray, known: np.ndarray, supported: np.ndarray,
             threshold: float) -> tuple[np.ndarray, np.ndarray, int, int]:
     """Solve on the kept edges, then re-judge every edge by its chi2 at that optimum; repeated.
@@ -279,23 +317,25 @@ def _verify(graph, g: PoseGraph2D, factor_of_edge: np.ndarray, poses: np.ndarray
     short, loose solve (they need the map's shape). Each round's solve is :func:`_settle`.
     Returns poses, kept, rounds, solver iterations.
     """
+    group = group_of(g)
     solver_iterations, rounds = 0, 0
     for bar in list(_ANNEAL) + [1.0] * _VERIFY_ROUNDS:
         rounds += 1
         # rounds under a looser bar need the map's shape, not its last digits
-        refined = _settle(_without(graph, factor_of_edge[~kept].tolist()), g.to_values(poses),
+        refined = _settle(_without(graph, factor_of_edge[~kept].tolist()),
+                          group.to_values(g, poses),
                           g, _LM_ITERS if bar == 1.0 else _LOOSE_LM_ITERS,
                           _LOOSE_LM_TOLERANCE if bar != 1.0 else _TOLERANCE)
         solver_iterations += refined.iterations
-        poses = g.poses_of(refined.values)
+        poses = group.poses_of(g, refined.values)
         scale = np.where(supported & (bar > 1.0), bar * _SUPPORTED_BAR, bar)
-        decided = known | (edge_chi2(g, poses) < scale * threshold)
+        decided = known | (group.edge_chi2(g, poses) < scale * threshold)
         if bar == 1.0 and np.array_equal(decided, kept):
             break
         kept = decided
     return poses, kept, rounds, solver_iterations
 
-def _settle(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, g: PoseGraph2D,
+def _settle(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, g: PoseGraph,
             iterations: int, tolerance: float):
     """GTSAM Gauss-Newton (g2o's loop: on through an increase) from ``values``, or LM
     (relative tolerance ``tolerance``) where that does not lower the chi2. From the maps
@@ -311,7 +351,7 @@ def _settle(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, g: PoseGrap
         raise SolverError(f"robust initialization: {refined.failure}")
     return refined
 
-def _gnc_lm(graph, g: PoseGraph2D, factor_of_edge: np.ndarray, start: gtsam.Values,
+def _gnc_lm(graph, g: PoseGraph, factor_of_edge: np.ndarray, start: gtsam.Values,
             kept: np.ndarray, known: np.ndarray, inlier_probability: float,
             iterations: int) -> tuple[gtsam.Values, np.ndarray]:
     """GTSAM's GNC-LM (TLS) from ``start`` on the kept edges; returns its values and the
@@ -319,9 +359,7 @@ def _gnc_lm(graph, g: PoseGraph2D, factor_of_edge: np.ndarray, start: gtsam.Valu
     optimized = _without(graph, factor_of_edge[~kept].tolist())
     inliers = [k for k in range(optimized.size()) if optimized.at(k) is not None]
     inliers = sorted(set(inliers) - set(factor_of_edge[~known].tolist()))
-    anchor_key = int(g.keys[g.anchor])
-    optimized.add(gtsam.PriorFactorPose2(anchor_key, start.atPose2(anchor_key),
-                                         gtsam.noiseModel.Isotropic.Sigma(3, _ANCHOR_SIGMA)))
+    optimized.add(gauge_prior(g, start, _ANCHOR_SIGMA))
     params = gtsam.GncLMParams(solver_params("lm", _LM_ITERS))
     params.setLossType(gtsam.GncLossType.TLS)
     params.setScheduler(gtsam.GncScheduler.SuperLinear)
@@ -336,10 +374,11 @@ def _gnc_lm(graph, g: PoseGraph2D, factor_of_edge: np.ndarray, start: gtsam.Valu
     weights = np.asarray(optimizer.getWeights(), dtype=float).ravel()[factor_of_edge]
     return result, np.where(kept, weights, 0.0)
 
-def _edge_factor_indices(graph: gtsam.NonlinearFactorGraph, num_edges: int) -> np.ndarray:
+def _edge_factor_indices(graph: gtsam.NonlinearFactorGraph, num_edges: int,
+                         between_factor: type) -> np.ndarray:
     """(m,) the factor index of each edge of the graph's extraction (edges are in graph order)."""
     indices = np.array([k for k in range(graph.size())
-                        if isinstance(graph.at(k), gtsam.BetweenFactorPose2)], dtype=np.int64)
+                        if isinstance(graph.at(k), between_factor)], dtype=np.int64)
     if len(indices) != num_edges:
         raise GraphError(f"the graph has {len(indices)} between factors but its extraction has "
                          f"{num_edges} edges")

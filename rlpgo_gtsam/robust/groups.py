@@ -1,0 +1,270 @@
+"""The group the robust steps work in: SE(2) for a planar graph, SE(3) for a 3D one.
+
+The robust steps are written once, over a :class:`Group`. Poses are arrays with one pose per
+row: planar ``(k, 3)`` rows ``(x, y, theta)``, spatial ``(k, 3, 4)`` ``[R | t]``. The
+operations (compose, inverse, between, Logmap, adjoint, in GTSAM's tangent order) are
+:mod:`rlpgo_gtsam.se2`'s and :mod:`rlpgo_gtsam.se3`'s, only repacked here. A group also
+holds what differs between its pose graphs (:class:`~rlpgo_gtsam.graph.PoseGraph2D`,
+:class:`~rlpgo_gtsam.graph3d.PoseGraph3D`): GTSAM's factor types, the edges' measured poses,
+the edge chi2, values in and out, the certified relaxation's rotations and the translation
+step's whitened system (:mod:`rlpgo_gtsam.translations`, :mod:`rlpgo_gtsam.translations3d`).
+Rotations are the planar angles ``(n,)`` or the spatial matrices ``(n, 3, 3)``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import replace
+
+import gtsam
+import numpy as np
+
+import rlpgo_gtsam.se2 as se2
+import rlpgo_gtsam.se3 as se3
+from rlpgo_gtsam.graph import edge_chi2 as edge_chi2_2d
+from rlpgo_gtsam.graph import edge_errors as edge_errors_2d
+from rlpgo_gtsam.graph3d import AnyPoseGraph
+from rlpgo_gtsam.graph3d import edge_chi2 as edge_chi2_3d
+from rlpgo_gtsam.graph3d import edge_errors as edge_errors_3d
+from rlpgo_gtsam.initializers import Initializer, make_initializer
+from rlpgo_gtsam.initializers3d import Certified3D, pose_matrices
+from rlpgo_gtsam.linear import PairwiseSystem
+from rlpgo_gtsam.translations import whitened_system
+from rlpgo_gtsam.translations3d import TranslationStep3D, solve_block_pairwise
+
+__all__ = ["Group", "PLANAR", "SPATIAL", "group_of", "TranslationSystem"]
+
+# The SE(3) relaxations the robust steps run stop at rank 3 after this many trust-region
+# iterations: SE-Sync's seven 3D files certify at rank 3 in 4-8, while with 5% wrong closures
+# sphere2500 and torus3D ran 91 and 45 there (15 s CPU each, against 1.0 and 1.8 s clean)
+# and the staircase then climbed to rank 10 (250 s) without a certificate.
+_RELAXATION_ITERATIONS = 20
+
+PoseGraph = AnyPoseGraph
+# The translation step at fixed rotations: (m, d, d) blocks A_e and (m, d) b_e of the whitened
+# residuals A_e (t_j - t_i) - b_e, and solve(weights) -> (n, d) positions.
+TranslationSystem = tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], np.ndarray]]
+
+
+class Group:
+    """SE(d) for the robust steps; see the module docstring.
+
+    Attributes:
+        dof: tangent dimension (3 planar, 6 spatial): a cycle's or an edge's chi2 dof.
+        dims: translation dimension d (2 or 3): the translation step's residual dof.
+        rotation_volume: the volume of SO(d) in exponential coordinates (Haar measure that
+            is Lebesgue at the identity): 2 pi, 8 pi^2.
+        between_factor: GTSAM's between factor type of the graph's edges.
+    """
+
+    dof: int
+    dims: int
+    rotation_volume: float
+    between_factor: type
+
+    def compose(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def inverse(self, a: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def between(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def logmap(self, a: np.ndarray) -> np.ndarray:
+        """(k, dof) GTSAM's Logmap."""
+        raise NotImplementedError
+
+    def adjoint(self, a: np.ndarray) -> np.ndarray:
+        """(k, dof, dof) GTSAM's adjoint maps: ``X Exp(d) X^-1 = Exp(Ad(X) d)``."""
+        raise NotImplementedError
+
+    def identity(self, n: int) -> np.ndarray:
+        raise NotImplementedError
+
+    def translations(self, poses: np.ndarray) -> np.ndarray:
+        """(k, dims) the poses' positions."""
+        raise NotImplementedError
+
+    def measured(self, g: PoseGraph) -> np.ndarray:
+        """The edges' measured relative poses, one row per edge."""
+        raise NotImplementedError
+
+    def subgraph(self, g: PoseGraph, kept: np.ndarray) -> PoseGraph:
+        """``g`` with only the edges in ``kept`` (poses, anchor and priors unchanged)."""
+        raise NotImplementedError
+
+    def edge_chi2(self, g: PoseGraph, poses: np.ndarray) -> np.ndarray:
+        """(m,) each edge's chi2 at ``poses``, as GTSAM's between factor charges it."""
+        raise NotImplementedError
+
+    def edge_errors(self, g: PoseGraph, poses: np.ndarray) -> np.ndarray:
+        """(m, dof) each edge's error (GTSAM's Logmap) at ``poses``."""
+        raise NotImplementedError
+
+    def poses_of(self, g: PoseGraph, values: gtsam.Values) -> np.ndarray:
+        raise NotImplementedError
+
+    def to_values(self, g: PoseGraph, poses: np.ndarray) -> gtsam.Values:
+        raise NotImplementedError
+
+    def certified(self) -> Initializer:
+        """The certified relaxation as an initializer (the clean default's first stage)."""
+        raise NotImplementedError
+
+    def relaxation_rotations(self, g: PoseGraph) -> np.ndarray:
+        """The rotations of the certified relaxation's estimate of ``g``."""
+        raise NotImplementedError
+
+    def translation_system(self, g: PoseGraph, rotations: np.ndarray) -> TranslationSystem:
+        """The translation step's whitened residuals at ``rotations`` and a weighted solve
+        (held poses keep their positions)."""
+        raise NotImplementedError
+
+    def with_positions(self, rotations: np.ndarray, positions: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def agreement_chance(self, bar: float, volume: np.ndarray, side: float) -> np.ndarray:
+        """The chance that a random relative pose lands within a cycle's agreement bar: the
+        ellipsoid ``{x: x^T C^-1 x <= bar}`` (``volume = sqrt(det C)``) over the volume of
+        the relative poses a wrong closure spreads over (positions in a cube of side
+        ``2 side``, rotations anywhere)."""
+        ball = math.pi ** (self.dof / 2) / math.gamma(self.dof / 2 + 1)
+        return ball * bar ** (self.dof / 2) * volume / (
+            (2.0 * side) ** self.dims * self.rotation_volume)
+
+
+class _Planar(Group):
+    dof, dims, rotation_volume = 3, 2, 2.0 * math.pi
+    between_factor = gtsam.BetweenFactorPose2
+
+    def compose(self, a, b):
+        return se2.compose(a, b)
+
+    def inverse(self, a):
+        return se2.inverse(a)
+
+    def between(self, a, b):
+        return se2.between(a, b)
+
+    def logmap(self, a):
+        return se2.logmap(a)
+
+    def adjoint(self, a):
+        return se2.adjoint(a)
+
+    def identity(self, n):
+        return np.zeros((n, 3))
+
+    def translations(self, poses):
+        return poses[:, :2]
+
+    def measured(self, g):
+        return g.measured
+
+    def subgraph(self, g, kept):
+        return replace(g, edges=g.edges[kept], measured=g.measured[kept],
+                       information=g.information[kept])
+
+    def edge_chi2(self, g, poses):
+        return edge_chi2_2d(g, poses)
+
+    def edge_errors(self, g, poses):
+        return edge_errors_2d(g, poses)
+
+    def poses_of(self, g, values):
+        return g.poses_of(values)
+
+    def to_values(self, g, poses):
+        return g.to_values(poses)
+
+    def certified(self):
+        return make_initializer("certified")
+
+    def relaxation_rotations(self, g):
+        return self.certified().run(g).poses[:, 2]
+
+    def translation_system(self, g, rotations):
+        a_j, b, _ = whitened_system(g, rotations)
+        held, held_poses = g.held
+        system = PairwiseSystem(g.num_poses, g.edges, held)
+        return a_j, b, lambda weights: system.solve(-a_j, a_j, b, held_poses[:, :2], weights)
+
+    def with_positions(self, rotations, positions):
+        return np.column_stack([positions, rotations])
+
+
+class _Spatial(Group):
+    dof, dims, rotation_volume = 6, 3, 8.0 * math.pi ** 2
+    between_factor = gtsam.BetweenFactorPose3
+
+    def compose(self, a, b):
+        return pose_matrices(*se3.compose(a[:, :, :3], a[:, :, 3], b[:, :, :3], b[:, :, 3]))
+
+    def inverse(self, a):
+        return pose_matrices(*se3.inverse(a[:, :, :3], a[:, :, 3]))
+
+    def between(self, a, b):
+        return pose_matrices(*se3.between(a[:, :, :3], a[:, :, 3], b[:, :, :3], b[:, :, 3]))
+
+    def logmap(self, a):
+        return se3.logmap(a[:, :, :3], a[:, :, 3])
+
+    def adjoint(self, a):
+        return se3.adjoint(a[:, :, :3], a[:, :, 3])
+
+    def identity(self, n):
+        return pose_matrices(np.broadcast_to(np.eye(3), (n, 3, 3)), np.zeros((n, 3)))
+
+    def translations(self, poses):
+        return poses[:, :, 3]
+
+    def measured(self, g):
+        return pose_matrices(g.measured_rotations, g.measured_translations)
+
+    def subgraph(self, g, kept):
+        return replace(g, edges=g.edges[kept], measured_rotations=g.measured_rotations[kept],
+                       measured_translations=g.measured_translations[kept],
+                       information=g.information[kept])
+
+    def edge_chi2(self, g, poses):
+        return edge_chi2_3d(g, poses[:, :, :3], poses[:, :, 3])
+
+    def edge_errors(self, g, poses):
+        return edge_errors_3d(g, poses[:, :, :3], poses[:, :, 3])
+
+    def poses_of(self, g, values):
+        return pose_matrices(*g.poses_of(values))
+
+    def to_values(self, g, poses):
+        return g.to_values(poses[:, :, :3], poses[:, :, 3])
+
+    def certified(self):
+        return Certified3D(max_rank=3, max_iterations=_RELAXATION_ITERATIONS)
+
+    def relaxation_rotations(self, g):
+        from rlpgo_gtsam.certified3d import synchronize3d
+
+        rotations, _ = synchronize3d(g, max_rank=3, max_iterations=_RELAXATION_ITERATIONS)
+        held, held_r, _ = g.held
+        rotations[held] = held_r
+        return rotations
+
+    def translation_system(self, g, rotations):
+        a_j, b = TranslationStep3D(g).whitened(rotations)
+        held, _, held_t = g.held
+        return a_j, b, lambda weights: solve_block_pairwise(g.num_poses, g.edges, -a_j, a_j, b,
+                                                            held, held_t, weights)
+
+    def with_positions(self, rotations, positions):
+        return pose_matrices(rotations, positions)
+
+
+PLANAR: Group = _Planar()
+SPATIAL: Group = _Spatial()
+
+
+def group_of(g: PoseGraph) -> Group:
+    """The group of a pose graph's extraction."""
+    return SPATIAL if g.dimension == 3 else PLANAR
