@@ -2,7 +2,8 @@
 
 :func:`robust_initialize` (:mod:`rlpgo_gtsam.robust.pipeline`) runs the steps: cycle
 consistency (:mod:`~rlpgo_gtsam.robust.consistency`), the certified start with GNC-TLS on
-the translation step (:mod:`~rlpgo_gtsam.robust.gnc`), verification and GTSAM's GNC-LM.
+the translation step (:mod:`~rlpgo_gtsam.robust.gnc`), verification and GTSAM's GNC-LM, on
+planar and 3D graphs alike (:mod:`~rlpgo_gtsam.robust.groups`: SE(2) or SE(3)).
 """
 
 from rlpgo_gtsam.robust.pipeline import (
