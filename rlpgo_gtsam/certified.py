@@ -106,6 +106,11 @@ _ESCAPE_HALVINGS = ESCAPE_HALVINGS  # step halvings an escape from a saddle trie
 # shift of 1e-3 mean(diag Q), used before, left the Laplacian's lowest modes unpreconditioned:
 # truncated CG then ran 100-200 iterations per step on large easy graphs.
 _PRECONDITIONER_CONDITION = 1e6
+# A truncated CG run of this many Hessian products or more makes the next one precondition
+# with the factor of S + delta I at its Y (Q + delta I leaves out Lambda, which on long easy
+# graphs outweighs Q's lowest modes: 20k poses took 935 Hessian products, 131 this way); a
+# factor costs about 15 solves, so short runs keep the shared one.
+_HESSIAN_PRECONDITIONER_AFTER = 20
 
 
 @numeric_call
@@ -402,7 +407,8 @@ def _manifold() -> _Circles:
     return _Circles(dense_below=_DENSE_BELOW, preconditioner_shift=0.0,
                     preconditioner_condition=_PRECONDITIONER_CONDITION, initial_radius=10.0,
                     max_below=6, escape_halvings=_ESCAPE_HALVINGS,
-                    arpack_options=_ARPACK_OPTIONS)
+                    arpack_options=_ARPACK_OPTIONS,
+                    hessian_preconditioner_after=_HESSIAN_PRECONDITIONER_AFTER)
 
 
 def _trust_region(problem: _Problem, y: np.ndarray, max_iterations: int, grad_tol: float,

@@ -188,18 +188,29 @@ class Relaxation:
         """An upper bound on ``||Q||`` (for SE-Sync's preconditioner shift)."""
         raise NotImplementedError
 
-    def preconditioner(self, manifold: Manifold) -> Any:
-        """The factor of ``Q + delta I``: ``delta = norm_bound() / (condition - 1)`` with the
+    def preconditioner_delta(self, manifold: Manifold) -> float:
+        """The preconditioner's shift: ``delta = norm_bound() / (condition - 1)`` with the
         manifold's ``preconditioner_condition`` (SE-Sync's regularized Cholesky
-        preconditioner), else ``preconditioner_shift x scale``; cached per ``delta``."""
+        preconditioner), else ``preconditioner_shift x scale``."""
         m = manifold
         if m.preconditioner_condition is not None:
-            delta = self.norm_bound() / (m.preconditioner_condition - 1.0)
-        else:
-            delta = m.preconditioner_shift * self.scale
+            return self.norm_bound() / (m.preconditioner_condition - 1.0)
+        return m.preconditioner_shift * self.scale
+
+    def preconditioner(self, manifold: Manifold) -> Any:
+        """The factor of ``Q + delta I`` (:meth:`preconditioner_delta`); cached per delta."""
+        delta = self.preconditioner_delta(manifold)
         if self._preconditioner is None or self._preconditioner[0] != delta:
-            self._preconditioner = (delta, self.factor(m.diagonal(self.n, delta)))
+            self._preconditioner = (delta, self.factor(manifold.diagonal(self.n, delta)))
         return self._preconditioner[1]
+
+    def hessian_preconditioner(self, manifold: Manifold, lam: np.ndarray) -> Any | None:
+        """The factor of ``S + delta I = Q - Lambda + delta I`` at multipliers ``lam``, or None
+        where it is not positive definite (away from a minimum; at rank > 1 of a relaxation
+        that is not exact): ``(S + delta I)^-1`` matches the Hessian where ``(Q + delta
+        I)^-1`` leaves out ``Lambda``, which outweighs ``Q``'s lowest modes on long graphs."""
+        factor = _factor(self, manifold.shift(lam, -self.preconditioner_delta(manifold)))
+        return factor if _negative_pivots(manifold, factor) == 0 else None
 
     def tolerance(self, tolerance: float | None) -> float:
         if tolerance is None:
@@ -232,6 +243,11 @@ class Manifold:
             eigenpairs are computed one by one; more (or 0 here): one shift below them all.
         escape_halvings: step halvings an escape from a saddle tries before it gives up.
         arpack_options: ARPACK's settings besides k, which, v0 and tol.
+        hessian_preconditioner_after: a truncated CG run that took at least this many
+            Hessian products makes the trust region's next run precondition with the factor
+            of ``S + delta I`` at its ``Y`` (:meth:`Relaxation.hessian_preconditioner`,
+            refactored at each such run; ``Q + delta I`` where it is not positive definite);
+            None: always ``Q + delta I``.
     """
 
     dense_below: int
@@ -243,6 +259,7 @@ class Manifold:
     step_radius: bool = True
     escape_halvings: int = ESCAPE_HALVINGS
     arpack_options: dict[str, Any] = field(default_factory=lambda: dict(ARPACK_OPTIONS))
+    hessian_preconditioner_after: int | None = None
     dtype: ClassVar[type] = float
     """The scalars of ``Y`` (and of the eigenvectors of ``S``)."""
 
@@ -434,9 +451,10 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
                  stall: float = 0.0) -> tuple[np.ndarray, Status | None]:
     """A local minimum of f(Y) = tr(Y^* Q Y) on the manifold: Riemannian trust region with
     truncated CG (Steihaug-Toint), preconditioned by (Q + delta I)^-1 (the problem's
-    :meth:`Relaxation.preconditioner`, one factor shared by the ranks). The decrease of a
-    trial step and a rejected step's radius follow the manifold's ``exact_decrease`` and
-    ``step_radius``.
+    :meth:`Relaxation.preconditioner`, one factor shared by the ranks), or, after a CG run
+    of the manifold's ``hessian_preconditioner_after`` Hessian products or more, by
+    (S + delta I)^-1 where that is positive definite. The decrease of a trial step and a
+    rejected step's radius follow the manifold's ``exact_decrease`` and ``step_radius``.
 
     Returns Y and how it ended: None (gradient tolerance met, no progress left above
     round-off, or stalled: the last ``STALL_WINDOW`` iterations lowered the cost by less
@@ -451,6 +469,7 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
     ended: Status | None = Status.ITERATION_LIMIT
     costs = [f]  # the cost at the start of each iteration
     rejected, path = False, []  # whether the last step was rejected; its CG run's path
+    products = [0]  # Hessian products of the last CG run
     for iteration in range(max_iterations + 1):
         lam = m.multipliers(y, qy)
         grad = 2.0 * (qy - m.times(lam, y))
@@ -469,9 +488,16 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
         if deadline is not None and time.perf_counter() > deadline:
             ended = Status.TIME_LIMIT
             break
-        precon = problem.preconditioner(m)
+        if not rejected:  # a rejected step's Y keeps its preconditioner (and CG path)
+            precon = None
+            if m.hessian_preconditioner_after is not None and \
+                    products[0] >= m.hessian_preconditioner_after:
+                precon = problem.hessian_preconditioner(m, lam)
+            if precon is None:
+                precon = problem.preconditioner(m)
 
         def hess(v: np.ndarray, y=y, lam=lam) -> np.ndarray:
+            products[0] += 1
             return m.hessian(y, lam, v, problem.apply(v))
 
         def pre(v: np.ndarray, y=y, precon=precon) -> np.ndarray:
@@ -483,7 +509,7 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
         # the recorded path of the last run (its iterates do not depend on the radius)
         shortened = _shortened(path, radius) if rejected else None
         if shortened is None:
-            path = []
+            path, products[0] = [], 0
             shortened = truncated_cg(grad, hess, pre, radius, path)
         step, h_step, on_boundary, length = shortened
         model_decrease = -(m.inner(grad, step) + 0.5 * m.inner(step, h_step))

@@ -196,6 +196,57 @@ def test_the_same_graph_gets_the_same_certificate_twice_in_one_process():
     assert first[1].min_eigenvalue == second[1].min_eigenvalue
 
 
+def test_the_hessian_preconditioner_factors_s_and_refuses_where_it_is_indefinite(heavy):
+    """At an easy graph's optimum the factor of S + delta I solves it; at a saddle (rank 1 of
+    a relaxation that is not exact: lambda_min(S) = -1.7) there is none."""
+    manifold = certified._manifold()
+
+    def at_rank_one(graph):
+        problem = certified._Problem(graph)
+        theta, _ = synchronize(graph, max_rank=1)
+        y = np.exp(1j * theta)[:, None]
+        lam = manifold.multipliers(y, problem.apply(y))
+        s = problem.apply(np.eye(problem.n, dtype=complex)) - np.diag(lam)
+        return problem, lam, s
+
+    problem, lam, s = at_rank_one(heavy)
+    assert np.linalg.eigvalsh(s)[0] < -1.0
+    assert problem.hessian_preconditioner(manifold, lam) is None
+    problem, lam, s = at_rank_one(_graph(100, 0.05, 4))
+    factor = problem.hessian_preconditioner(manifold, lam)
+    delta = problem.preconditioner_delta(manifold)
+    v = np.random.default_rng(0).standard_normal((problem.n, 1)) + 0j
+    assert np.allclose(problem.solve_shifted(factor, v),
+                       np.linalg.solve(s + delta * np.eye(problem.n), v), rtol=1e-6)
+
+
+def test_long_runs_switch_to_the_hessian_preconditioner_and_need_fewer_products(monkeypatch):
+    """3000 poses in long rows: CG preconditioned by Q + delta I needs 202 Hessian products;
+    switching to S + delta I after a run of 20 or more, 134; the same estimate."""
+    import rlpgo_gtsam.staircase as staircase
+
+    sample = generate(3000, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(1),
+                      noisy_measurements=True)
+    graph = PoseGraph2D.from_gtsam(sample.graph, sample.initial)
+    products = [0]
+    truncated_cg = staircase.truncated_cg
+
+    def counted(grad, hess, pre, radius, *args):
+        def product(v):
+            products[0] += 1
+            return hess(v)
+        return truncated_cg(grad, product, pre, radius, *args)
+
+    monkeypatch.setattr(staircase, "truncated_cg", counted)
+    _, switched = synchronize(graph)
+    with_switch, products[0] = products[0], 0
+    monkeypatch.setattr(certified, "_HESSIAN_PRECONDITIONER_AFTER", None)
+    _, plain = synchronize(graph)
+    assert switched.certified and plain.certified
+    assert with_switch < 0.8 * products[0]
+    assert switched.estimate_cost == pytest.approx(plain.estimate_cost, rel=1e-10)
+
+
 def test_a_failed_saddle_escape_is_reported(monkeypatch):
     # This graph needs rank 3; with no step halvings the escape to rank 2 cannot descend.
     graph = _graph(30, 2.0, 2)
