@@ -106,11 +106,16 @@ _ESCAPE_HALVINGS = ESCAPE_HALVINGS  # step halvings an escape from a saddle trie
 # shift of 1e-3 mean(diag Q), used before, left the Laplacian's lowest modes unpreconditioned:
 # truncated CG then ran 100-200 iterations per step on large easy graphs.
 _PRECONDITIONER_CONDITION = 1e6
-# A truncated CG run of this many Hessian products or more makes the next one precondition
-# with the factor of S + delta I at its Y (Q + delta I leaves out Lambda, which on long easy
-# graphs outweighs Q's lowest modes: 20k poses took 935 Hessian products, 131 this way); a
-# factor costs about 15 solves, so short runs keep the shared one.
-_HESSIAN_PRECONDITIONER_AFTER = 20
+# A truncated CG run of this many Hessian products or more switches the trust region to the
+# Hessian's own preconditioner (at rank 1 the tangent Hessian's factor, above it that of
+# S + delta I), refactored at each new Y while positive definite: Q + delta I leaves out
+# Lambda, which on long easy graphs outweighs Q's lowest modes (20k poses: 935 Hessian
+# products, 75 this way). A factor costs about 15 solves, so short runs keep the shared one.
+_HESSIAN_PRECONDITIONER_AFTER = 10
+# The tangent Hessian's factor at rank 1 holds A + delta I, delta this times mean(diag Q):
+# A is singular along the rotation gauge only, and SE-Sync's condition-1e6 delta would sit
+# above the lowest modes of long graphs (20k poses: 117 products instead of 75).
+_TANGENT_SHIFT = 1e-10
 
 
 @numeric_call
@@ -268,6 +273,7 @@ class _Problem(Relaxation):
         if not self.scale > 0:
             raise SolverError("every edge has zero information: nothing to synchronize")
         self._layout: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._tangent: tuple | None = None
 
     def apply(self, y: np.ndarray) -> np.ndarray:
         """Q y for y (n, r) complex: one solve of the translation Laplacian's factor with the
@@ -322,6 +328,60 @@ class _Problem(Relaxation):
     def solve_shifted(factor: _Shifted, v: np.ndarray) -> np.ndarray:
         return factor.solve(v)
 
+    def hessian_preconditioner(self, manifold: Manifold, y: np.ndarray, lam: np.ndarray):
+        """At rank 1 the exact inverse of the tangent Hessian (:meth:`tangent_factor`), else
+        the factor of ``S + delta I`` (:meth:`Relaxation.hessian_preconditioner`); None
+        where it is not positive definite."""
+        if y.shape[1] > 1:
+            return super().hessian_preconditioner(manifold, y, lam)
+        factor = self.tangent_factor(y[:, 0], lam, _TANGENT_SHIFT * self.scale)
+        return None if factor is None else factor.precondition
+
+    def tangent_factor(self, z: np.ndarray, lam: np.ndarray, delta: float) -> _Tangent | None:
+        """The rank-1 Hessian on the tangent space at unit ``z``, in angle coordinates
+        (``v = i a z``, ``a`` real): ``2 A`` with ``A = Re(Z^H S Z)``, ``Z = diag(z)``,
+        ``S = Q - Lambda``. With ``W = B Z = Wr + i Wi``, ``A`` is the Schur complement of
+        the real symmetric ``[[L, 0, -Wr], [0, L, -Wi], [-Wr^T, -Wi^T, Re(Z^H D Z) -
+        Lambda]]`` (x, y and angle of each pose together, poses in the translation
+        Laplacian's order): that matrix with ``delta`` added to the angles' diagonal, in a
+        pivot-free LU; None unless it is positive definite (``A`` is singular along the
+        rotation gauge, and indefinite away from a minimum)."""
+        if self._tangent is None:
+            self._tangent = self._tangent_layout()
+        rows, cols, pos_a, lap, b, d = self._tangent
+        w = b.data * z[b.col]
+        diagonal = np.real(np.conj(z[d.row]) * d.data * z[d.col])
+        data = np.concatenate([lap.data, lap.data, -w.real, -w.real, -w.imag, -w.imag,
+                               diagonal, delta - lam])
+        size = 3 * self.n - 2
+        block = sp.coo_matrix((data, (rows, cols)), shape=(size, size)).tocsc()
+        try:
+            lu = splu(block, permc_spec="NATURAL", diag_pivot_thresh=0.0,
+                      options={"SymmetricMode": True})
+        except RuntimeError:  # an exactly zero pivot
+            return None
+        return _Tangent(lu, pos_a, z) if negative_pivots(lu) == 0 else None
+
+    def _tangent_layout(self) -> tuple:
+        """The index arrays of :meth:`tangent_factor`'s matrix (its data in that order: L
+        twice, -Wr twice, -Wi twice, Re(Z^H D Z), the diagonal), the angle rows' positions,
+        and L, B and D as COO."""
+        n, m = self.n, self.n - 1
+        order = np.argsort(self.lap_lu.perm_c)  # translation rows in elimination order
+        keep = np.delete(np.arange(n), self.anchor)
+        pos_x = np.empty(m, np.int64)
+        pos_x[order] = 3 * np.arange(m)
+        pos_y = pos_x + 1
+        pos_a = np.empty(n, np.int64)
+        pos_a[keep[order]] = 3 * np.arange(m) + 2
+        pos_a[self.anchor] = 3 * m
+        lap, b, d = self.lap.tocoo(), self.b.tocoo(), self.d.tocoo()
+        rows = np.concatenate([pos_x[lap.row], pos_y[lap.row], pos_x[b.row], pos_a[b.col],
+                               pos_y[b.row], pos_a[b.col], pos_a[d.row], pos_a])
+        cols = np.concatenate([pos_x[lap.col], pos_y[lap.col], pos_a[b.col], pos_x[b.row],
+                               pos_a[b.col], pos_y[b.row], pos_a[d.col], pos_a])
+        return rows, cols, pos_a, lap, b, d
+
 
 @dataclass(frozen=True)
 class _Shifted:
@@ -340,6 +400,22 @@ class _Shifted:
         """Number of eigenvalues of Q + diag(shift) that are <= 0 (Sylvester's law of
         inertia; L is positive definite), or None when the LU pivoted off the diagonal."""
         return negative_pivots(self.lu)
+
+
+@dataclass(frozen=True)
+class _Tangent:
+    """A factor of the rank-1 tangent Hessian at ``z`` (:meth:`_Problem.tangent_factor`)."""
+
+    lu: SuperLU
+    pos_a: np.ndarray  # the angle rows' positions in the block
+    z: np.ndarray
+
+    def precondition(self, v: np.ndarray) -> np.ndarray:
+        """``(2 A)^-1`` of a tangent ``v`` (n, 1), as a tangent vector: ``b = Im(conj(z) v)``
+        in angle coordinates, ``a = A^-1 b / 2``, back as ``i a z``."""
+        rhs = np.zeros(self.lu.shape[0])
+        rhs[self.pos_a] = np.imag(np.conj(self.z) * v[:, 0])
+        return (0.5j * self.lu.solve(rhs)[self.pos_a] * self.z)[:, None]
 
 
 def _angles(theta: np.ndarray, n: int) -> np.ndarray:

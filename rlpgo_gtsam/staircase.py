@@ -204,13 +204,19 @@ class Relaxation:
             self._preconditioner = (delta, self.factor(manifold.diagonal(self.n, delta)))
         return self._preconditioner[1]
 
-    def hessian_preconditioner(self, manifold: Manifold, lam: np.ndarray) -> Any | None:
-        """The factor of ``S + delta I = Q - Lambda + delta I`` at multipliers ``lam``, or None
-        where it is not positive definite (away from a minimum; at rank > 1 of a relaxation
-        that is not exact): ``(S + delta I)^-1`` matches the Hessian where ``(Q + delta
-        I)^-1`` leaves out ``Lambda``, which outweighs ``Q``'s lowest modes on long graphs."""
+    def hessian_preconditioner(self, manifold: Manifold, y: np.ndarray,
+                               lam: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
+        """A preconditioner of the Riemannian Hessian at ``y`` (multipliers ``lam``) that
+        holds ``Lambda``, as a function of a tangent vector, or None where it is not
+        positive definite (away from a minimum; at rank > 1 of a relaxation that is not
+        exact). Here the factor of ``S + delta I = Q - Lambda + delta I``: ``(Q + delta
+        I)^-1`` leaves out ``Lambda``, which outweighs ``Q``'s lowest modes on long graphs.
+        A problem may give a closer one (the planar one at rank 1: the tangent Hessian's
+        own factor)."""
         factor = _factor(self, manifold.shift(lam, -self.preconditioner_delta(manifold)))
-        return factor if _negative_pivots(manifold, factor) == 0 else None
+        if _negative_pivots(manifold, factor) != 0:
+            return None
+        return lambda v: 0.5 * manifold.project(y, self.solve_shifted(factor, v))
 
     def tolerance(self, tolerance: float | None) -> float:
         if tolerance is None:
@@ -244,10 +250,10 @@ class Manifold:
         escape_halvings: step halvings an escape from a saddle tries before it gives up.
         arpack_options: ARPACK's settings besides k, which, v0 and tol.
         hessian_preconditioner_after: a truncated CG run that took at least this many
-            Hessian products makes the trust region's next run precondition with the factor
-            of ``S + delta I`` at its ``Y`` (:meth:`Relaxation.hessian_preconditioner`,
-            refactored at each such run; ``Q + delta I`` where it is not positive definite);
-            None: always ``Q + delta I``.
+            Hessian products makes the trust region's next run precondition with the
+            problem's :meth:`Relaxation.hessian_preconditioner` at its ``Y`` (refactored at
+            each new ``Y`` from then on, as long as it is positive definite; else back to
+            ``Q + delta I``); None: always ``Q + delta I``.
     """
 
     dense_below: int
@@ -451,9 +457,10 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
                  stall: float = 0.0) -> tuple[np.ndarray, Status | None]:
     """A local minimum of f(Y) = tr(Y^* Q Y) on the manifold: Riemannian trust region with
     truncated CG (Steihaug-Toint), preconditioned by (Q + delta I)^-1 (the problem's
-    :meth:`Relaxation.preconditioner`, one factor shared by the ranks), or, after a CG run
-    of the manifold's ``hessian_preconditioner_after`` Hessian products or more, by
-    (S + delta I)^-1 where that is positive definite. The decrease of a trial step and a
+    :meth:`Relaxation.preconditioner`, one factor shared by the ranks), or, once a CG run
+    took the manifold's ``hessian_preconditioner_after`` Hessian products or more, by the
+    problem's :meth:`Relaxation.hessian_preconditioner` at each new Y while that is
+    positive definite. The decrease of a trial step and a
     rejected step's radius follow the manifold's ``exact_decrease`` and ``step_radius``.
 
     Returns Y and how it ended: None (gradient tolerance met, no progress left above
@@ -470,6 +477,7 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
     costs = [f]  # the cost at the start of each iteration
     rejected, path = False, []  # whether the last step was rejected; its CG run's path
     products = [0]  # Hessian products of the last CG run
+    hessian = False  # whether the last CG run had the Hessian preconditioner
     for iteration in range(max_iterations + 1):
         lam = m.multipliers(y, qy)
         grad = 2.0 * (qy - m.times(lam, y))
@@ -489,19 +497,17 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
             ended = Status.TIME_LIMIT
             break
         if not rejected:  # a rejected step's Y keeps its preconditioner (and CG path)
-            precon = None
+            pre = None
             if m.hessian_preconditioner_after is not None and \
-                    products[0] >= m.hessian_preconditioner_after:
-                precon = problem.hessian_preconditioner(m, lam)
-            if precon is None:
-                precon = problem.preconditioner(m)
+                    (hessian or products[0] >= m.hessian_preconditioner_after):
+                pre = problem.hessian_preconditioner(m, y, lam)
+            hessian = pre is not None
+            if pre is None:
+                pre = _shared_preconditioner(problem, m, y)
 
         def hess(v: np.ndarray, y=y, lam=lam) -> np.ndarray:
             products[0] += 1
             return m.hessian(y, lam, v, problem.apply(v))
-
-        def pre(v: np.ndarray, y=y, precon=precon) -> np.ndarray:
-            return 0.5 * m.project(y, problem.solve_shifted(precon, v))
 
         if radius is None:
             radius = m.initial_radius * np.sqrt(max(m.inner(grad, pre(grad)), 1e-300))
@@ -532,6 +538,13 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
             y, qy, f = y_new, qy_new, m.inner(y_new, qy_new)
         costs.append(f)
     return y, ended
+
+
+def _shared_preconditioner(problem: Any, manifold: Manifold,
+                           y: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """``0.5 P_Y (Q + delta I)^-1``: the problem's factor shared by the ranks."""
+    factor = problem.preconditioner(manifold)
+    return lambda v: 0.5 * manifold.project(y, problem.solve_shifted(factor, v))
 
 
 def truncated_cg(grad, hess, pre, radius, path: list | None = None):
