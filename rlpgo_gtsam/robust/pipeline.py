@@ -86,7 +86,7 @@ _LM_ITERS = 100
 _ANCHOR_SIGMA = 1e-8
 _TOLERANCE = 1e-10  # the final rounds' relative error tolerance (the project's)
 _ALL_EDGES_RANK = 1  # the all-edges step's highest staircase rank (see _all_edges) ...
-_ALL_EDGES_ITERATIONS = 50  # ... and its trust-region iterations
+_ALL_EDGES_ITERATIONS = 25  # ... and its trust-region iterations
 # verify: residual covariances from this many draws (relative error about sqrt(2 / 64))
 _SAMPLES = 64
 _LEVERAGE_FLOOR = 1e-3  # their eigenvalues are held above this
@@ -94,6 +94,7 @@ _VERIFY_ROUNDS = 20  # rounds at most
 _ROUND_ITERS = 10  # solver iterations per round at most
 _TIGHT = 2.0  # admitted in one round: closures whose innovation spread is at most this, ...
 _LOOSER = 2.0  # ... or this many times the tightest's
+_LINEAR_RAD = 1.0  # admitted only if the map need not turn the edge more than this to fit
 _RUN_REACH = 2  # parallel closures this many poses apart (or closer) form a run (_runs) ...
 _RUN_MAX = 5  # ... judged in pieces of at most this many (Vertigo's group size)
 
@@ -378,7 +379,8 @@ def _innovations(edges: gtsam.NonlinearFactorGraph, g: PoseGraph2D, values: gtsa
     shift = factor.solve(np.asarray(a_kept.T @ noise[kept].reshape(-1, _SAMPLES)))
     moved = np.asarray(a_edges @ shift).reshape(len(kept), 3, _SAMPLES)
     residual = noise + np.where(kept[:, None, None], -moved, moved)
-    chi2_sets, spread = np.empty(len(sets)), np.empty(len(sets))
+    chi2_sets, spread, turn = np.empty(len(sets)), np.empty(len(sets)), np.empty(len(sets))
+    upper = np.linalg.cholesky(g.information).transpose(0, 2, 1)  # R^T R = information
     for size_ in {len(which) for which in sets}:  # sets of one size at once
         index = [n for n, which in enumerate(sets) if len(which) == size_]
         members = np.array([sets[n] for n in index])
@@ -390,7 +392,14 @@ def _innovations(edges: gtsam.NonlinearFactorGraph, g: PoseGraph2D, values: gtsa
         unbiased = (_SAMPLES - 3 * size_ - 1) / _SAMPLES
         chi2_sets[index] = unbiased * np.einsum("sb,sb->s", whitened ** 2, 1.0 / eigenvalues)
         spread[index] = np.exp(np.log(eigenvalues).mean(axis=1))
-    return chi2_sets, spread
+        # the move of the edges' relative poses that explains the residual: b - S^-1 b
+        # (whitened), then in each edge's own coordinates; its largest rotation
+        explained = b[members].reshape(len(index), -1) - np.einsum(
+            "sab,sb->sa", vectors, whitened / eigenvalues)
+        moved_edges = np.linalg.solve(upper[members.ravel()],
+                                      explained.reshape(-1, 3, 1))[..., 0]
+        turn[index] = np.abs(moved_edges[:, 2]).reshape(len(index), size_).max(axis=1)
+    return chi2_sets, spread, turn
 
 
 def _verify(graph, g: PoseGraph2D, factor_of_edge: np.ndarray, poses: np.ndarray,
@@ -420,11 +429,13 @@ def _verify(graph, g: PoseGraph2D, factor_of_edge: np.ndarray, poses: np.ndarray
         candidates = judged & (kept | ~banned)
         singles = [np.array([e]) for e in np.flatnonzero(candidates).tolist()]
         runs = _runs(g, candidates & kept) + _runs(g, candidates & ~kept)
-        chi2_sets, spread = _innovations(edges, g, values, kept, singles + runs)
+        chi2_sets, spread, turn = _innovations(edges, g, values, kept, singles + runs)
         fails = np.zeros(len(kept), bool)
         loose = np.zeros(len(kept))
-        for which, value, wide in zip(singles + runs, chi2_sets, spread, strict=True):
-            if value >= _quantile(threshold, 3 * len(which)):
+        for which, value, wide, angle in zip(singles + runs, chi2_sets, spread, turn,
+                                             strict=True):
+            if value >= _quantile(threshold, 3 * len(which)) or (
+                    not kept[which[0]] and angle > _LINEAR_RAD):
                 fails[which] = True
             loose[which] = np.maximum(loose[which], wide)
         refuted = kept & fails
