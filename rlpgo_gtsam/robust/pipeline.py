@@ -96,6 +96,8 @@ _VERIFY_ROUNDS = 20  # rounds at most
 _ROUND_ITERS = 10  # solver iterations per round at most
 _TIGHT = 2.0  # admitted in one round: closures whose innovation spread is at most this, ...
 _LOOSER = 2.0  # ... or this many times the tightest's
+_SKIP_CONFLICTS = 0.01  # the all-edges step is skipped where this share of pairs conflict
+_RESTART_GAIN = 1e-6  # verify again from the kept edges' relaxation if it is this much lower
 _LINEAR_RAD = 1.0  # admitted only if the map need not turn the edge more than this to fit
 _RUN_REACH = 2  # parallel closures this many poses apart (or closer) form a run (_runs) ...
 _RUN_MAX = 5  # ... judged in pieces of at most this many (Vertigo's group size)
@@ -181,21 +183,32 @@ def robust_initialize(
     thresholds[0] = inlier_probability
     steps: list[dict[str, Any]] = []
 
-    step_began = time.perf_counter()
-    clean = _all_edges(graph, g, thresholds[3])
-    steps.append({"step": "all edges", "seconds": time.perf_counter() - step_began,
-                  "certified": clean.certified, "worst_edge_chi2": clean.worst,
-                  "passed": clean.passed})
-    if clean.passed:  # no evidence against any edge: keep them all
-        return _result(graph, factor_of_edge, clean.values, np.ones(g.num_edges, bool),
-                       np.ones(g.num_edges), known, began, steps, [],
-                       "every edge fits: the relaxation of all edges is certified and every "
-                       "residual lies within the inlier bound after refinement")
-
+    # the pairwise tests first: where more pairs conflict than noise made conflict on any
+    # clean file (M3500C: 0.17%), the all-edges relaxation cannot pass and is skipped (on
+    # City10K with 10% random wrong closures it took 62 s, 20x the clean default)
     step_began = time.perf_counter()
     consistency = pairwise_consistency(g, chain, thresholds[3])
+    consistency_s = time.perf_counter() - step_began
+    step_began = time.perf_counter()
+    if consistency.conflicts >= _SKIP_CONFLICTS * consistency.pairs:
+        steps.append({"step": "all edges", "seconds": 0.0, "certified": None,
+                      "worst_edge_chi2": None, "passed": False,
+                      "skipped": f"{consistency.conflicts} of {consistency.pairs} tested "
+                                 f"pairs of closures conflict"})
+    else:
+        clean = _all_edges(graph, g, thresholds[3])
+        steps.append({"step": "all edges", "seconds": time.perf_counter() - step_began,
+                      "certified": clean.certified, "worst_edge_chi2": clean.worst,
+                      "passed": clean.passed})
+        if clean.passed:  # no evidence against any edge: keep them all
+            steps[-1]["seconds"] += consistency_s
+            return _result(graph, factor_of_edge, clean.values, np.ones(g.num_edges, bool),
+                           np.ones(g.num_edges), known, began, steps, [],
+                           "every edge fits: the relaxation of all edges is certified and "
+                           "every residual lies within the inlier bound after refinement")
+
     kept = consistency.seed | chain
-    steps.append(_step("consistency", step_began, None, kept, known) |
+    steps.append(_step("consistency", time.perf_counter() - consistency_s, None, kept, known) |
                  {"pairs": consistency.pairs, "conflicts": consistency.conflicts,
                   "ambiguous": len(consistency.ambiguous)})
     ambiguous = [(sorted(factor_of_edge[k].tolist()), sorted(factor_of_edge[r].tolist()))
@@ -213,7 +226,18 @@ def robust_initialize(
 
     step_began = time.perf_counter()
     verified, kept, rounds = _verify(graph, g, factor_of_edge, poses, kept, known, thresholds)
-    steps.append(_step("verify", step_began, rounds, kept, known))
+    # the map the rounds settled in grew from the seed's start; the certified relaxation of
+    # the edges now kept may lie in a lower basin (City10K, 10% local wrong closures: the
+    # decision exact, the rounds' map 1.83x the optimum after LM): then judge again from it
+    restart = _relaxed(graph, g, factor_of_edge, kept)
+    kept_graph = _without(graph, factor_of_edge[~kept].tolist())
+    restarted = restart is not None and chi2(kept_graph, restart) < (
+        1.0 - _RESTART_GAIN) * chi2(kept_graph, verified)
+    if restarted:
+        verified, kept, more = _verify(graph, g, factor_of_edge, g.poses_of(restart), kept,
+                                       known, thresholds)
+        rounds += more
+    steps.append(_step("verify", step_began, rounds, kept, known) | {"restarted": restarted})
 
     step_began = time.perf_counter()
     result, gnc_weights = _gnc_lm(graph, g, factor_of_edge, verified, kept, known,
@@ -317,6 +341,20 @@ def _all_edges(graph, g: PoseGraph2D, threshold: float) -> _AllEdges:
     return _AllEdges(refined.values, True, worst, worst < threshold)
 
 
+def _relaxed(graph, g: PoseGraph2D, factor_of_edge: np.ndarray,
+             kept: np.ndarray) -> gtsam.Values | None:
+    """The certified relaxation of the kept edges, refined by GTSAM on them (the clean
+    default on the edges judged right); None where they do not span the graph."""
+    inliers = replace(g, edges=g.edges[kept], measured=g.measured[kept],
+                      information=g.information[kept])
+    try:
+        start = make_initializer("certified").run(inliers).values
+    except GraphError:  # the edges kept do not span the graph (odometry judged and rejected)
+        return None
+    return _settle(_without(graph, factor_of_edge[~kept].tolist()), start, g, _LM_ITERS,
+                   _TOLERANCE).values
+
+
 def _runs(g: PoseGraph2D, among: np.ndarray) -> list[np.ndarray]:
     """Runs of parallel closures among the edges ``among``: closures ``(i + k, j + k)`` on one
     diagonal (pose indices, each edge taken low end first; not the odometry's diagonal,
@@ -377,8 +415,13 @@ def _innovations(edges: gtsam.NonlinearFactorGraph, g: PoseGraph2D, values: gtsa
     noise = rng.standard_normal((len(kept), 3, _SAMPLES))
     kept_rows = np.repeat(kept, 3)
     a_kept = a_edges[kept_rows]
-    factor = splu((a_kept.T @ a_kept).tocsc(), permc_spec="COLAMD")
-    shift = factor.solve(np.asarray(a_kept.T @ noise[kept].reshape(-1, _SAMPLES)))
+    # the Hessian is symmetric positive definite: a symmetric ordering without pivoting
+    # fills half as much as COLAMD (M3500: 0.38 M against 0.62 M entries), and SuperLU solves
+    # one column at a time faster than all at once (M3500: 0.16 s against 0.42 s for 64)
+    factor = splu((a_kept.T @ a_kept).tocsc(), permc_spec="MMD_AT_PLUS_A",
+                  diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    pushed = np.asarray(a_kept.T @ noise[kept].reshape(-1, _SAMPLES))
+    shift = np.column_stack([factor.solve(pushed[:, k]) for k in range(_SAMPLES)])
     moved = np.asarray(a_edges @ shift).reshape(len(kept), 3, _SAMPLES)
     residual = noise + np.where(kept[:, None, None], -moved, moved)
     chi2_sets, spread, turn = np.empty(len(sets)), np.empty(len(sets)), np.empty(len(sets))
