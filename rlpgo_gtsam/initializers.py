@@ -300,15 +300,19 @@ class CertifiedInitializer(Initializer):
             ``time_limit``); None: no limit.
         progress: called with one short line per rank and, inside a long trust region, at
             most one every 2 s (see :func:`~rlpgo_gtsam.certified.synchronize`); None: silent.
+        max_iterations: trust-region iterations per rank (status ``iteration_limit`` when a
+            rank uses them all).
     """
 
     name = "certified"
 
     def __init__(self, max_rank: int = 10, time_limit_s: float | None = None,
-                 progress: Callable[[str], None] | None = None) -> None:
+                 progress: Callable[[str], None] | None = None,
+                 max_iterations: int = 300) -> None:
         self.max_rank = max_rank
         self.time_limit_s = time_limit_s
         self.progress = progress
+        self.max_iterations = max_iterations
 
     def estimate(self, pose_graph: PoseGraph2D, start_poses: np.ndarray | None) -> Estimate:
         from rlpgo_gtsam.certified import synchronize  # scipy: loaded when first used
@@ -316,6 +320,7 @@ class CertifiedInitializer(Initializer):
         start_theta = chordal_orientations(pose_graph) if start_poses is None else \
             start_poses[:, 2]
         theta, certificate = synchronize(pose_graph, start_theta, max_rank=self.max_rank,
+                                         max_iterations=self.max_iterations,
                                          time_limit_s=self.time_limit_s,
                                          progress=self.progress)
         return Estimate(poses_with_orientations(pose_graph, theta), certificate=certificate)

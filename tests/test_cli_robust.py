@@ -151,14 +151,11 @@ def test_generate_lists_the_wrong_closures_at_their_lines(with_outliers):
 # --------------------------------------------------------------------------- rlpgo-init --robust
 
 
-def test_robust_rejects_exactly_the_wrong_closures(with_outliers, tmp_path, request):
-    if with_outliers.mode == "group":
-        # A known limit, kept visible: at 0.1 rad per measurement one wrong group (pose 200
-        # "is" pose 180) passes every short-cycle test against the true closures near it
-        # (scores 3-20 under the 21.1 bar), enters the seed and bends the map; deciding it
-        # needs the seed map's fit, not cycles. strict: the day it passes, this must go.
-        request.applymarker(pytest.mark.xfail(
-            strict=True, reason="a wrong group consistent with every short cycle at 0.1 rad"))
+def test_robust_rejects_exactly_the_wrong_closures(with_outliers, tmp_path):
+    # group: at 0.1 rad per measurement one wrong group (pose 200 "is" pose 180) passes every
+    # short-cycle test against the true closures near it (scores 3-20 under the 21.1 bar)
+    # and enters the seed; the verify step judges the group as a whole against the map
+    # without it, and it goes
     output, rejected = tmp_path / "init.g2o", tmp_path / "rejected.txt"
     result = _run(init_main, with_outliers.graph, "-o", output, "--robust", "--outliers-out",
                   rejected)

@@ -147,7 +147,10 @@ def test_heavy_rotation_noise_keeps_the_true_closures():
     # 0.2 rad per measurement: the chain alone bends by radians over a few rows. Scored
     # with crude cycle covariances, half the true closures found no informative support,
     # and the thinned seed's optimum was a folded map (chi2 87517 on the clean graph
-    # against 1376.45); the propagated covariances keep them.
+    # against 1376.45); the propagated covariances keep them. One of the 144 wrong
+    # closures joins two poses whose relative pose this map barely knows (its innovation
+    # covariance about 200 times its own): it fits (chi2 5.8) and stays, and the map is
+    # the right one (0.2% above the optimum, the optimum after LM on the clean graph).
     args = (1000, 0.2, 0.05, 1.0, 0.5)
     sample = generate(*args, np.random.default_rng(7), noisy_measurements=True, outliers=0.1,
                       outlier_mode="uniform")
@@ -156,8 +159,10 @@ def test_heavy_rotation_noise_keeps_the_true_closures():
 
     result = robust_initialize(sample.graph, sample.initial)
 
-    assert result.rejected == sample.outlier_edges
-    assert chi2(clean.graph, result.values) == pytest.approx(lowest, rel=1e-6)
+    assert set(result.rejected) <= set(sample.outlier_edges)  # no true closure rejected
+    assert len(result.rejected) >= len(sample.outlier_edges) - 1
+    assert chi2(clean.graph, result.values) == pytest.approx(lowest, rel=3e-3)
+    assert refine(clean.graph, result.values, "lm", 100).chi2 == pytest.approx(lowest, rel=1e-6)
 
 
 # ----------------------------------------------------------- Vertigo's policies, clean maps
@@ -297,3 +302,45 @@ def test_two_equally_supported_sets_are_reported_ambiguous():
     kept, other = result.ambiguous[0]
     assert sorted(map(len, (kept, other))) == [5, 5]
     assert set(kept) | set(other) == set(range(34, 44))
+
+
+def test_chi2_quantiles_match_the_tables():
+    from rlpgo_gtsam.robust.pipeline import chi2_quantile
+
+    assert chi2_quantile(0.9999, 3) == pytest.approx(21.10751, abs=1e-5)
+    assert chi2_quantile(0.999, 3) == pytest.approx(16.26624, abs=1e-5)
+    assert chi2_quantile(0.9999, 2) == pytest.approx(-2.0 * np.log(1e-4), rel=1e-12)
+    assert chi2_quantile(0.95, 15) == pytest.approx(24.99579, abs=1e-5)
+
+
+def _vertigo_on(name: str, mode: str):
+    """A shared file with 10% wrong closures of a Vertigo policy (seed 1, placed around the
+    certified + LM optimum, as benchmarks/robust.py does), its outlier-free graph and the
+    optimum's chi2."""
+    graph, values = read_g2o(dataset(name))
+    g = PoseGraph2D.from_gtsam(graph, values)
+    best = refine(graph, make_initializer("certified").run(g).values, "lm", 100, pose_graph=g)
+    bad, wrong = add_outliers(graph, best.values, 0.1, np.random.default_rng(1), mode)
+    return bad, values, wrong, graph, best.chi2
+
+
+def test_closures_alone_in_their_loops_come_back():
+    # MIT: each of its 20 true closures is the only one around its loop, so none has
+    # support from another; against 82 random wrong ones the seed held 5 of them and 1
+    # wrong one. Judged by each closure's fit under the map's own uncertainty, admitted
+    # where the map checks them best first, all 20 come back and every wrong one goes
+    # (before: 8 true closures rejected, precision 0.91).
+    bad, values, wrong, clean, lowest = _vertigo_on("MIT.g2o", "random")
+    result = robust_initialize(bad, values)
+    assert result.rejected == wrong
+    assert refine(clean, result.values, "lm", 100).chi2 == pytest.approx(lowest, rel=1e-6)
+
+
+def test_runs_of_wrong_closures_are_judged_whole():
+    # Intel, Vertigo's local groups (5 consecutive pairs a few poses apart, one measurement):
+    # each member fits the map its run holds; left out together, the run does not (before:
+    # 20 of the 150 kept, recall 0.867)
+    bad, values, wrong, clean, lowest = _vertigo_on("Intel.g2o", "localgroup")
+    result = robust_initialize(bad, values)
+    assert result.rejected == wrong
+    assert refine(clean, result.values, "lm", 100).chi2 == pytest.approx(lowest, rel=1e-6)

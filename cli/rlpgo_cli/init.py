@@ -193,6 +193,8 @@ def _check_robust_options(ctx: click.Context, robust: bool, method: str, refine:
 def _describe_step(step: dict) -> str:
     """One line on a step of the robust path (``RobustResult.steps``)."""
     shown = ("step", "seconds", "judged", "kept", "rejected")
+    if "kept" not in step and step.get("skipped"):  # the all-edges check, not needed
+        return f"step {step.get('step')}: skipped: {step['skipped']}"
     if "kept" not in step:  # the all-edges check
         verdict = "every edge fits, nothing rejected" if step.get("passed") else \
             "not every edge fits"

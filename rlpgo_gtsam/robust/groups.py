@@ -53,6 +53,10 @@ class Group:
     Attributes:
         dof: tangent dimension (3 planar, 6 spatial): a cycle's or an edge's chi2 dof.
         dims: translation dimension d (2 or 3): the translation step's residual dof.
+        rotation_axes: the rotation's components in GTSAM's tangent order: planar
+            ``(x, y, theta)`` (2,), Pose3 ``(rotation, translation)`` (0, 1, 2).
+        lowest_rank: the certified relaxation's lowest staircase rank (the planar complex
+            form's 1, SE(3)'s 3).
         rotation_volume: the volume of SO(d) in exponential coordinates (Haar measure that
             is Lebesgue at the identity): 2 pi, 8 pi^2.
         between_factor: GTSAM's between factor type of the graph's edges.
@@ -60,6 +64,8 @@ class Group:
 
     dof: int
     dims: int
+    rotation_axes: tuple[int, ...]
+    lowest_rank: int
     rotation_volume: float
     between_factor: type
 
@@ -109,8 +115,11 @@ class Group:
     def to_values(self, g: PoseGraph, poses: np.ndarray) -> gtsam.Values:
         raise NotImplementedError
 
-    def certified(self) -> Initializer:
-        """The certified relaxation as an initializer (the clean default's first stage)."""
+    def certified(self, max_rank: int | None = None,
+                  max_iterations: int | None = None) -> Initializer:
+        """The certified relaxation as an initializer (the clean default's first stage); the
+        staircase's highest rank and trust-region iterations per rank, None: the group's
+        own (planar: the default's; 3D: rank 3, ``_RELAXATION_ITERATIONS``)."""
         raise NotImplementedError
 
     def relaxation_rotations(self, g: PoseGraph) -> np.ndarray:
@@ -136,7 +145,7 @@ class Group:
 
 
 class _Planar(Group):
-    dof, dims, rotation_volume = 3, 2, 2.0 * math.pi
+    dof, dims, rotation_axes, lowest_rank, rotation_volume = 3, 2, (2,), 1, 2.0 * math.pi
     between_factor = gtsam.BetweenFactorPose2
 
     def compose(self, a, b):
@@ -179,8 +188,10 @@ class _Planar(Group):
     def to_values(self, g, poses):
         return g.to_values(poses)
 
-    def certified(self):
-        return make_initializer("certified")
+    def certified(self, max_rank=None, max_iterations=None):
+        options = {"max_rank": max_rank, "max_iterations": max_iterations}
+        return make_initializer("certified",
+                                **{k: v for k, v in options.items() if v is not None})
 
     def relaxation_rotations(self, g):
         return self.certified().run(g).poses[:, 2]
@@ -196,7 +207,7 @@ class _Planar(Group):
 
 
 class _Spatial(Group):
-    dof, dims, rotation_volume = 6, 3, 8.0 * math.pi ** 2
+    dof, dims, rotation_axes, lowest_rank, rotation_volume = 6, 3, (0, 1, 2), 3, 8.0 * math.pi ** 2
     between_factor = gtsam.BetweenFactorPose3
 
     def compose(self, a, b):
@@ -240,8 +251,9 @@ class _Spatial(Group):
     def to_values(self, g, poses):
         return g.to_values(poses[:, :, :3], poses[:, :, 3])
 
-    def certified(self):
-        return Certified3D(max_rank=3, max_iterations=_RELAXATION_ITERATIONS)
+    def certified(self, max_rank=None, max_iterations=None):
+        return Certified3D(max_rank=max_rank or self.lowest_rank,
+                           max_iterations=max_iterations or _RELAXATION_ITERATIONS)
 
     def relaxation_rotations(self, g):
         from rlpgo_gtsam.certified3d import synchronize3d
