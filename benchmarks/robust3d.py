@@ -105,7 +105,6 @@ def main() -> None:
     parser.add_argument("--fractions", default="0.05,0.1")
     parser.add_argument("--name", default="robust3d")
     args = parser.parse_args()
-    import scipy.stats  # noqa: F401  loaded once, outside the timings
 
     rows: dict[str, list[dict]] = {"clean": [], "wrong": []}
     for name in [] if args.clean == "none" else args.clean.split(","):

@@ -15,9 +15,10 @@ and lets GTSAM's GNC-LM (truncated least squares) finish from it:
    in variance, so every one of its edges' nominal chi2 is far above the bound). (The
    staircase stops at its lowest rank after 25 trust-region iterations here: every shared
    file certifies within that, and wrong closures made the higher ranks cost tens of
-   seconds; see :func:`_all_edges`. The step is skipped where step 1, run first, finds 1%
-   or more of its tested pairs in conflict: no clean shared file comes near, M3500C's
-   0.17% is the most.)
+   seconds; see :func:`_all_edges`. On planar graphs step 1 runs first, and the step is
+   skipped where 1% or more, but not most, of its tested pairs conflict: no clean shared
+   file comes near, M3500C's 0.17% is the most; in 3D no share tells clean files from
+   corrupted ones, and the step always runs first: see ``Group.skip_conflicts``.)
 1. ``consistency``: pairwise consistency maximization with bounded tests
    (:func:`~rlpgo_gtsam.robust.consistency.pairwise_consistency`): closures whose cycle
    through the odometry conflicts go, the one with most conflicts first, until none is
@@ -118,9 +119,13 @@ _LEVERAGE_FLOOR = 1e-3  # their eigenvalues are held above this
 _VERIFY_ROUNDS = 20  # rounds at most
 _ROUND_ITERS = 10  # solver iterations per round at most
 _TIGHT = 2.0  # admitted in one round: closures whose innovation spread is at most this, ...
-_LOOSER = 2.0  # ... or this many times the tightest's
-_SKIP_CONFLICTS = 0.01  # the all-edges step is skipped where this share of pairs conflict, ...
-_NOISE_CONFLICTS = 0.5  # ... but not where this share does: the noise is misstated (see below)
+_LOOSER = 2.0  # ... or this many times the tightest's, ...
+_ADMIT_CHANCE = 1e-3  # ... or that a wrong closure would pass less often than this
+# the all-edges step is skipped where Group.skip_conflicts of the tested pairs conflict, but
+# not where this share does: then the cycles contradict the stated noise rather than a
+# minority of closures (sphere_bignoise_vertex3, tested: 96% of the pairs; Vertigo's policies
+# at 10%: 2-51%), and the noise_scale stop may pass
+_NOISE_CONFLICTS = 0.5
 _RESTART_GAIN = 1e-6  # verify again from the kept edges' relaxation if it is this much lower
 _LINEAR_RAD = 1.0  # admitted only if the map need not turn the edge more than this to fit
 _RUN_REACH = 2  # parallel closures this many poses apart (or closer) form a run (_runs) ...
@@ -210,18 +215,18 @@ def robust_initialize(
                             for dof in (group.dof, group.dims))
     steps: list[dict[str, Any]] = []
 
-    # the pairwise tests first: where more pairs conflict than noise made conflict on any
-    # clean planar file (M3500C: 0.17%), the all-edges relaxation cannot pass and is skipped
-    # (on City10K with 10% random wrong closures it took 62 s, 20x the clean default). Where
-    # most pairs conflict, it is not a minority of closures but the stated noise that the
-    # cycles contradict (sphere_bignoise_vertex3: 96% of pairs; 10% wrong closures put at
-    # most 19% of pairs at odds): the all-edges step reads the noise level (noise_scale)
+    # where the group allows it, the pairwise tests first: where more pairs conflict than
+    # noise made conflict on any clean file, the all-edges relaxation cannot pass and is
+    # skipped (on City10K with 10% random wrong closures it took 62 s, 20x the clean default)
+    consistency, consistency_s = None, 0.0
+    if group.skip_conflicts is not None:
+        step_began = time.perf_counter()
+        consistency = pairwise_consistency(g, chain, bar)
+        consistency_s = time.perf_counter() - step_began
     step_began = time.perf_counter()
-    consistency = pairwise_consistency(g, chain, bar)
-    consistency_s = time.perf_counter() - step_began
-    step_began = time.perf_counter()
-    if (_SKIP_CONFLICTS * consistency.pairs <= consistency.conflicts
-            < _NOISE_CONFLICTS * consistency.pairs):
+    if consistency is not None and (group.skip_conflicts * consistency.pairs
+                                    <= consistency.conflicts
+                                    < _NOISE_CONFLICTS * consistency.pairs):
         steps.append({"step": "all edges", "seconds": 0.0, "certified": None,
                       "worst_edge_chi2": None, "passed": False,
                       "skipped": f"{consistency.conflicts} of {consistency.pairs} tested "
@@ -237,6 +242,10 @@ def robust_initialize(
                            np.ones(g.num_edges), known, began, steps, [],
                            "every edge fits: the relaxation of all edges is certified and "
                            "every residual lies within the inlier bound after refinement")
+    if consistency is None:
+        step_began = time.perf_counter()
+        consistency = pairwise_consistency(g, chain, bar)
+        consistency_s = time.perf_counter() - step_began
 
     kept = consistency.seed | chain
     steps.append(_step("consistency", time.perf_counter() - consistency_s, None, kept, known) |
@@ -399,10 +408,12 @@ def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray,
     """The certified relaxation of the kept edges, refined by GTSAM on them (the clean
     default on the edges judged right); None where they do not span the graph."""
     group = group_of(g)
+    inliers = group.subgraph(g, kept)
     try:
-        start = group.certified().run(group.subgraph(g, kept)).values
+        inliers.check_connected()
     except GraphError:  # the edges kept do not span the graph (odometry judged and rejected)
         return None
+    start = group.certified().run(inliers).values
     return _settle(_without(graph, factor_of_edge[~kept].tolist()), start, g, _LM_ITERS,
                    _TOLERANCE).values
 
@@ -523,12 +534,26 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, poses: np.ndarray,
     dof per closure). A round first rejects the kept closures the map refutes; only a round
     that refutes none admits the closures left out that pass: the map a closure is admitted
     against holds no closure it refutes. A closure rejected after it was admitted here is
-    not admitted again. Returns the last optimum, the decision and the rounds."""
+    not admitted again.
+
+    Admissions go in tiers where the map is loose: in one round, the closures whose
+    innovation spread is at most ``_TIGHT`` or ``_LOOSER`` times the tightest's (a closure
+    the map checks loosely may pass though wrong; the closures admitted before it tighten
+    the map), and every closure a wrong one would pass less often than ``_ADMIT_CHANCE``:
+    the volume of its acceptance ellipsoid over that of the relative poses a wrong closure
+    spreads over (:meth:`~rlpgo_gtsam.robust.groups.Group.agreement_chance`, the consistency
+    step's measure, over the map's extent). Without the second, a map that is loose along
+    a long stretch filled in one tier of a few closures per round: on sphere2500 with 5%
+    wrong closures 555 true closures that passed were still waiting after 20 rounds
+    (chances 1e-7 to 0.08; of the wrong ones that passed, 1.9 and up).
+    Returns the last optimum, the decision and the rounds."""
     group = group_of(g)
     edges = gtsam.NonlinearFactorGraph()
     for k in factor_of_edge.tolist():
         edges.add(graph.at(k))
     judged = ~known
+    bar = chi2_quantile(inlier_probability, group.dof)
+    measurement_volume = 1.0 / np.sqrt(np.linalg.det(g.information))  # sqrt(det covariance)
     admitted = np.zeros(len(kept), bool)
     banned = np.zeros(len(kept), bool)
     rounds = 0
@@ -537,7 +562,8 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, poses: np.ndarray,
     while rounds < _VERIFY_ROUNDS:
         rounds += 1
         candidates = judged & (kept | ~banned)
-        singles = [np.array([e]) for e in np.flatnonzero(candidates).tolist()]
+        index = np.flatnonzero(candidates)
+        singles = [np.array([e]) for e in index.tolist()]
         runs = _runs(g, candidates & kept) + _runs(g, candidates & ~kept)
         chi2_sets, spread, turn = _innovations(edges, g, values, kept, singles + runs)
         fails = np.zeros(len(kept), bool)
@@ -556,8 +582,15 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, poses: np.ndarray,
             admit = ~kept & candidates & ~fails
             if not admit.any():
                 break
-            # where the map is loose, the closures it can check best go first
-            admit &= loose <= max(_TIGHT, _LOOSER * loose[admit].min())
+            # where the map is loose, the closures it can check best go first, and those a
+            # wrong closure would rarely pass (the map's extent against each one's own test)
+            side = max(float(np.ptp(group.translations(group.poses_of(g, values)),
+                                    axis=0).max()), 1e-9)
+            chance = np.full(len(kept), np.inf)
+            chance[index] = group.agreement_chance(
+                bar, spread[:len(index)] ** (group.dof / 2) * measurement_volume[index], side)
+            admit &= (loose <= max(_TIGHT, _LOOSER * loose[admit].min())) | (
+                chance < _ADMIT_CHANCE)
             kept = kept | admit
             admitted |= admit
         # a round's map needs its shape and its residuals to a few digits, not convergence
