@@ -75,6 +75,7 @@ class Run:
         timed_out: it was killed at the time limit.
         peak_mb: its peak resident set, MB (ru_maxrss; with the launcher's floor).
         stdout, stderr: what it printed.
+        cpu_seconds: its user + system CPU seconds (``wait4``'s, its threads included).
         started, ended: ``time.monotonic()`` at the fork and at the exit (system-wide clock).
     """
 
@@ -87,6 +88,7 @@ class Run:
     stderr: str
     started: float | None = None
     ended: float | None = None
+    cpu_seconds: float | None = None
     extra: dict = field(default_factory=dict)
 
     @property
@@ -145,7 +147,8 @@ def run(command: Sequence[str], timeout_s: float, env: dict[str, str] | None = N
         data = json.loads(record.read_text())
         text = {path: path.read_text(errors="replace") for path in (out, err)}
     return Run(command, data["seconds"], data["returncode"], data["timed_out"],
-               data["peak_mb"], text[out], text[err], data["started"], data["ended"])
+               data["peak_mb"], text[out], text[err], data["started"], data["ended"],
+               data.get("cpu_seconds"))
 
 
 def launcher_floor_mb() -> float | None:
@@ -183,7 +186,8 @@ def _spawn(argv: list[str]) -> int:
     Path(record).write_text(json.dumps({
         "seconds": ended - started, "started": started, "ended": ended,
         "returncode": returncode, "timed_out": bool(timed_out),
-        "peak_mb": usage.ru_maxrss / 1024.0}))
+        "peak_mb": usage.ru_maxrss / 1024.0,
+        "cpu_seconds": usage.ru_utime + usage.ru_stime}))
     return 0
 
 
