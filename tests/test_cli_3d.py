@@ -20,6 +20,7 @@ from rlpgo_cli.init import main as init_main
 from rlpgo_gtsam import (
     InformationWarning,
     RlpgoError,
+    g2o3d,
     read_g2o3d,
     staged_initialize,
     write_g2o,
@@ -443,6 +444,8 @@ def test_cubicle_indefinite_matrices_are_read_as_gtsam_reads_them(tmp_path):
                                     translation_weights(pose_graph)),
                                    _sesync_weights(expected), strict=True):
             np.testing.assert_allclose(weights, wanted, rtol=1e-9)
+    # both writers write the printed matrices of GTSAM's partial factors
+    assert g2o3d._text_fast(theirs, their_values) == g2o3d._text_careful(theirs, their_values)
     result = run_init(path, "-o", tmp_path / "out.g2o", "--json", tmp_path / "run.json")
     cli_ok(result)
     assert result.stdout.startswith(f"note: {warning.message}\n")
