@@ -132,10 +132,9 @@ def _case(name: str, time_limit: float, sesync: Path | None) -> dict:
     path = DATA / f"{name}.g2o"
     graph, values = gtsam.readG2o(str(path), True)
     pose_graph = PoseGraph3D.from_gtsam(graph, values)
-    weighed = pose_graph.weight_information
     row: dict = {"file": name, "poses": pose_graph.num_poses, "edges": pose_graph.num_edges,
-                 "weighed_printed": 0 if weighed is None else
-                 int(np.any(weighed != pose_graph.information, axis=(1, 2)).sum())}
+                 "weighed_printed": int(np.any(pose_graph.weighed != pose_graph.information,
+                                               axis=(1, 2)).sum())}
     row.update(_ours(graph, pose_graph, time_limit))
     row.update(_sesync(graph, path, sesync))
     row.update(_targets(row))

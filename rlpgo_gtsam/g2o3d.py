@@ -16,8 +16,9 @@ are normalized; a zero or non-finite one is an error. A line of a planar file (`
 ``EDGE_SE2``) is an error naming that line. A file without vertices gets its initial guess
 chained from the edges (i -> i+1 first, then through any edge). A ``FIX``-ed vertex becomes
 a :class:`gtsam.PriorFactorPose3` with a constrained noise model. Information matrices follow
-the 3D rule (:func:`~rlpgo_gtsam.graph3d.information_rule_3d`); one it reads in a changed
-form is told in an :class:`~rlpgo_gtsam.errors.InformationWarning` per file and kind.
+the 3D rule (:func:`~rlpgo_gtsam.graph3d.information_rule_3d`); one it changes, or keeps
+indefinite as ``gtsam.readG2o`` does, is told in an
+:class:`~rlpgo_gtsam.errors.InformationWarning` per file and kind.
 
 :func:`read_pose_graph` reads a g2o file of either dimension, told by its first pose line
 (:func:`g2o_dimension`); :func:`write_pose_graph` writes a graph of either dimension.

@@ -21,6 +21,7 @@ weights from the printed matrix (:func:`printed_informations`; docs/pose3.md).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import ClassVar
 
 import gtsam
@@ -95,12 +96,12 @@ class PoseGraph3D(PoseArrays):
         anchor_rotation, anchor_translation: where the initializers put the anchor: its
             prior's value if it has one, else its pose in ``values``.
         graph: the GTSAM graph the arrays came from (costs are evaluated on it).
-        weight_information: None, or (m, 6, 6) the information the relaxation's weights
-            come from (:func:`rotation_weights`, :func:`translation_weights`): an edge whose
-            noise model is GTSAM's partial Cholesky factor of an indefinite printed matrix
-            (:func:`printed_informations`) has that printed matrix here, every other edge its
-            ``information``. A graph made by ``dataclasses.replace`` with fewer edges and
-            this left as it was is weighed by ``information``.
+        printed: the printed matrix (6, 6) of each information that GTSAM's model holds as
+            a partial Cholesky factor of an indefinite printed matrix
+            (:func:`printed_informations`), keyed by that information's bytes: the
+            relaxation weighs such an edge by it (:attr:`weighed`). Keyed by content, so
+            that a graph made from this one by ``dataclasses.replace`` with some of its edges
+            (the robust path's subgraphs) keeps it.
         dimension: 3 (the class's).
     """
 
@@ -119,19 +120,16 @@ class PoseGraph3D(PoseArrays):
     anchor_rotation: np.ndarray
     anchor_translation: np.ndarray
     graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
-    weight_information: np.ndarray | None = field(default=None, repr=False, compare=False)
+    printed: dict[bytes, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
-    def __post_init__(self) -> None:
-        if self.weight_information is not None and \
-                len(self.weight_information) != len(self.edges):
-            object.__setattr__(self, "weight_information", None)  # a subgraph's: stale
-
-    @property
+    @cached_property
     def weighed(self) -> np.ndarray:
-        """(m, 6, 6) the information the relaxation's weights come from: ``weight_information``
-        if set, else ``information``."""
-        return self.information if self.weight_information is None else \
-            self.weight_information
+        """(m, 6, 6) the information the relaxation's weights come from: each edge's
+        ``information``, or its printed matrix where it has one (``printed``)."""
+        if not self.printed:
+            return self.information
+        return np.array([self.printed.get(matrix.tobytes(), matrix)
+                         for matrix in self.information]).reshape(-1, 6, 6)
 
     @property
     def held(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -153,8 +151,8 @@ class PoseGraph3D(PoseArrays):
         turns cubicle's 5021 such matrices into partial Cholesky factors (Eigen's stops at
         the indefinite pivot and GTSAM keeps it) whose information has a condition number
         near 1e16; chi2 is that model's, and the relaxation's weights come from the printed
-        matrix it was made from (:func:`printed_informations`, kept in
-        ``weight_information``), as SE-Sync reads the file. What
+        matrix it was made from (:func:`printed_informations`, kept in ``printed``), as
+        SE-Sync reads the file. What
         :func:`~rlpgo_gtsam.g2o3d.read_g2o3d` makes always passes.
         ``check_information=False`` accepts any information a Gaussian model holds (finite,
         positive semidefinite).
@@ -174,7 +172,7 @@ class PoseGraph3D(PoseArrays):
         factors = sort_factors(graph, index, gtsam.BetweenFactorPose3, gtsam.PriorFactorPose3,
                                lambda pose: pose, 6, "3D", False, MAX_CONDITION_3D)
         information = np.array(factors.information).reshape(-1, 6, 6)
-        weight_information = _weights_information(graph, information, check_information)
+        printed = _printed_of(graph, information, check_information)
         hard = factors.hard
         anchor, anchor_prior = factors.anchor
         fixed_r, fixed_t = _pose_arrays([pose for _, pose in hard])
@@ -191,7 +189,7 @@ class PoseGraph3D(PoseArrays):
             fixed_rotations=fixed_r, fixed_translations=fixed_t,
             anchor_rotation=np.asarray(anchor_r, float),
             anchor_translation=np.asarray(anchor_t, float), graph=graph,
-            weight_information=weight_information,
+            printed=printed,
         )
         result.check_connected()
         return result
@@ -369,11 +367,11 @@ def _semidefinite_many(matrices: np.ndarray) -> np.ndarray:
         (eigenvalues[:, 0] >= -ROUNDING_3D * eigenvalues[:, -1])
 
 
-def _weights_information(graph: gtsam.NonlinearFactorGraph, information: np.ndarray,
-                         check: bool) -> np.ndarray | None:
-    """The extraction's ``weight_information``: None where every edge's information is
-    usable by rule 1; else the printed matrix of each edge whose model is GTSAM's partial
-    factor of one (:func:`printed_informations`), ``information`` elsewhere.
+def _printed_of(graph: gtsam.NonlinearFactorGraph, information: np.ndarray,
+                check: bool) -> dict[bytes, np.ndarray]:
+    """The extraction's ``printed``: for each edge's information that rule 1 refuses and
+    whose model is GTSAM's partial factor of a printed matrix (:func:`printed_informations`),
+    that matrix, keyed by the information's bytes.
 
     Raises:
         GraphError: with ``check``, an edge whose information rule 1 refuses and whose
@@ -382,7 +380,7 @@ def _weights_information(graph: gtsam.NonlinearFactorGraph, information: np.ndar
     problems = information_problems(information, MAX_CONDITION_3D)
     refused = [k for k, problem in enumerate(problems) if problem is not None]
     if not refused:
-        return None
+        return {}
     factors = [factor for factor in map(graph.at, range(graph.size()))
                if isinstance(factor, gtsam.BetweenFactorPose3)]
     printed, found = printed_informations(
@@ -391,11 +389,8 @@ def _weights_information(graph: gtsam.NonlinearFactorGraph, information: np.ndar
         first = refused[int(np.flatnonzero(~found)[0])]
         i, j = factors[first].keys()
         raise GraphError(f"between factor {i}-{j}: {problems[first]}")
-    if not found.any():
-        return None
-    weights = information.copy()
-    weights[np.array(refused)[found]] = printed[found]
-    return weights
+    return {information[k].tobytes(): matrix
+            for k, matrix in zip(np.array(refused)[found].tolist(), printed[found], strict=True)}
 
 
 def _semidefinite_to_rounding(matrix: np.ndarray) -> bool:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import re
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import gtsam
@@ -478,6 +479,13 @@ def test_cubicle_from_gtsam_read_g2o_is_weighed_as_sesync_reads_it():
     kappa, tau = _sesync_weights(stated[beyond])
     np.testing.assert_allclose(rotation_weights(pose_graph)[beyond], kappa, rtol=1e-9)
     np.testing.assert_allclose(translation_weights(pose_graph)[beyond], tau, rtol=1e-9)
+    # a subgraph made by dataclasses.replace (the robust path's) keeps its edges' weights
+    kept = np.arange(1, pose_graph.num_edges, 3)
+    part = replace(pose_graph, edges=pose_graph.edges[kept],
+                   measured_rotations=pose_graph.measured_rotations[kept],
+                   measured_translations=pose_graph.measured_translations[kept],
+                   information=pose_graph.information[kept])
+    np.testing.assert_array_equal(translation_weights(part), translation_weights(pose_graph)[kept])
 
 
 def test_printed_matrices_are_read_back_only_from_partial_factors():
