@@ -49,6 +49,12 @@ Phases (unless ``--no-phases``): one more run of ours per case, idle, instrument
 for the modules imported lazily inside the steps). Its total is one run, not a median, and
 carries the probe's small overhead.
 
+Bytecode (``--bytecode``, cached by default): the Python processes run as an installed
+package does, its modules compiled once beforehand (``cache_bytecode``); ``none``
+keeps the environment's PYTHONDONTWRITEBYTECODE, under which every start compiles them
+(about 0.1 s for ``rlpgo-init``, less for ``lm30.py``). CPU: user + system seconds of each
+process (``wait4``), medians like the wall seconds.
+
 Prints the tables, writes ``benchmarks/results/<name>.json`` and ``.md``. SE-Sync is left
 out, its columns empty, when no binary is given or found (``$RLPGO_SESYNC_BINARY``).
 """
@@ -59,6 +65,7 @@ import argparse
 import json
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -73,6 +80,7 @@ FILES_2D = ["M3500.g2o", "M3500A.g2o", "M3500B.g2o", "M3500C.g2o", "Intel.g2o", 
 FILES_3D = ["tinyGrid3D.g2o", "smallGrid3D.g2o", "parking-garage.g2o", "sphere2500.g2o",
             "torus3D.g2o", "cubicle.g2o", "sphere_bignoise_vertex3.g2o"]
 LM30 = Path(__file__).resolve().parent / "sesync" / "lm30.py"
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _cases(args, cache: Path) -> list[dict]:
@@ -120,8 +128,8 @@ def run_ours(path: Path, out: Path, timeout: float, options: tuple[str, ...] = (
     out.unlink(missing_ok=True)
     done = processes.run([processes.command_path("rlpgo-init"), path, "-o", out, *options],
                          timeout)
-    return {"seconds": done.seconds, "peak_mb": done.peak_mb, "failure": done.failure,
-            **processes.init_outcome(done.stdout)}
+    return {"seconds": done.seconds, "cpu_seconds": done.cpu_seconds, "peak_mb": done.peak_mb,
+            "failure": done.failure, **processes.init_outcome(done.stdout)}
 
 
 def _sesync_env(threads: str) -> dict[str, str]:
@@ -147,14 +155,14 @@ def run_baseline(path: Path, folder: Path, sesync: str, threads: str, timeout: f
         if sesync_run.failure is None:
             lm30 = processes.run([sys.executable, LM30, path, record, out], timeout)
     row = {"sesync_seconds": sesync_run.seconds, "sesync_peak_mb": sesync_run.peak_mb,
-           "sesync_failure": sesync_run.failure}
+           "sesync_cpu_seconds": sesync_run.cpu_seconds, "sesync_failure": sesync_run.failure}
     if sesync_run.failure is None:
         data = json.loads(record.read_text())
         row.update(sesync_call_seconds=data["seconds"], sesync_certified=data["certified"],
                    sesync_status=data["status"], sesync_bound=data["suboptimality_bound"])
     if lm30 is not None:
         row.update(lm30_seconds=lm30.seconds, lm30_peak_mb=lm30.peak_mb,
-                   lm30_failure=lm30.failure)
+                   lm30_cpu_seconds=lm30.cpu_seconds, lm30_failure=lm30.failure)
         if lm30.failure is None:
             line = json.loads(lm30.stdout.strip().splitlines()[-1])
             row.update(lm30_chi2=line["chi2"], lm30_iterations=line["iterations"],
@@ -165,6 +173,18 @@ def run_baseline(path: Path, folder: Path, sesync: str, threads: str, timeout: f
 def median(values: list) -> float | None:
     values = [v for v in values if v is not None]
     return statistics.median(values) if values else None
+
+
+def cache_bytecode() -> None:
+    """Let the measured Python processes (ours and ``lm30.py``) use cached bytecode, as a user's
+    do (pip compiles a package's modules at install; site-packages already hold theirs): no
+    PYTHONDONTWRITEBYTECODE in their environment, and this checkout's modules compiled now
+    into their ``__pycache__`` folders (ignored by git), so no measured run compiles them.
+    Without it, each start compiles the package's own modules again (about 0.1 s)."""
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    folders = [str(ROOT / name) for name in ("rlpgo_gtsam", "cli", "benchmarks")]
+    subprocess.run([sys.executable, "-m", "compileall", "-q", *folders], check=True,
+                   stdout=subprocess.DEVNULL)
 
 
 def _measure(case: dict, load: str, folder: Path, args) -> dict:
@@ -187,6 +207,8 @@ def _measure(case: dict, load: str, folder: Path, args) -> dict:
     row = {"case": case["case"], "dim": case["dim"], "load": load, "repeats": args.repeats,
            "ours_seconds": median([r["seconds"] for r in ours_runs if r["failure"] is None]),
            "ours_seconds_all": [r["seconds"] for r in ours_runs],
+           "ours_cpu_seconds": median([r["cpu_seconds"] for r in ours_runs
+                                       if r["failure"] is None]),
            "ours_peak_mb": median([r["peak_mb"] for r in ours_runs]),
            "ours_failure": last["failure"], "ours_certified": last["certified"],
            "ours_certificate": last["certificate"], "ours_stopped": last["stopped"],
@@ -202,6 +224,9 @@ def _measure(case: dict, load: str, folder: Path, args) -> dict:
         row["baseline_seconds_all"] = [r["sesync_seconds"] + r["lm30_seconds"]
                                        for r in complete]
         row["baseline_seconds"] = median(row["baseline_seconds_all"])
+        row["baseline_cpu_seconds"] = median([
+            r["sesync_cpu_seconds"] + r["lm30_cpu_seconds"] for r in complete
+            if r.get("sesync_cpu_seconds") is not None and r.get("lm30_cpu_seconds") is not None])
         final = base_runs[-1]
         for key in ("sesync_failure", "lm30_failure", "sesync_certified", "sesync_status",
                     "sesync_bound", "lm30_chi2", "lm30_iterations", "lm30_steps"):
@@ -228,7 +253,8 @@ def cell(value, digits: str = ".2f") -> str:
 def _timing_table(rows: list[dict]) -> str:
     head = ["case", "poses", "edges", "load", "ours s", "SE-Sync s", "SE-Sync call s",
             "LM30 s", "SE-Sync + LM30 s", "ours / (SE-Sync + LM30)", "ours chi2",
-            "SE-Sync + LM30 chi2", "certified (ours / SE-Sync)", "peak MB (ours / SE-Sync / LM30)"]
+            "SE-Sync + LM30 chi2", "certified (ours / SE-Sync)", "peak MB (ours / SE-Sync / LM30)",
+            "CPU s (ours / SE-Sync + LM30)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         ours = cell(r["ours_seconds"]) if r["ours_failure"] is None else \
@@ -243,7 +269,9 @@ def _timing_table(rows: list[dict]) -> str:
             cell(r["ours_chi2"], ".6g"), cell(r.get("lm30_chi2"), ".6g"),
             f"{cell(r['ours_certified'])} / {cell(r.get('sesync_certified'))}",
             " / ".join(cell(r.get(k), ".0f") for k in ("ours_peak_mb", "sesync_peak_mb",
-                                                         "lm30_peak_mb"))]) + " |")
+                                                         "lm30_peak_mb")),
+            f"{cell(r.get('ours_cpu_seconds'))} / {cell(r.get('baseline_cpu_seconds'))}"])
+            + " |")
     return "\n".join(lines)
 
 
@@ -305,8 +333,15 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--loads", default="idle,busy")
     parser.add_argument("--no-phases", action="store_true")
+    parser.add_argument("--bytecode", choices=("cached", "none"), default="cached",
+                        help="cached: the Python processes run with bytecode caching on and "
+                        "this checkout compiled first, as an installed package is; none: as "
+                        "the environment says (PYTHONDONTWRITEBYTECODE compiles every module "
+                        "at every start)")
     args = parser.parse_args()
     check_binaries(parser, args, ("sesync",))
+    if args.bytecode == "cached":
+        cache_bytecode()
     print(f"SE-Sync driver: {args.sesync or 'none (baseline left out)'}", flush=True)
     rows, phases = [], []
     with tempfile.TemporaryDirectory(prefix="rlpgo_process_") as name:

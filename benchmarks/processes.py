@@ -53,9 +53,10 @@ MARKER = "rlpgo-probe: "  # the probe's lines on stderr: "begin STEP", "end STEP
 # The names rlpgo_cli.init calls for each step: a step whose name is absent (a later
 # version of the command) is not wrapped and its time falls into "other".
 STEP_NAMES = {
-    "read": ("read_g2o", "read_g2o3d"),
-    "extraction": ("PoseGraph2D", "PoseGraph3D"),  # their from_gtsam
+    "read": ("read_input", "read_g2o", "read_g2o3d"),
+    "extraction": ("extract_pose_graph", "PoseGraph2D", "PoseGraph3D"),  # classes: from_gtsam
     "default": ("staged_initialize",),
+    "write": ("pose_graph_text",),  # the text; RunFiles.write_together writes it
     "input chi2": ("chi2",),
 }
 STEPS = ("start-up", "import", "read", "extraction", "certified", "LM", "default rest",
@@ -74,6 +75,7 @@ class Run:
         timed_out: it was killed at the time limit.
         peak_mb: its peak resident set, MB (ru_maxrss; with the launcher's floor).
         stdout, stderr: what it printed.
+        cpu_seconds: its user + system CPU seconds (``wait4``'s, its threads included).
         started, ended: ``time.monotonic()`` at the fork and at the exit (system-wide clock).
     """
 
@@ -86,6 +88,7 @@ class Run:
     stderr: str
     started: float | None = None
     ended: float | None = None
+    cpu_seconds: float | None = None
     extra: dict = field(default_factory=dict)
 
     @property
@@ -144,7 +147,8 @@ def run(command: Sequence[str], timeout_s: float, env: dict[str, str] | None = N
         data = json.loads(record.read_text())
         text = {path: path.read_text(errors="replace") for path in (out, err)}
     return Run(command, data["seconds"], data["returncode"], data["timed_out"],
-               data["peak_mb"], text[out], text[err], data["started"], data["ended"])
+               data["peak_mb"], text[out], text[err], data["started"], data["ended"],
+               data.get("cpu_seconds"))
 
 
 def launcher_floor_mb() -> float | None:
@@ -182,7 +186,8 @@ def _spawn(argv: list[str]) -> int:
     Path(record).write_text(json.dumps({
         "seconds": ended - started, "started": started, "ended": ended,
         "returncode": returncode, "timed_out": bool(timed_out),
-        "peak_mb": usage.ru_maxrss / 1024.0}))
+        "peak_mb": usage.ru_maxrss / 1024.0,
+        "cpu_seconds": usage.ru_utime + usage.ru_stime}))
     return 0
 
 
@@ -255,7 +260,8 @@ def _probe(argv: list[str]) -> int:
 
     sys.argv = ["rlpgo-init", *args]
     launch = importlib.import_module("rlpgo_cli.launch")
-    command = importlib.import_module("rlpgo_cli.init")
+    importer = getattr(launch, "_import", None)  # as the command imports itself
+    command = importer("init", True) if importer else importlib.import_module("rlpgo_cli.init")
     imported = time.monotonic()
     os.write(2, f"{MARKER}end import\n".encode())
     seconds: dict[str, float] = {}
@@ -266,7 +272,7 @@ def _probe(argv: list[str]) -> int:
             original = getattr(command, name, None)
             if original is None:
                 continue
-            if step == "extraction":
+            if step == "extraction" and isinstance(original, type):
                 setattr(command, name, _Extraction(
                     original, _Timed(original.from_gtsam, step, seconds, peaks)))
             else:
@@ -274,21 +280,32 @@ def _probe(argv: list[str]) -> int:
                     if step == "default" else None
                 setattr(command, name, _Timed(original, step, seconds, peaks, seen))
     files = getattr(command, "RunFiles", None)
-    if files is not None and hasattr(files, "write_g2o"):
-        timed = _Timed(files.write_g2o, "write", seconds, peaks)
-        files.write_g2o = lambda self, *a, **k: timed(self, *a, **k)
+    for method in ("write_g2o", "write_together"):
+        if files is not None and hasattr(files, method):
+            timed = _Timed(getattr(files, method), "write", seconds, peaks)
+            setattr(files, method, lambda self, *a, _timed=timed, **k: _timed(self, *a, **k))
     main_began = time.monotonic()
+
+    def write_record(code: object) -> None:
+        record = {"started": started, "imported": imported, "main_began": main_began,
+                  "main_ended": time.monotonic(), "seconds": seconds, "peaks_mb": peaks,
+                  "peak_mb": vmhwm_mb(), "default": default,
+                  "exit_code": code if isinstance(code, int) or code is None else 1}
+        Path(record_path).write_text(json.dumps(record))
+
+    leave = getattr(launch, "_leave", None)
+    if leave is not None:  # the command ends the process itself: the record first
+        def record_and_leave(code: object) -> None:
+            write_record(code)
+            leave(code)
+
+        launch._leave = record_and_leave
     code: int | str | None = 0
     try:
         launch.init()
     except SystemExit as stop:
         code = stop.code
-    main_ended = time.monotonic()
-    record = {"started": started, "imported": imported, "main_began": main_began,
-              "main_ended": main_ended, "seconds": seconds, "peaks_mb": peaks,
-              "peak_mb": vmhwm_mb(), "default": default,
-              "exit_code": code if isinstance(code, int) or code is None else 1}
-    Path(record_path).write_text(json.dumps(record))
+    write_record(code)
     return code if isinstance(code, int) else (0 if code is None else 1)
 
 

@@ -16,8 +16,9 @@ are normalized; a zero or non-finite one is an error. A line of a planar file (`
 ``EDGE_SE2``) is an error naming that line. A file without vertices gets its initial guess
 chained from the edges (i -> i+1 first, then through any edge). A ``FIX``-ed vertex becomes
 a :class:`gtsam.PriorFactorPose3` with a constrained noise model. Information matrices follow
-the 3D rule (:func:`~rlpgo_gtsam.graph3d.information_rule_3d`); one it reads in a changed
-form is told in an :class:`~rlpgo_gtsam.errors.InformationWarning` per file and kind.
+the 3D rule (:func:`~rlpgo_gtsam.graph3d.information_rule_3d`); one it changes, or keeps
+indefinite as ``gtsam.readG2o`` does, is told in an
+:class:`~rlpgo_gtsam.errors.InformationWarning` per file and kind.
 
 :func:`read_pose_graph` reads a g2o file of either dimension, told by its first pose line
 (:func:`g2o_dimension`); :func:`write_pose_graph` writes a graph of either dimension.
@@ -61,14 +62,15 @@ from rlpgo_gtsam.g2o import (
 )
 from rlpgo_gtsam.graph import disconnection
 from rlpgo_gtsam.graph3d import (
+    INDEFINITE,
     LIFTED,
     MAX_CONDITION_3D,
     ROUNDING_3D,
-    UNCOUPLED,
     graph_dimension,
     information_problem_6,
     information_problems_6,
     information_rule_3d,
+    printed_informations,
 )
 from rlpgo_gtsam.se3 import compose, inverse, quaternions_to_rotations, rotations_to_quaternions
 from rlpgo_gtsam.textscan import Text
@@ -96,7 +98,7 @@ class _Parsed:
     edges: list[tuple[int, int, int, np.ndarray, np.ndarray, np.ndarray]] = field(
         default_factory=list)
     fixed: list[tuple[int, int]] = field(default_factory=list)  # (id, line)
-    # what the information rule changed: LIFTED / UNCOUPLED -> the lines of those edges
+    # what the information rule did: LIFTED / INDEFINITE -> the lines of those edges
     changed: dict[str, list[int]] = field(default_factory=dict)
 
 
@@ -114,8 +116,8 @@ class _Table:
             once).
         model: (m,) the index of each edge's matrix in ``information``.
         fixed: (id, line) of each id of the FIX lines.
-        changed: what the information rule changed (:data:`~rlpgo_gtsam.graph3d.LIFTED`,
-            :data:`~rlpgo_gtsam.graph3d.UNCOUPLED`) -> the lines of those edges, in order.
+        changed: what the information rule did (:data:`~rlpgo_gtsam.graph3d.LIFTED`,
+            :data:`~rlpgo_gtsam.graph3d.INDEFINITE`) -> the lines of those edges, in order.
     """
 
     vertex_keys: np.ndarray
@@ -135,8 +137,9 @@ def read_g2o3d(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph
     """Read a 3D g2o file into a GTSAM factor graph and initial values.
 
     Each ``EDGE_SE3:QUAT`` becomes a :class:`gtsam.BetweenFactorPose3` whose Gaussian noise
-    model holds the edge's full 6x6 information (read by
-    :func:`~rlpgo_gtsam.graph3d.information_rule_3d`: a matrix it changes is told in an
+    model is GTSAM's of the edge's full 6x6 information (``noiseModel.Gaussian.Information``,
+    as ``gtsam.readG2o``; read by :func:`~rlpgo_gtsam.graph3d.information_rule_3d`: a matrix
+    it does not take as it is, or takes indefinite, is told in an
     :class:`~rlpgo_gtsam.errors.InformationWarning`); then one constrained
     :class:`gtsam.PriorFactorPose3` per ``FIX``-ed id. Keys are the file's ids.
 
@@ -437,8 +440,11 @@ def _parse(path: Path, handle: BinaryIO) -> _Parsed:
 
 # What each change of the information rule is, told once per file.
 _CHANGES = {
-    UNCOUPLED: "indefinite through their rotation-translation coupling alone: read as SE-Sync "
-               "reads every edge, the rotation and translation blocks without the coupling",
+    INDEFINITE: "indefinite through their rotation-translation coupling alone: kept as "
+                "printed, as gtsam.readG2o keeps them (chi2 is GTSAM's model of each, a "
+                "Cholesky factor stopped at the indefinite pivot); the relaxation weighs "
+                "them by their printed rotation and translation blocks, as SE-Sync does, where "
+                "that factor's own information is beyond use",
     LIFTED: f"positive definite only to rounding (a condition number above "
             f"{MAX_CONDITION_3D:g}, or eigenvalues down to -{ROUNDING_3D:g} x the largest): "
             "their smallest eigenvalues raised to 1e-11 x the largest",
@@ -543,9 +549,11 @@ def _text_fast(graph: gtsam.NonlinearFactorGraph,
     kinds, edges, edge_keys, priors, fixed = found
     measured = np.array(list(map(gtsam.Pose3.matrix, map(between.measured, edges))))
     measured = measured.reshape(-1, 4, 4)
-    information = information_texts(list(map(between.noiseModel, edges)), 6,
-                                    information_problems_6,
+    models = list(map(between.noiseModel, edges))
+    information = information_texts(models, 6, information_problems_6,
                                     np.argsort(G2O_TO_GTSAM))  # GTSAM's order -> g2o's
+    if information is None:
+        information = _printed_texts(models)
     if information is None:
         return None
     if not set(keys).issuperset(edge_keys + fixed) or not np.isfinite(measured).all():
@@ -558,6 +566,30 @@ def _text_fast(graph: gtsam.NonlinearFactorGraph,
     text = [(f"{VERTEX} %d %r %r %r %s %s %s %s\n" * len(keys)) % tuple(vertex_fields),
             (f"{EDGE} %d %d %r %r %r %s %s %s %s %s\n" * len(edges)) % tuple(edge_fields)]
     return with_fix_lines(text, kinds, between, len(keys), priors, fixed)
+
+
+def _printed_texts(models: list) -> list[str] | None:
+    """The 21 g2o fields of each Gaussian model's information where some are GTSAM's partial
+    Cholesky factors of printed indefinite matrices (cubicle's, as ``gtsam.readG2o`` or the
+    reader makes them): those are written as printed, so that the file reads back to the
+    same models; None if a matrix is neither usable nor such a factor (the careful writer
+    names it)."""
+    distinct = list({id(model): model for model in models}.values())
+    gaussian, constrained = gtsam.noiseModel.Gaussian, gtsam.noiseModel.Constrained
+    if not all(isinstance(model, gaussian) and not isinstance(model, constrained)
+               for model in distinct):
+        return None
+    matrices = np.array([model.information() for model in distinct]).reshape(-1, 6, 6)
+    refused = [k for k, problem in enumerate(information_problems_6(matrices))
+               if problem is not None]
+    printed, found = printed_informations(np.array([distinct[k].R() for k in refused]))
+    if not found.all():
+        return None
+    matrices[refused] = printed
+    back = np.argsort(G2O_TO_GTSAM)  # GTSAM's order -> g2o's
+    numbers = texts_15(matrices[:, back][:, :, back][:, _UPPER[0], _UPPER[1]].ravel().tolist())
+    text = {id(model): " ".join(numbers[21 * k:21 * k + 21]) for k, model in enumerate(distinct)}
+    return [text[id(model)] for model in models]
 
 
 def _pose_fields(rotations: np.ndarray, translations: np.ndarray, first: list[list[int]],
@@ -605,7 +637,10 @@ def _text_careful(graph: gtsam.NonlinearFactorGraph,
             information = model.information()
             problem = information_problem_6(information)
             if problem is not None:
-                raise OutputError(f"edge {i}-{j}: {problem} (the reader would refuse it)")
+                printed, found = printed_informations(model.R()[None])
+                if not found[0]:
+                    raise OutputError(f"edge {i}-{j}: {problem} (the reader would refuse it)")
+                information = printed[0]  # GTSAM's factor of a printed indefinite matrix
             back = np.argsort(G2O_TO_GTSAM)  # GTSAM's order -> g2o's
             upper = information[back][:, back][_UPPER]
             lines.append(f"{EDGE} {i} {j} " + _pose_text(factor.measured(), f"edge {i}-{j}")

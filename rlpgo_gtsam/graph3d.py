@@ -12,13 +12,16 @@ The Pose3 sibling of :mod:`rlpgo_gtsam.graph`, with the same meaning kept:
 Its information rule is the planar one with a higher condition bound,
 :data:`MAX_CONDITION_3D`; the 3D reader applies :func:`information_rule_3d`, which also
 reads matrices that are positive definite only to rounding, and SE-Sync's files whose
-rotation-translation coupling alone makes them indefinite (docs/pose3.md).
+rotation-translation coupling alone makes them indefinite: those as ``gtsam.readG2o``
+reads them (GTSAM's Cholesky factor stops at the indefinite pivot), with the relaxation's
+weights from the printed matrix (:func:`printed_informations`; docs/pose3.md).
 :func:`extract_pose_graph` extracts a planar or a 3D graph, by what it holds.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import ClassVar
 
 import gtsam
@@ -46,10 +49,11 @@ __all__ = [
     "translation_weights",
     "information_problem_6",
     "information_rule_3d",
+    "printed_informations",
     "MAX_CONDITION_3D",
     "ROUNDING_3D",
     "LIFTED",
-    "UNCOUPLED",
+    "INDEFINITE",
 ]
 
 # The 3D information rule (docs/pose3.md has the measurements behind it).
@@ -65,10 +69,11 @@ MAX_CONDITION_3D = 1e12
 ROUNDING_3D = 1e-5
 # Eigenvalues below the largest / 1e11 are raised to it when a matrix is lifted.
 _LIFT_CONDITION = MAX_CONDITION_3D / 10.0
-# What the rule changed in a matrix: its smallest eigenvalues raised, or its
-# rotation-translation coupling dropped.
+# What the rule did with a matrix: its smallest eigenvalues raised, or, indefinite through
+# the rotation-translation coupling alone, kept as printed (GTSAM's model of it is a partial
+# Cholesky factor).
 LIFTED = "lifted"
-UNCOUPLED = "uncoupled"
+INDEFINITE = "indefinite"
 
 
 @dataclass(frozen=True)
@@ -91,6 +96,12 @@ class PoseGraph3D(PoseArrays):
         anchor_rotation, anchor_translation: where the initializers put the anchor: its
             prior's value if it has one, else its pose in ``values``.
         graph: the GTSAM graph the arrays came from (costs are evaluated on it).
+        printed: the printed matrix (6, 6) of each information that GTSAM's model holds as
+            a partial Cholesky factor of an indefinite printed matrix
+            (:func:`printed_informations`), keyed by that information's bytes: the
+            relaxation weighs such an edge by it (:attr:`weighed`). Keyed by content, so
+            that a graph made from this one by ``dataclasses.replace`` with some of its edges
+            (the robust path's subgraphs) keeps it.
         dimension: 3 (the class's).
     """
 
@@ -109,6 +120,16 @@ class PoseGraph3D(PoseArrays):
     anchor_rotation: np.ndarray
     anchor_translation: np.ndarray
     graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
+    printed: dict[bytes, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
+
+    @cached_property
+    def weighed(self) -> np.ndarray:
+        """(m, 6, 6) the information the relaxation's weights come from: each edge's
+        ``information``, or its printed matrix where it has one (``printed``)."""
+        if not self.printed:
+            return self.information
+        return np.array([self.printed.get(matrix.tobytes(), matrix)
+                         for matrix in self.information]).reshape(-1, 6, 6)
 
     @property
     def held(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -124,13 +145,17 @@ class PoseGraph3D(PoseArrays):
                    check_information: bool = True) -> PoseGraph3D:
         """Extract the arrays; the graph must be connected and made of Pose3 factors only.
 
-        Each edge's information must pass :func:`information_problem_6` (what
-        :func:`~rlpgo_gtsam.g2o3d.read_g2o3d` makes always does). ``check_information=False``
-        accepts any information a Gaussian model holds (finite, positive semidefinite):
-        ``gtsam.readG2o`` turns cubicle's 5021 indefinite informations into matrices with a
-        condition number near 1e16 (Eigen's Cholesky stops at the first negative pivot and
-        GTSAM keeps the partial factor), and the benchmark compares with SE-Sync on that
-        graph.
+        Each edge's information must pass :func:`information_problem_6`, or be GTSAM's
+        model of a printed matrix that :func:`information_rule_3d` keeps as printed
+        (indefinite through the rotation-translation coupling alone): ``gtsam.readG2o``
+        turns cubicle's 5021 such matrices into partial Cholesky factors (Eigen's stops at
+        the indefinite pivot and GTSAM keeps it) whose information has a condition number
+        near 1e16; chi2 is that model's, and the relaxation's weights come from the printed
+        matrix it was made from (:func:`printed_informations`, kept in ``printed``), as
+        SE-Sync reads the file. What
+        :func:`~rlpgo_gtsam.g2o3d.read_g2o3d` makes always passes.
+        ``check_information=False`` accepts any information a Gaussian model holds (finite,
+        positive semidefinite).
 
         Raises:
             GraphError: a factor other than BetweenFactorPose3 / PriorFactorPose3, a noise
@@ -145,8 +170,9 @@ class PoseGraph3D(PoseArrays):
             raise GraphError(f"values hold something other than Pose3: "
                              f"{' '.join(str(error).split())}") from None
         factors = sort_factors(graph, index, gtsam.BetweenFactorPose3, gtsam.PriorFactorPose3,
-                               lambda pose: pose, 6, "3D", check_information,
-                               MAX_CONDITION_3D)
+                               lambda pose: pose, 6, "3D", False, MAX_CONDITION_3D)
+        information = np.array(factors.information).reshape(-1, 6, 6)
+        printed = _printed_of(graph, information, check_information)
         hard = factors.hard
         anchor, anchor_prior = factors.anchor
         fixed_r, fixed_t = _pose_arrays([pose for _, pose in hard])
@@ -158,11 +184,12 @@ class PoseGraph3D(PoseArrays):
         result = cls(
             keys=keys, rotations=rotations, translations=translations,
             edges=np.array(factors.edges, dtype=np.int64), measured_rotations=measured_r,
-            measured_translations=measured_t, information=np.array(factors.information),
+            measured_translations=measured_t, information=information,
             anchor=anchor, fixed=np.array([k for k, _ in hard], dtype=np.int64),
             fixed_rotations=fixed_r, fixed_translations=fixed_t,
             anchor_rotation=np.asarray(anchor_r, float),
             anchor_translation=np.asarray(anchor_t, float), graph=graph,
+            printed=printed,
         )
         result.check_connected()
         return result
@@ -200,15 +227,17 @@ def edge_errors(pose_graph: PoseGraph3D, rotations: np.ndarray,
 
 def rotation_weights(pose_graph: PoseGraph3D) -> np.ndarray:
     """SE-Sync's kappa for d = 3: ``3 / (2 tr(Sigma_R))``, ``Sigma_R`` the inverse of the
-    3x3 rotational block of the information (as SE-Sync's ``read_g2o_file``)."""
-    return 3.0 / (2.0 * np.trace(np.linalg.inv(pose_graph.information[:, :3, :3]),
+    3x3 rotational block of the information (as SE-Sync's ``read_g2o_file``; of
+    :attr:`PoseGraph3D.weighed`: the printed matrix where GTSAM's model is a partial
+    factor of it)."""
+    return 3.0 / (2.0 * np.trace(np.linalg.inv(pose_graph.weighed[:, :3, :3]),
                                  axis1=1, axis2=2))
 
 
 def translation_weights(pose_graph: PoseGraph3D) -> np.ndarray:
     """SE-Sync's tau for d = 3: ``3 / tr(Sigma_t)``, ``Sigma_t`` the inverse of the 3x3
-    translational block of the information."""
-    return 3.0 / np.trace(np.linalg.inv(pose_graph.information[:, 3:, 3:]), axis1=1, axis2=2)
+    translational block of the information (of :attr:`PoseGraph3D.weighed`)."""
+    return 3.0 / np.trace(np.linalg.inv(pose_graph.weighed[:, 3:, 3:]), axis1=1, axis2=2)
 
 
 def information_problem_6(information: np.ndarray) -> str | None:
@@ -226,14 +255,22 @@ def information_problems_6(matrices: np.ndarray) -> list[str | None]:
 def information_rule_3d(matrices: np.ndarray) -> tuple[np.ndarray, list[str | None],
                                                           list[tuple[str, ...]]]:
     """The 3D reader's information rule on a stack of (k, 6, 6) matrices: the matrices to
-    use, why each cannot be used (None: it can), and what was changed in each (``()``,
-    or :data:`UNCOUPLED` and/or :data:`LIFTED`).
+    use, why each cannot be used (None: it can), and what was done with each (``()``, or
+    :data:`INDEFINITE` or :data:`LIFTED`).
 
     1. A matrix :func:`information_problem_6` accepts is used as it is.
-    2. Indefinite, with its rotation block and its translation block each positive
-       definite (to :data:`ROUNDING_3D`): its rotation-translation coupling is dropped
-       (:data:`UNCOUPLED`). SE-Sync reads every edge this way (its weights come from
-       these two blocks alone); cubicle's 5021 indefinite matrices are of this kind.
+    2. Indefinite beyond rounding, with its rotation block and its translation block each
+       usable (rule 1 at size 3): kept as printed (:data:`INDEFINITE`), as
+       ``gtsam.readG2o`` keeps it. GTSAM's model of it
+       (``noiseModel.Gaussian.Information``) is the upper Cholesky factor ``R`` that
+       Eigen's LLT leaves where it stops, at the first non-positive pivot (a translation's:
+       the rotation block is definite); chi2 is that model's, whose information ``R^T R``
+       weighs the pivot's axis far above the printed value (cubicle: translation z by up
+       to 3.9e12 where the file says 10). Where ``R^T R`` is beyond rule 1, the
+       extraction reads the printed matrix back from ``R`` (:func:`printed_informations`)
+       and the relaxation's weights come from its blocks, as SE-Sync reads every edge;
+       where ``R^T R`` is usable, it is taken at its word, weights included. cubicle's
+       5021 indefinite matrices are of this kind (4849 and 172).
     3. Finite and symmetric, largest eigenvalue in range, smallest at least
        ``-ROUNDING_3D`` x the largest, but with a condition number above
        :data:`MAX_CONDITION_3D` or a slightly negative eigenvalue: positive definite to
@@ -245,40 +282,121 @@ def information_rule_3d(matrices: np.ndarray) -> tuple[np.ndarray, list[str | No
     matrices = np.array(matrices, dtype=float).reshape(-1, 6, 6)
     problems = information_problems(matrices, MAX_CONDITION_3D)
     changes: list[tuple[str, ...]] = [()] * len(matrices)
+    indefinite = []  # rule 2's candidates, judged in one batch
     for k in [k for k, problem in enumerate(problems) if problem is not None]:
-        matrix, changed = matrices[k].copy(), []
+        matrix = matrices[k]
         if not (np.all(np.isfinite(matrix)) and np.allclose(matrix, matrix.T, rtol=1e-9,
                                                              atol=0.0)):
             continue
-        if not _semidefinite_to_rounding(matrix) and all(
-                _semidefinite_to_rounding(matrix[b, b]) for b in (_ROTATION, _TRANSLATION)):
-            matrix[_ROTATION, _TRANSLATION] = 0.0
-            matrix[_TRANSLATION, _ROTATION] = 0.0
-            changed.append(UNCOUPLED)
-        if _semidefinite_to_rounding(matrix) and information_problem_6(matrix) is not None:
+        if _semidefinite_to_rounding(matrix):
             eigenvalues, vectors = np.linalg.eigh(0.5 * (matrix + matrix.T))
             floor = eigenvalues[-1] / _LIFT_CONDITION
-            matrix = (vectors * np.maximum(eigenvalues, floor)) @ vectors.T
-            matrix = 0.5 * (matrix + matrix.T)
-            changed.append(LIFTED)
-        if changed and information_problem_6(matrix) is None:
-            matrices[k], problems[k], changes[k] = matrix, None, tuple(changed)
-        elif problems[k] == "information matrix is not positive definite":
+            lifted = (vectors * np.maximum(eigenvalues, floor)) @ vectors.T
+            lifted = 0.5 * (lifted + lifted.T)
+            if information_problem_6(lifted) is None:
+                matrices[k], problems[k], changes[k] = lifted, None, (LIFTED,)
+        else:
+            indefinite.append(k)
+    if indefinite:
+        candidates = np.array(indefinite)
+        candidates = candidates[_blocks_usable(matrices[candidates])]
+        # GTSAM's model of each must be the partial factor the extraction reads back
+        factors = np.array([gtsam.noiseModel.Gaussian.Information(matrices[k]).R()
+                            for k in candidates.tolist()]).reshape(-1, 6, 6)
+        for k in candidates[printed_informations(factors)[1]].tolist():
+            problems[k], changes[k] = None, (INDEFINITE,)
+    for k, problem in enumerate(problems):
+        if problem == "information matrix is not positive definite":
             eigenvalues = np.linalg.eigvalsh(0.5 * (matrices[k] + matrices[k].T))
             problems[k] += f" (eigenvalues {eigenvalues[0]:.3g} .. {eigenvalues[-1]:.3g})"
     return matrices, problems, changes
 
 
+def printed_informations(factors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The matrix each upper-triangular factor ``R`` (k, 6, 6) of a GTSAM Gaussian model
+    was made from, where it is the partial Cholesky factor of an indefinite matrix that
+    :func:`information_rule_3d` keeps as printed; and (k,) whether it is. Where it is not,
+    the matrix is ``R^T R``.
+
+    ``noiseModel.Gaussian.Information(M)`` keeps the upper factor of Eigen's LLT of ``M``
+    even where the LLT stops at a non-positive pivot ``s``: rows before ``s`` are the
+    Cholesky factor's, rows from ``s`` on hold ``M``'s upper triangle unchanged. So ``M``
+    is ``R^T R`` but for its block from row and column ``s`` on, which is that printed
+    triangle. ``R`` is taken as such a factor at the first ``s`` (3, 4 or 5: the rotation
+    block of a matrix the rule keeps is definite) whose pivot ``M_ss - |R_{<s, s}|^2`` is
+    not positive and whose ``M`` the rule keeps (indefinite beyond rounding, both blocks
+    usable). A definite matrix's factor may also read so: a caller asks only about
+    factors whose ``R^T R`` rule 1 refuses.
+    """
+    factors = np.asarray(factors, dtype=float).reshape(-1, 6, 6)
+    products = np.einsum("kri,krj->kij", factors, factors)
+    printed, found = products.copy(), np.zeros(len(factors), dtype=bool)
+    for stop in (3, 4, 5):
+        above = factors[:, :stop, stop]
+        candidates = np.flatnonzero(~found & np.all(np.diagonal(factors, axis1=1, axis2=2)
+                                                    [:, :stop] > 0, axis=1)
+                                    & (factors[:, stop, stop] <= np.sum(above * above, axis=1)))
+        if not len(candidates):
+            continue
+        matrices = products[candidates]
+        tail = np.triu(factors[candidates, stop:, stop:])
+        matrices[:, stop:, stop:] = tail + np.transpose(np.triu(tail, 1), (0, 2, 1))
+        kept = _blocks_usable(matrices) & ~_semidefinite_many(matrices)
+        printed[candidates[kept]] = matrices[kept]
+        found[candidates[kept]] = True
+    return printed, found
+
+
 _ROTATION, _TRANSLATION = slice(0, 3), slice(3, 6)  # GTSAM's tangent order
+
+
+def _blocks_usable(matrices: np.ndarray) -> np.ndarray:
+    """(k,) whether the rotation block and the translation block of each (k, 6, 6) matrix
+    are each usable by rule 1 (at size 3): the relaxation's weights need both."""
+    blocks = np.concatenate([matrices[:, _ROTATION, _ROTATION],
+                             matrices[:, _TRANSLATION, _TRANSLATION]])
+    usable = np.array([p is None for p in information_problems(blocks, MAX_CONDITION_3D)])
+    return usable[:len(matrices)] & usable[len(matrices):]
+
+
+def _semidefinite_many(matrices: np.ndarray) -> np.ndarray:
+    """(k,) :func:`_semidefinite_to_rounding` of each (k, 6, 6) symmetric matrix."""
+    eigenvalues = np.linalg.eigvalsh(0.5 * (matrices + np.transpose(matrices, (0, 2, 1))))
+    low, high = INFORMATION_RANGE
+    return (low <= eigenvalues[:, -1]) & (eigenvalues[:, -1] <= high) & \
+        (eigenvalues[:, 0] >= -ROUNDING_3D * eigenvalues[:, -1])
+
+
+def _printed_of(graph: gtsam.NonlinearFactorGraph, information: np.ndarray,
+                check: bool) -> dict[bytes, np.ndarray]:
+    """The extraction's ``printed``: for each edge's information that rule 1 refuses and
+    whose model is GTSAM's partial factor of a printed matrix (:func:`printed_informations`),
+    that matrix, keyed by the information's bytes.
+
+    Raises:
+        GraphError: with ``check``, an edge whose information rule 1 refuses and whose
+            model is no such factor (the first, as the planar extraction names it).
+    """
+    problems = information_problems(information, MAX_CONDITION_3D)
+    refused = [k for k, problem in enumerate(problems) if problem is not None]
+    if not refused:
+        return {}
+    factors = [factor for factor in map(graph.at, range(graph.size()))
+               if isinstance(factor, gtsam.BetweenFactorPose3)]
+    printed, found = printed_informations(
+        np.array([factors[k].noiseModel().R() for k in refused]))
+    if check and not found.all():
+        first = refused[int(np.flatnonzero(~found)[0])]
+        i, j = factors[first].keys()
+        raise GraphError(f"between factor {i}-{j}: {problems[first]}")
+    return {information[k].tobytes(): matrix
+            for k, matrix in zip(np.array(refused)[found].tolist(), printed[found], strict=True)}
 
 
 def _semidefinite_to_rounding(matrix: np.ndarray) -> bool:
     """Whether a symmetric matrix's eigenvalues lie in ``-ROUNDING_3D x largest ..
     INFORMATION_RANGE[1]``, with the largest at least ``INFORMATION_RANGE[0]``."""
-    eigenvalues = np.linalg.eigvalsh(0.5 * (matrix + matrix.T))
-    low, high = INFORMATION_RANGE
-    return bool(low <= eigenvalues[-1] <= high and
-                eigenvalues[0] >= -ROUNDING_3D * eigenvalues[-1])
+    return bool(_semidefinite_many(matrix[None])[0])
 
 
 AnyPoseGraph = PoseGraph2D | PoseGraph3D

@@ -1,12 +1,14 @@
 """3D pose graphs through the product: rlpgo-init and rlpgo-compare on SE-Sync's 3D files,
 the staged default on a Pose3 graph, the file's dimension told from its lines, and the 3D
-information rule on parking-garage's and cubicle's real matrices."""
+information rule on parking-garage's and cubicle's real matrices (cubicle's read as
+gtsam.readG2o reads them, weighed as SE-Sync reads them)."""
 
 from __future__ import annotations
 
 import json
 import re
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import gtsam
@@ -19,6 +21,7 @@ from rlpgo_cli.init import main as init_main
 from rlpgo_gtsam import (
     InformationWarning,
     RlpgoError,
+    g2o3d,
     read_g2o3d,
     staged_initialize,
     write_g2o,
@@ -26,11 +29,15 @@ from rlpgo_gtsam import (
 from rlpgo_gtsam.g2o3d import G2O_TO_GTSAM, g2o_dimension, read_pose_graph
 from rlpgo_gtsam.graph import information_problem
 from rlpgo_gtsam.graph3d import (
+    INDEFINITE,
     LIFTED,
-    UNCOUPLED,
     PoseGraph3D,
     extract_pose_graph,
+    information_problem_6,
     information_rule_3d,
+    printed_informations,
+    rotation_weights,
+    translation_weights,
 )
 from rlpgo_gtsam.initializers3d import COMPARISON_3D, INITIALIZERS_3D
 from rlpgo_gtsam.residuals import outlier_suspicion
@@ -384,36 +391,117 @@ def _cubicle_head(tmp_path: Path, poses: int = 60) -> Path:
     return path
 
 
-def test_cubicle_coupling_is_dropped_as_sesync_reads_it(tmp_path):
+def _sesync_weights(information: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """SE-Sync's kappa and tau (d = 3) from the diagonal blocks of (m, 6, 6) informations."""
+    return (1.5 / np.trace(np.linalg.inv(information[:, :3, :3]), axis1=1, axis2=2),
+            3.0 / np.trace(np.linalg.inv(information[:, 3:, 3:]), axis1=1, axis2=2))
+
+
+def test_cubicle_indefinite_matrices_are_read_as_gtsam_reads_them(tmp_path):
     """cubicle's indefinite matrices (eigenvalues down to -0.47 x the largest: not rounding)
-    have positive definite rotation and translation blocks; the reader keeps those blocks,
-    drops the coupling and says so once, naming the first line."""
+    have positive definite rotation and translation blocks. The reader's graph is
+    gtsam.readG2o's (the same noise models, the same error), says so once naming the first
+    line, and the relaxation weighs those edges by the printed blocks, as SE-Sync."""
     path = _cubicle_head(tmp_path)
     lines = path.read_text().splitlines()
     edges = [n for n, line in enumerate(lines, 1) if line.startswith("EDGE_SE3:QUAT")]
-    indefinite = [n for n in edges if np.linalg.eigvalsh(_file_information(lines[n - 1]))[0] < 0]
-    assert len(indefinite) == 40
+    stated = np.array([_file_information(lines[n - 1]) for n in edges])
+    eigenvalues = np.linalg.eigvalsh(stated)
+    indefinite = eigenvalues[:, 0] < 0
+    assert indefinite.sum() == 40
+    assert np.all(eigenvalues[indefinite, 0] < -1e-3 * eigenvalues[indefinite, -1])  # not 1e-5
     with pytest.warns(InformationWarning) as caught:
         graph, values = read_g2o3d(path)
     [warning] = caught
+    first = edges[int(np.flatnonzero(indefinite)[0])]
     assert str(warning.message) == (
-        f"{path}: 40 EDGE_SE3:QUAT information matrices (first on line {indefinite[0]}) are "
-        "indefinite through their rotation-translation coupling alone: read as SE-Sync reads "
-        "every edge, the rotation and translation blocks without the coupling")
-    for n in edges:
-        stated = _file_information(lines[n - 1])
-        used = graph.at(edges.index(n)).noiseModel().information()
-        expected = stated.copy()
-        if n in indefinite:
-            eigenvalues = np.linalg.eigvalsh(stated)  # far beyond rounding (1e-5)
-            assert eigenvalues[0] < -1e-3 * eigenvalues[-1]
-            expected[:3, 3:] = expected[3:, :3] = 0.0
-        np.testing.assert_allclose(used, expected, rtol=1e-9, atol=1e-9)
+        f"{path}: 40 EDGE_SE3:QUAT information matrices (first on line {first}) are "
+        "indefinite through their rotation-translation coupling alone: kept as printed, as "
+        "gtsam.readG2o keeps them (chi2 is GTSAM's model of each, a Cholesky factor stopped at "
+        "the indefinite pivot); the relaxation weighs them by their printed rotation and "
+        "translation blocks, as SE-Sync does, where that factor's own information is beyond "
+        "use")
+    theirs, their_values = gtsam.readG2o(str(path), True)
+    assert theirs.size() == graph.size() == len(edges)
+    for k in range(graph.size()):
+        ours, model = graph.at(k).noiseModel(), theirs.at(k).noiseModel()
+        assert type(ours) is type(model)
+        np.testing.assert_array_equal(ours.R(), model.R())
+    for at in (values, their_values):
+        assert graph.error(at) == pytest.approx(theirs.error(at), rel=1e-9)
+    # GTSAM's model of an indefinite one weighs translation z far above the printed 10
+    used = np.array([graph.at(k).noiseModel().information() for k in range(graph.size())])
+    assert np.all(used[indefinite, 5, 5] > 1e4 * stated[indefinite, 5, 5])
+    np.testing.assert_allclose(used[~indefinite], stated[~indefinite], rtol=1e-12)
+    # the weights: the printed blocks where GTSAM's information is beyond rule 1 (all but a
+    # few whose factor's information is usable, and is taken at its word), from either graph
+    beyond = np.array([information_problem_6(m) is not None for m in used])
+    assert beyond.sum() >= 35 and not beyond[~indefinite].any()
+    for source in ((graph, values), (theirs, their_values)):
+        pose_graph = PoseGraph3D.from_gtsam(*source)
+        np.testing.assert_array_equal(pose_graph.information, used)
+        expected = np.where(beyond[:, None, None], stated, used)
+        for weights, wanted in zip((rotation_weights(pose_graph),
+                                    translation_weights(pose_graph)),
+                                   _sesync_weights(expected), strict=True):
+            np.testing.assert_allclose(weights, wanted, rtol=1e-9)
+    # both writers write the printed matrices of GTSAM's partial factors
+    assert g2o3d._text_fast(theirs, their_values) == g2o3d._text_careful(theirs, their_values)
     result = run_init(path, "-o", tmp_path / "out.g2o", "--json", tmp_path / "run.json")
     cli_ok(result)
     assert result.stdout.startswith(f"note: {warning.message}\n")
     data = json.loads((tmp_path / "run.json").read_text())
     assert data["notes"] == [str(warning.message)] and data["certified"] is True
+    # the output holds the printed matrices: it reads back to the same models
+    assert_same_edges_3d(path, tmp_path / "out.g2o")
+    out_lines = (tmp_path / "out.g2o").read_text().splitlines()
+    written = np.array([_file_information(line) for line in out_lines
+                        if line.startswith("EDGE_SE3:QUAT")])
+    np.testing.assert_allclose(written, stated, rtol=1e-12, atol=1e-9)
+    assert 2 * theirs.error(gtsam.readG2o(str(tmp_path / "out.g2o"), True)[1]) == \
+        pytest.approx(data["chi2"], rel=1e-9)
+
+
+def test_cubicle_from_gtsam_read_g2o_is_weighed_as_sesync_reads_it():
+    """The API path: a user's graph from gtsam.readG2o(cubicle) (the noise models alone
+    carry the printed matrices) is extracted with the relaxation's weights equal to SE-Sync's
+    rule on the file's blocks wherever GTSAM's information is beyond use."""
+    path = dataset("3d/cubicle.g2o")
+    graph, values = gtsam.readG2o(str(path), True)
+    stated = np.array([_file_information(line) for line in path.read_text().splitlines()
+                       if line.startswith("EDGE_SE3:QUAT")])
+    pose_graph = PoseGraph3D.from_gtsam(graph, values)
+    beyond = np.array([information_problem_6(m) is not None for m in pose_graph.information])
+    assert beyond.sum() == 4849 and (np.linalg.eigvalsh(stated)[:, 0] < 0).sum() == 5021
+    np.testing.assert_allclose(pose_graph.weighed[beyond], stated[beyond], rtol=1e-9,
+                               atol=1e-6)
+    np.testing.assert_array_equal(pose_graph.weighed[~beyond], pose_graph.information[~beyond])
+    kappa, tau = _sesync_weights(stated[beyond])
+    np.testing.assert_allclose(rotation_weights(pose_graph)[beyond], kappa, rtol=1e-9)
+    np.testing.assert_allclose(translation_weights(pose_graph)[beyond], tau, rtol=1e-9)
+    # a subgraph made by dataclasses.replace (the robust path's) keeps its edges' weights
+    kept = np.arange(1, pose_graph.num_edges, 3)
+    part = replace(pose_graph, edges=pose_graph.edges[kept],
+                   measured_rotations=pose_graph.measured_rotations[kept],
+                   measured_translations=pose_graph.measured_translations[kept],
+                   information=pose_graph.information[kept])
+    np.testing.assert_array_equal(translation_weights(part), translation_weights(pose_graph)[kept])
+
+
+def test_printed_matrices_are_read_back_only_from_partial_factors():
+    """printed_informations: GTSAM's partial factor of an indefinite matrix gives the matrix
+    back; a definite matrix's factor, the product R^T R and False."""
+    coupled = np.diag([10.0, 10.0, 9e4, 2e4, 3e6, 10.0])
+    coupled[0, 5] = coupled[5, 0] = 8.4e4  # cubicle's pattern: z coupled to roll
+    definite = np.diag([4.0, 5.0, 6.0, 7.0, 8.0, 9.0])
+    definite[0, 5] = definite[5, 0] = 1.0
+    factors = np.array([gtsam.noiseModel.Gaussian.Information(m).R()
+                        for m in (coupled, definite)])
+    printed, found = printed_informations(factors)
+    assert found.tolist() == [True, False]
+    np.testing.assert_allclose(printed[0], coupled, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(printed[1], definite, rtol=1e-12)
+    assert np.linalg.eigvalsh(factors[0].T @ factors[0])[-1] > 7e8  # what GTSAM charges
 
 
 def test_rule_lifts_rounding_and_refuses_real_indefiniteness():
@@ -441,8 +529,8 @@ def test_rule_lifts_rounding_and_refuses_real_indefiniteness():
         eigenvalues = np.linalg.eigvalsh(used[k])
         assert eigenvalues[0] == pytest.approx(1e-10, rel=1e-3)  # the largest / 1e11
         assert np.abs(used[k] - (rounding, steep)[k - 1]).max() < 2e-6
-    # indefinite through the coupling alone (both blocks positive definite): the coupling
-    # goes, the blocks stay; an indefinite block is refused
+    # indefinite through the coupling alone (both blocks positive definite): kept as
+    # printed; an indefinite block is refused
     coupled = np.eye(6)
     coupled[0, 3] = coupled[3, 0] = 5.0
     blocks_bad = coupled.copy()
@@ -450,11 +538,10 @@ def test_rule_lifts_rounding_and_refuses_real_indefiniteness():
     turned = matrix(-1e-3, 1, 2, 3, 4, 10)  # its blocks happen to be positive definite
     assert all(np.linalg.eigvalsh(turned[b, b])[0] > 0 for b in (slice(0, 3), slice(3, 6)))
     used, problems, changes = information_rule_3d(np.stack([coupled, blocks_bad, turned]))
-    assert changes == [(UNCOUPLED,), (), (UNCOUPLED,)] and problems[0] is None
-    np.testing.assert_array_equal(used[0], np.eye(6))
+    assert changes == [(INDEFINITE,), (), (INDEFINITE,)] and problems[0] is None
+    np.testing.assert_array_equal(used[0], coupled)
     assert problems[1].startswith("information matrix is not positive definite")
-    np.testing.assert_array_equal(used[2][:3, 3:], 0.0)
-    np.testing.assert_array_equal(used[2][:3, :3], turned[:3, :3])
+    np.testing.assert_array_equal(used[2], turned)
 
 
 def test_reader_refuses_real_indefiniteness_with_the_line(tmp_path):

@@ -179,3 +179,30 @@ def test_matrices_the_rule_changes_read_and_warn_the_same_both_ways(name):
         g2o3d._warn_changes(path, table.changed)
         assert rows == _rows(*g2o3d._build(path, table))
     assert [str(w.message) for w in fast] == [str(w.message) for w in careful]
+
+
+def test_cubicle_is_gtsam_read_g2o_graph_and_writes_its_printed_matrices(tmp_path):
+    """The whole cubicle: the reader's graph is gtsam.readG2o's (the same noise models, the
+    same error to 1e-9 at either's values), and the writer writes the printed matrices of
+    GTSAM's partial factors, which read back to the same models."""
+    path = DATASETS / "3d" / "cubicle.g2o"
+    if not path.exists():
+        pytest.skip(f"{path} not found (set RLPGO_DATASETS)")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        graph, values = g2o3d.read_g2o3d(path)
+    theirs, their_values = gtsam.readG2o(str(path), True)
+    assert graph.size() == theirs.size() == 16869
+    assert all(np.array_equal(graph.at(k).noiseModel().R(), theirs.at(k).noiseModel().R())
+               for k in range(graph.size()))
+    for at in (values, their_values):
+        assert graph.error(at) == pytest.approx(theirs.error(at), rel=1e-9)
+    written = g2o3d._text_fast(theirs, their_values)
+    assert written is not None  # the careful writer agrees: tests/test_cli_3d.py, on its head
+    out = tmp_path / "out.g2o"
+    out.write_text(written[0])
+    back, back_values = gtsam.readG2o(str(out), True)
+    for k in range(0, back.size(), 7):
+        np.testing.assert_allclose(back.at(k).noiseModel().R(), theirs.at(k).noiseModel().R(),
+                                   rtol=1e-9, atol=1e-6)
+    assert back.error(back_values) == pytest.approx(theirs.error(their_values), rel=1e-9)

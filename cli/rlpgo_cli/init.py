@@ -10,7 +10,6 @@ from pathlib import Path
 
 import click
 
-from rlpgo_cli.compare import method_width
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.inputs import read_input
 from rlpgo_cli.output import RunFiles, json_text
@@ -31,7 +30,6 @@ from rlpgo_gtsam.ranking import (
     usable_rows,
 )
 from rlpgo_gtsam.rl.models import DEFAULT_MODEL, model_path
-from rlpgo_gtsam.robust import robust_initialize
 from rlpgo_gtsam.staged import DEFAULT_BUDGET_S, DEFAULT_SEARCHES, staged_initialize
 
 # --method all: every initializer, and the agent from each classical start; on a 3D graph
@@ -220,6 +218,8 @@ def _print_notes(notes: list[str]) -> None:
 
 def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
                 trust_odometry: bool, json_path: Path | None) -> None:
+    from rlpgo_gtsam.robust import robust_initialize  # not on the default's path
+
     run = RunFiles([input_path])
     run.check(output, outliers_out, json_path)  # fail before the work, not after
     dimension = g2o_dimension(input_path)
@@ -387,6 +387,8 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
             click.echo(f"hint: {staged.hint}")
         results, chosen = staged.rows, staged.best
     else:
+        from rlpgo_cli.compare import method_width  # rlpgo-compare's table: not the default's
+
         several = len(methods) > 1
         width = method_width(methods)
         if several:
