@@ -3,20 +3,24 @@ wrong closures and on SE-Sync's small grids."""
 
 from __future__ import annotations
 
+import warnings
+from dataclasses import replace
+
 import gtsam
 import numpy as np
 import pytest
 
 from rlpgo_gtsam.errors import GraphError
 from rlpgo_gtsam.g2o3d import read_g2o3d
-from rlpgo_gtsam.graph3d import PoseGraph3D
+from rlpgo_gtsam.graph3d import PoseGraph3D, extract_pose_graph
 from rlpgo_gtsam.robust import robust_initialize
 from rlpgo_gtsam.robust.gnc import robust_positions
-from rlpgo_gtsam.robust.pipeline import noise_scale
+from rlpgo_gtsam.robust.pipeline import _judged_by_printed, noise_scale
 from rlpgo_gtsam.solvers import refine
 from rlpgo_gtsam.staged import staged_initialize
 from rlpgo_gtsam.synthetic import add_outliers3d, generate3d
 from tests.conftest import dataset
+from tests.test_cli_3d import _cubicle_head
 
 # 200 poses in layers, noisy measurements (0.02 rad, 0.05 m per axis), half the candidates.
 ARGS = (200, 0.02, 0.05, 1.0, 0.5)
@@ -108,3 +112,30 @@ def test_bad_3d_input_is_a_typed_one_line_error():
     values.insert(0, gtsam.Pose3())
     with pytest.raises(GraphError, match="key 1 has no value"):
         robust_initialize(graph, values)
+
+
+def test_the_robust_steps_judge_cubicle_by_its_printed_blocks(tmp_path):
+    """Where GTSAM's model of an edge is its partial Cholesky factor of an indefinite printed
+    matrix (cubicle: translation z weighed far above the printed value), the robust steps
+    judge the edge by the printed rotation and translation blocks, coupling left out; every
+    other factor is the same object, in the same order."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        graph, values = read_g2o3d(_cubicle_head(tmp_path))
+    g = extract_pose_graph(graph, values)
+    assert len(g.printed) > 0
+    judged, judged_g = _judged_by_printed(graph, values, g)
+    assert judged.size() == graph.size()
+    replaced = 0
+    for before, after in zip(g.information, judged_g.information, strict=True):
+        matrix = g.printed.get(before.tobytes())
+        if matrix is None:
+            np.testing.assert_array_equal(after, before)
+            continue
+        replaced += 1
+        np.testing.assert_allclose(after[:3, :3], matrix[:3, :3], rtol=1e-9)
+        np.testing.assert_allclose(after[3:, 3:], matrix[3:, 3:], rtol=1e-9)
+        np.testing.assert_allclose(after[:3, 3:], 0.0, atol=1e-9 * np.abs(matrix).max())
+    assert replaced == 40  # the head's indefinite matrices (tests/test_cli_3d.py)
+    # a graph without printed matrices is judged as it is
+    assert _judged_by_printed(graph, values, replace(g, printed={}))[0] is graph
