@@ -75,8 +75,9 @@ from rlpgo_gtsam.graph3d import (
 from rlpgo_gtsam.se3 import compose, inverse, quaternions_to_rotations, rotations_to_quaternions
 from rlpgo_gtsam.textscan import Text
 
-__all__ = ["read_g2o3d", "write_g2o3d", "g2o3d_text", "g2o3d_text_lines", "G2O_TO_GTSAM",
-           "TAGS_2D", "g2o_dimension", "read_pose_graph", "write_pose_graph", "pose_graph_text"]
+__all__ = ["read_g2o3d", "read_g2o3d_lines", "write_g2o3d", "g2o3d_text", "g2o3d_text_lines",
+           "G2O_TO_GTSAM", "TAGS_2D", "g2o_dimension", "read_pose_graph", "write_pose_graph",
+           "pose_graph_text"]
 
 VERTEX = "VERTEX_SE3:QUAT"
 EDGE = "EDGE_SE3:QUAT"
@@ -155,6 +156,23 @@ def read_g2o3d(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph
     table = _read_table(path, fast=True)
     _warn_changes(path, table.changed)
     return _build(path, table)
+
+
+def read_g2o3d_lines(
+    path: str | os.PathLike[str],
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int]]:
+    """:func:`read_g2o3d`, and the file line (1-based) each factor came from: ``lines[k]`` is
+    the line of ``graph.at(k)`` (the ``EDGE_SE3:QUAT`` lines in file order, then each
+    ``FIX``-ed id's ``FIX`` line), as :func:`rlpgo_gtsam.g2o.read_g2o_lines` in 2D.
+
+    Raises:
+        G2oFormatError: as :func:`read_g2o3d`.
+    """
+    path = Path(path)
+    table = _read_table(path, fast=True)
+    _warn_changes(path, table.changed)
+    graph, values = _build(path, table)
+    return graph, values, [*table.edge_lines.tolist(), *(line for _, line in table.fixed)]
 
 
 def _read_table(path: Path, fast: bool) -> _Table:

@@ -223,13 +223,10 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
     run = RunFiles([input_path])
     run.check(output, outliers_out, json_path)  # fail before the work, not after
     dimension = g2o_dimension(input_path)
-    if dimension == 3 and outliers_out is not None:
-        raise RlpgoError(f"{input_path} holds a 3D pose graph: --outliers-out lists planar "
-                         "edges (EDGE_SE2 lines) only, so far")
     notes: list[str] = []
     if dimension == 3:
-        read = read_input(input_path)
-        graph, values, lines, notes = read.graph, read.values, [], read.notes
+        read = read_input(input_path, lines=True)
+        graph, values, lines, notes = read.graph, read.values, read.lines, read.notes
         _print_notes(notes)
     else:
         graph, values, lines = read_g2o_lines(input_path)
@@ -252,7 +249,8 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
     files = [(output, pose_graph_text(graph, result.values).encode())]  # every edge, new vertices
     if outliers_out is not None:
         listed = edge_list_text(graph, result.rejected, lines, g2o_name=input_path.name,
-                                title="edges that rlpgo-init --robust judged wrong")
+                                title="edges that rlpgo-init --robust judged wrong",
+                                tag="EDGE_SE3:QUAT" if dimension == 3 else "EDGE_SE2")
         # a file name that is not UTF-8 comes back as the bytes it was
         files.append((outliers_out, listed.encode("utf-8", "surrogateescape")))
     seconds = time.perf_counter() - began

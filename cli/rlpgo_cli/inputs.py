@@ -9,7 +9,7 @@ from pathlib import Path
 import gtsam
 
 from rlpgo_gtsam.errors import InformationWarning
-from rlpgo_gtsam.g2o3d import read_pose_graph
+from rlpgo_gtsam.g2o3d import read_g2o3d_lines, read_pose_graph
 
 
 @dataclass
@@ -26,14 +26,19 @@ class InputGraph:
     graph: gtsam.NonlinearFactorGraph
     values: gtsam.Values
     notes: list[str] = field(default_factory=list)
+    lines: list[int] = field(default_factory=list)  # each factor's file line (3D, on request)
 
 
-def read_input(path: Path) -> InputGraph:
+def read_input(path: Path, lines: bool = False) -> InputGraph:
     """Read a planar or a 3D g2o file (:func:`~rlpgo_gtsam.g2o3d.read_pose_graph`), with the
-    reader's information warnings as notes; any other warning is passed on."""
+    reader's information warnings as notes; any other warning is passed on. ``lines``: a 3D
+    file is read with each factor's line (:func:`~rlpgo_gtsam.g2o3d.read_g2o3d_lines`)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", InformationWarning)
-        graph, values = read_pose_graph(path)
+        if lines:
+            graph, values, factor_lines = read_g2o3d_lines(path)
+        else:
+            (graph, values), factor_lines = read_pose_graph(path), []
     notes = []
     for warning in caught:
         if issubclass(warning.category, InformationWarning):
@@ -41,4 +46,4 @@ def read_input(path: Path) -> InputGraph:
         else:
             warnings.warn_explicit(warning.message, warning.category, warning.filename,
                                    warning.lineno)
-    return InputGraph(graph, values, notes)
+    return InputGraph(graph, values, notes, factor_lines)
