@@ -53,6 +53,7 @@ from rlpgo_gtsam.g2o import (
     plain_keys,
     read_either,
     read_g2o,
+    read_g2o_lines,
     scan_blocks,
     short_token,
     texts_15,
@@ -76,8 +77,8 @@ from rlpgo_gtsam.se3 import compose, inverse, quaternions_to_rotations, rotation
 from rlpgo_gtsam.textscan import Text
 
 __all__ = ["read_g2o3d", "read_g2o3d_lines", "write_g2o3d", "g2o3d_text", "g2o3d_text_lines",
-           "G2O_TO_GTSAM", "TAGS_2D", "g2o_dimension", "read_pose_graph", "write_pose_graph",
-           "pose_graph_text"]
+           "G2O_TO_GTSAM", "TAGS_2D", "g2o_dimension", "read_pose_graph", "read_pose_graph_lines",
+           "write_pose_graph", "pose_graph_text"]
 
 VERTEX = "VERTEX_SE3:QUAT"
 EDGE = "EDGE_SE3:QUAT"
@@ -152,10 +153,8 @@ def read_g2o3d(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph
         G2oFormatError: the file is missing, unreadable or malformed, or its graph is not
             connected; the message names the file and the line.
     """
-    path = Path(path)
-    table = _read_table(path, fast=True)
-    _warn_changes(path, table.changed)
-    return _build(path, table)
+    graph, values, _ = _read(Path(path))
+    return graph, values
 
 
 def read_g2o3d_lines(
@@ -168,11 +167,15 @@ def read_g2o3d_lines(
     Raises:
         G2oFormatError: as :func:`read_g2o3d`.
     """
-    path = Path(path)
+    graph, values, table = _read(Path(path))
+    return graph, values, [*table.edge_lines.tolist(), *(line for _, line in table.fixed)]
+
+
+def _read(path: Path) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, _Table]:
+    """The file's graph, values and table, the information rule's changes warned of."""
     table = _read_table(path, fast=True)
     _warn_changes(path, table.changed)
-    graph, values = _build(path, table)
-    return graph, values, [*table.edge_lines.tolist(), *(line for _, line in table.fixed)]
+    return (*_build(path, table), table)
 
 
 def _read_table(path: Path, fast: bool) -> _Table:
@@ -743,6 +746,18 @@ def read_pose_graph(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactor
         G2oFormatError: as the reader of the file's dimension.
     """
     return read_g2o3d(path) if g2o_dimension(path) == 3 else read_g2o(path)
+
+
+def read_pose_graph_lines(
+    path: str | os.PathLike[str],
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int]]:
+    """:func:`read_pose_graph`, and the file line of each factor
+    (:func:`~rlpgo_gtsam.g2o.read_g2o_lines` or :func:`read_g2o3d_lines`).
+
+    Raises:
+        G2oFormatError: as the reader of the file's dimension.
+    """
+    return read_g2o3d_lines(path) if g2o_dimension(path) == 3 else read_g2o_lines(path)
 
 
 def pose_graph_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:

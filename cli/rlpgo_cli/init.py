@@ -15,7 +15,7 @@ from rlpgo_cli.inputs import read_input
 from rlpgo_cli.output import RunFiles, json_text
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, FiniteFloat, OutputFile
 from rlpgo_gtsam.errors import RlpgoError
-from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text, read_g2o_lines
+from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text
 from rlpgo_gtsam.g2o3d import g2o_dimension, pose_graph_text
 from rlpgo_gtsam.graph import chi2
 from rlpgo_gtsam.graph3d import extract_pose_graph
@@ -222,14 +222,9 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
 
     run = RunFiles([input_path])
     run.check(output, outliers_out, json_path)  # fail before the work, not after
-    dimension = g2o_dimension(input_path)
-    notes: list[str] = []
-    if dimension == 3:
-        read = read_input(input_path, lines=True)
-        graph, values, lines, notes = read.graph, read.values, read.lines, read.notes
-        _print_notes(notes)
-    else:
-        graph, values, lines = read_g2o_lines(input_path)
+    read = read_input(input_path, lines=True)
+    graph, values, lines, notes = read.graph, read.values, read.lines, read.notes
+    _print_notes(notes)
     began = time.perf_counter()
     pose_graph = extract_pose_graph(graph, values)
     if pose_graph.dimension == 3:  # the robust path takes what it can: its error otherwise
@@ -250,7 +245,7 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
     if outliers_out is not None:
         listed = edge_list_text(graph, result.rejected, lines, g2o_name=input_path.name,
                                 title="edges that rlpgo-init --robust judged wrong",
-                                tag="EDGE_SE3:QUAT" if dimension == 3 else "EDGE_SE2")
+                                tag="EDGE_SE3:QUAT" if pose_graph.dimension == 3 else "EDGE_SE2")
         # a file name that is not UTF-8 comes back as the bytes it was
         files.append((outliers_out, listed.encode("utf-8", "surrogateescape")))
     seconds = time.perf_counter() - began

@@ -9,7 +9,7 @@ from pathlib import Path
 import gtsam
 
 from rlpgo_gtsam.errors import InformationWarning
-from rlpgo_gtsam.g2o3d import read_g2o3d_lines, read_pose_graph
+from rlpgo_gtsam.g2o3d import read_pose_graph, read_pose_graph_lines
 
 
 @dataclass
@@ -26,17 +26,17 @@ class InputGraph:
     graph: gtsam.NonlinearFactorGraph
     values: gtsam.Values
     notes: list[str] = field(default_factory=list)
-    lines: list[int] = field(default_factory=list)  # each factor's file line (3D, on request)
+    lines: list[int] = field(default_factory=list)  # each factor's file line, on request
 
 
 def read_input(path: Path, lines: bool = False) -> InputGraph:
     """Read a planar or a 3D g2o file (:func:`~rlpgo_gtsam.g2o3d.read_pose_graph`), with the
-    reader's information warnings as notes; any other warning is passed on. ``lines``: a 3D
-    file is read with each factor's line (:func:`~rlpgo_gtsam.g2o3d.read_g2o3d_lines`)."""
+    reader's information warnings as notes; any other warning is passed on. ``lines``: with
+    each factor's file line (:func:`~rlpgo_gtsam.g2o3d.read_pose_graph_lines`)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", InformationWarning)
         if lines:
-            graph, values, factor_lines = read_g2o3d_lines(path)
+            graph, values, factor_lines = read_pose_graph_lines(path)
         else:
             (graph, values), factor_lines = read_pose_graph(path), []
     notes = []
