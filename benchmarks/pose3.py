@@ -3,12 +3,19 @@ each refined by GTSAM LM30, against SE-Sync + LM30 measured in the same run; wit
 ``--generated``, on the project's hard 3D graphs instead.
 
     python benchmarks/pose3.py [--files tinyGrid3D,...] [--time-limit 120] [--sesync BIN]
+        [--repeats 3]
     python benchmarks/pose3.py --generated [--n 500,1000] [--sigma-r 0.3,0.4] [--seeds 0,1,2]
-        [--sesync BIN]
+        [--sesync BIN] [--repeats 3]
 
 Per file: ``certified3d`` (status, rank, CPU seconds) and chi2 after LM30 from its estimate;
 ``InitializePose3`` (with a prior on the first pose) + LM30: chi2 and seconds; the in-process
 CPU seconds (``time.process_time``) of certified + LM30 against SE-Sync's wall seconds + LM30.
+Both sides are timed warm and by the median of ``--repeats`` runs (default 3): before the
+first row, the first case is run once untimed (ours, InitializePose3 and the SE-Sync driver:
+imports, first calls and the driver's first load are not charged to it); then certified3d +
+LM30 and SE-Sync + LM30 each run ``--repeats`` times on each case, their seconds the medians
+(the runs give the same estimate; chi2 and certificates are the first run's); InitializePose3
+runs once.
 SE-Sync runs through its driver (``benchmarks/sesync``: ``--sesync`` or
 ``$RLPGO_SESYNC_BINARY``, default options, BLAS on one thread): its seconds are the driver's
 wall time of the whole ``SESync()`` call, its certificate the driver's (verification passed
@@ -71,41 +78,56 @@ def _lm30(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[floa
     return 2.0 * graph.error(result), time.process_time() - start, None
 
 
-def _sesync(graph: gtsam.NonlinearFactorGraph, path: Path, binary: Path | None) -> dict:
+def _sesync(graph: gtsam.NonlinearFactorGraph, path: Path, binary: Path | None,
+            repeats: int = 1) -> dict:
     """SE-Sync's figures for one file: the driver's run, then the same LM30 as ours from its
-    re-anchored estimate; all None without a driver."""
+    re-anchored estimate (seconds: medians of ``repeats`` runs); all None without a driver."""
     row: dict = dict.fromkeys(("sesync_seconds", "sesync_certified", "sesync_status",
                                "sesync_rank", "sesync_bound", "sesync_failure",
                                "sesync_lm30_chi2", "sesync_lm30_seconds",
                                "sesync_lm30_failure"))
     if binary is None:
         return row
-    try:
-        run = run_sesync(binary, path)
-    except RuntimeError as error:
-        row["sesync_failure"] = one_line(error)
-        return row
-    row.update(sesync_seconds=run.seconds, sesync_certified=run.certified,
-               sesync_status=run.status, sesync_rank=run.rank,
-               sesync_bound=run.suboptimality_bound)
-    chi2, seconds, failure = _lm30(graph, to_values(run.ids, run.poses))
-    row.update(sesync_lm30_chi2=chi2, sesync_lm30_seconds=seconds, sesync_lm30_failure=failure)
+    runs, lm30 = [], []
+    for _ in range(repeats):
+        try:
+            runs.append(run_sesync(binary, path))
+        except RuntimeError as error:
+            row["sesync_failure"] = one_line(error)
+            return row
+        lm30.append(_lm30(graph, to_values(runs[-1].ids, runs[-1].poses)))
+    run, (chi2, _, failure) = runs[0], lm30[0]
+    row.update(sesync_seconds=_median([r.seconds for r in runs]),
+               sesync_certified=run.certified, sesync_status=run.status, sesync_rank=run.rank,
+               sesync_bound=run.suboptimality_bound, sesync_lm30_chi2=chi2,
+               sesync_lm30_seconds=_median([seconds for _, seconds, _ in lm30]),
+               sesync_lm30_failure=failure, sesync_runs_seconds=[r.seconds for r in runs])
     return row
 
 
+def _median(values: list[float]) -> float:
+    return float(np.median(values))
+
+
 def _ours(graph: gtsam.NonlinearFactorGraph, pose_graph: PoseGraph3D,
-          time_limit: float) -> dict:
-    """certified3d + LM30 and InitializePose3 + LM30: chi2, CPU seconds, certificate."""
+          time_limit: float, repeats: int = 1) -> dict:
+    """certified3d + LM30 (seconds: medians of ``repeats`` runs) and InitializePose3 + LM30:
+    chi2, CPU seconds, certificate."""
     row: dict = {}
-    start = time.process_time()
-    certified = Certified3D(time_limit_s=time_limit).run(pose_graph)
-    row["certified_seconds"] = time.process_time() - start
+    runs = []  # (certified seconds, its result, LM30's chi2, seconds, failure)
+    for _ in range(repeats):
+        start = time.process_time()
+        certified = Certified3D(time_limit_s=time_limit).run(pose_graph)
+        runs.append((time.process_time() - start, certified,
+                     *_lm30(graph, certified.values)))
+    _, certified, chi2, _, failure = runs[0]
+    row["certified_seconds"] = _median([r[0] for r in runs])
     row["certificate"] = certified.certificate.record()
     row["certified_chi2_before_lm"] = certified.chi2
-    chi2, seconds, failure = _lm30(graph, certified.values)
-    row.update(certified_lm30_chi2=chi2, certified_lm30_seconds=seconds,
+    row.update(certified_lm30_chi2=chi2, certified_lm30_seconds=_median([r[3] for r in runs]),
                certified_lm30_failure=failure,
-               in_process_seconds=row["certified_seconds"] + seconds)
+               in_process_seconds=_median([r[0] + r[3] for r in runs]),
+               in_process_runs_seconds=[r[0] + r[3] for r in runs])
     start = time.process_time()
     try:
         initial = InitializePose3().run(pose_graph)
@@ -128,21 +150,21 @@ def _targets(row: dict) -> dict:
             row["certificate"]["certified"] or not row["sesync_certified"]}
 
 
-def _case(name: str, time_limit: float, sesync: Path | None) -> dict:
+def _case(name: str, time_limit: float, sesync: Path | None, repeats: int = 1) -> dict:
     path = DATA / f"{name}.g2o"
     graph, values = gtsam.readG2o(str(path), True)
     pose_graph = PoseGraph3D.from_gtsam(graph, values)
     row: dict = {"file": name, "poses": pose_graph.num_poses, "edges": pose_graph.num_edges,
                  "weighed_printed": int(np.any(pose_graph.weighed != pose_graph.information,
                                                axis=(1, 2)).sum())}
-    row.update(_ours(graph, pose_graph, time_limit))
-    row.update(_sesync(graph, path, sesync))
+    row.update(_ours(graph, pose_graph, time_limit, repeats))
+    row.update(_sesync(graph, path, sesync, repeats))
     row.update(_targets(row))
     return row
 
 
 def _generated_case(n: int, sigma_r: float, seed: int, time_limit: float,
-                    sesync: Path | None, folder: Path) -> dict:
+                    sesync: Path | None, folder: Path, repeats: int = 1) -> dict:
     """One generated graph: ours (:func:`_ours`), SE-Sync + LM30 on its g2o file, and LM30
     from the ground truth (a reference: the lowest chi2 known for the graph)."""
     sigma_t, d, lc = GENERATED
@@ -155,11 +177,11 @@ def _generated_case(n: int, sigma_r: float, seed: int, time_limit: float,
                  "sigma_t": sigma_t, "d": d, "lc": lc, "seed": seed,
                  "command": f"generate3d({n}, {sigma_r:g}, {sigma_t:g}, {d:g}, {lc:g}, "
                             f"default_rng({seed}), noisy_measurements=True)"}
-    row.update(_ours(graph, pose_graph, time_limit))
+    row.update(_ours(graph, pose_graph, time_limit, repeats))
     row["truth_lm30_chi2"] = _lm30(graph, sample.ground_truth)[0]
     path = folder / f"{name}.g2o"
     write_g2o3d(path, graph, sample.initial)
-    row.update(_sesync(graph, path, sesync))
+    row.update(_sesync(graph, path, sesync, repeats))
     row.update(_targets(row))
     return row
 
@@ -243,30 +265,40 @@ def main() -> None:
                         "$RLPGO_SESYNC_BINARY; without one the SE-Sync columns are left empty)")
     parser.add_argument("--name", default=None,
                         help="results file name (default pose3, pose3_generated)")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="timed runs of ours and of SE-Sync per case (the medians are "
+                        "reported), after one untimed run of the first case")
     args = parser.parse_args()
+    if args.repeats < 1:
+        parser.error("--repeats must be 1 or more")
     check_binaries(parser, args, ("sesync",))
     print(f"SE-Sync driver: {args.sesync or 'none (SE-Sync columns left empty)'}", flush=True)
     sesync = None if args.sesync is None else Path(args.sesync)
     rows = []
     if args.generated:
+        cases = [(n, sigma_r, seed) for n in map(int, args.n.split(","))
+                 for sigma_r in map(float, args.sigma_r.split(","))
+                 for seed in map(int, args.seeds.split(","))]
         with tempfile.TemporaryDirectory(prefix="pose3_generated_") as folder:
-            for n in map(int, args.n.split(",")):
-                for sigma_r in map(float, args.sigma_r.split(",")):
-                    for seed in map(int, args.seeds.split(",")):
-                        rows.append(_generated_case(n, sigma_r, seed, args.time_limit, sesync,
-                                                    Path(folder)))
-                        _print_row(rows[-1])
+            _generated_case(*cases[0], args.time_limit, sesync, Path(folder))  # warm-up
+            for case in cases:
+                rows.append(_generated_case(*case, args.time_limit, sesync, Path(folder),
+                                            args.repeats))
+                _print_row(rows[-1])
         table, name = _generated_table(rows), args.name or "pose3_generated"
     else:
-        for file in args.files.split(","):
-            rows.append(_case(file, args.time_limit, sesync))
+        files = args.files.split(",")
+        _case(files[0], args.time_limit, sesync)  # warm-up, untimed
+        for file in files:
+            rows.append(_case(file, args.time_limit, sesync, args.repeats))
             _print_row(rows[-1])
         table, name = _table(rows), args.name or "pose3"
     print(table)
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / f"{name}.json").write_text(json.dumps(
         {"command": "python benchmarks/pose3.py " + " ".join(sys.argv[1:]),
-         "sesync": None if sesync is None else str(sesync), "rows": rows},
+         "sesync": None if sesync is None else str(sesync), "repeats": args.repeats,
+         "warm_up": "the first case, run once untimed", "rows": rows},
         indent=2) + "\n")
     (RESULTS / f"{name}.md").write_text(table)
 

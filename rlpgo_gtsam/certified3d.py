@@ -10,7 +10,9 @@ with SE-Sync's weights for d = 3 (:func:`~rlpgo_gtsam.graph3d.rotation_weights`,
 held) leaves ``f(X) = tr(X^T Q X)`` with ``X`` the 3n x r matrix of stacked blocks
 ``X_i = R_i^T`` (3 x r at rank r) and ``Q = D - B^T L^-1 B`` (SE-Sync's simplified
 ``L(G^rho) + Q^tau``), applied through one sparse factorization of the anchored translation
-Laplacian ``L``, never formed. Rows of each block ``X_i`` are orthonormal: ``X_i^T`` is a
+Laplacian ``L``, never formed; below ``_DENSE_BELOW`` rows (graphs of fewer than 50 poses)
+``Q`` is formed as a dense matrix instead, and its factors are dense (scipy's sparse set-up
+cost more than the whole solve there). Rows of each block ``X_i`` are orthonormal: ``X_i^T`` is a
 point of the Stiefel manifold St(3, r), and SE-Sync's ``Y`` is ``X^T``.
 
 How (as :mod:`rlpgo_gtsam.certified`, in real 3x3 blocks). A Riemannian staircase: at each
@@ -68,7 +70,12 @@ from rlpgo_gtsam.staircase import (
 
 __all__ = ["synchronize3d", "certify3d", "relaxation_cost3d"]
 
-_DENSE_BELOW = 150  # rows of Q (3n) below which eigenvalues are computed densely
+# Rows of Q (3n) below which Q is a dense matrix: its products, the preconditioner's factor
+# and S's eigenvalues are dense. Certified3D's steady run on generated graphs (CPU ms, sparse
+# Q against dense, the translation step sparse): 10 poses 10.7 / 5.7, 25: 19.6 / 11.9,
+# 40: 20.5 / 15.9, 50: 24.0 / 20.2, 60: 27.6 / 27.1, 80: 29.0 / 37.5. 150 keeps every graph
+# of 50 poses or more on the sparse path it had.
+_DENSE_BELOW = 150
 _REFLECT = np.diag([1.0, 1.0, -1.0])
 # (Q + delta I)^-1 preconditions the Hessian; delta / mean(diag D). The planar 1e-3 took
 # 1.5x the inner iterations on parking-garage; 1e-7 stalls at round-off.
@@ -178,6 +185,14 @@ def _blocks(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> tuple:
     return values.ravel(), r.ravel(), c.ravel()
 
 
+def _dense(data: np.ndarray, index: tuple[np.ndarray, np.ndarray],
+           shape: tuple[int, int]) -> np.ndarray:
+    """The dense matrix of COO entries (duplicates summed, as ``sp.coo_matrix``)."""
+    flat = np.bincount(index[0] * shape[1] + index[1], weights=data,
+                       minlength=shape[0] * shape[1])
+    return flat.reshape(shape)
+
+
 class _Problem(Relaxation):
     """Q = D - B^T L^-1 B applied as an operator on (3n, r) arrays.
 
@@ -208,31 +223,47 @@ class _Problem(Relaxation):
             _blocks(j, i, -kappa[:, None, None] * np.transpose(g.measured_rotations, (0, 2, 1))),
         ]
         data, rows, cols = (np.concatenate(p) for p in zip(*parts, strict=True))
-        self.d = sp.csr_matrix((data, (rows, cols)), shape=(3 * n, 3 * n))
         self.n = n
+        self.dense = 3 * n < _STIEFEL.dense_below
+        self._layout: tuple[sp.csc_matrix, np.ndarray, np.ndarray] | None = None
         keep = np.delete(np.arange(n), g.anchor)
-        lap = sp.coo_matrix((np.concatenate([tau, tau, -tau, -tau]),
-                             (np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i]))),
-                            shape=(n, n)).tocsr()
         cols3 = (3 * i[:, None] + np.arange(3)).ravel()
-        coupling = sp.coo_matrix(
-            (np.concatenate([(tau[:, None] * t).ravel(), -(tau[:, None] * t).ravel()]),
-             (np.concatenate([np.repeat(j, 3), np.repeat(i, 3)]), np.concatenate([cols3, cols3]))),
-            shape=(n, 3 * n)).tocsr()
-        self.lap = lap[keep][:, keep].tocsc()
-        self.b = coupling[keep].tocsr()
-        self.bt = self.b.T.tocsr()
-        try:
-            self.lap_lu = splu(self.lap, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                               options={"SymmetricMode": True})
-        except RuntimeError:
-            raise SolverError("the measurements do not determine the translations") from None
-        self.scale = float(np.mean(self.d.diagonal()))
+        matrices = [
+            ((data, (rows, cols)), (3 * n, 3 * n)),  # D
+            ((np.concatenate([tau, tau, -tau, -tau]),  # the translation Laplacian
+              (np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i]))), (n, n)),
+            ((np.concatenate([(tau[:, None] * t).ravel(), -(tau[:, None] * t).ravel()]),
+              (np.concatenate([np.repeat(j, 3), np.repeat(i, 3)]),  # the coupling
+               np.concatenate([cols3, cols3]))), (n, 3 * n)),
+        ]
+        if self.dense:
+            d, lap, coupling = (_dense(*entries, shape) for entries, shape in matrices)
+            self.scale = float(np.mean(np.diagonal(d)))
+            try:  # Q = D - W^T W, W = C^-1 B and C C^T = L
+                w = np.linalg.solve(np.linalg.cholesky(lap[np.ix_(keep, keep)]), coupling[keep])
+            except np.linalg.LinAlgError:
+                raise SolverError("the measurements do not determine the translations") from None
+            self.q = d - w.T @ w
+        else:
+            d, lap, coupling = (sp.coo_matrix(entries, shape=shape).tocsr()
+                                for entries, shape in matrices)
+            self.d = d
+            self.lap = lap[keep][:, keep].tocsc()
+            self.b = coupling[keep].tocsr()
+            self.bt = self.b.T.tocsr()
+            try:
+                self.lap_lu = splu(self.lap, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                                   options={"SymmetricMode": True})
+            except RuntimeError:
+                raise SolverError("the measurements do not determine the translations") from None
+            self.scale = float(np.mean(self.d.diagonal()))
         if not self.scale > 0:
             raise SolverError("every edge has zero information: nothing to synchronize")
 
     def apply(self, x: np.ndarray) -> np.ndarray:
         """Q x for x (3n, r)."""
+        if self.dense:
+            return self.q @ x
         w = self.lap_lu.solve(np.ascontiguousarray(self.b @ x))
         return self.d @ x - self.bt @ w
 
@@ -241,15 +272,57 @@ class _Problem(Relaxation):
 
     def factor(self, blocks: np.ndarray):
         """Pivot-free sparse LU of [[L, -B], [-B^T, D + M]], M block diagonal of (n, 3, 3)
-        ``blocks``: its Schur complement is Q + M."""
-        index = np.arange(self.n)
-        data, rows, cols = _blocks(index, index, blocks)
-        shift = sp.csr_matrix((data, (rows, cols)), shape=(3 * self.n, 3 * self.n))
-        block = sp.bmat([[self.lap, -self.b], [-self.bt, self.d + shift]], format="csc")
+        ``blocks``: its Schur complement is Q + M. A dense problem's: the inverse of Q + M
+        (from its Cholesky factor; RuntimeError where Q + M is not positive definite, as the
+        LU's on a zero pivot); it only preconditions, as S is then verified densely."""
+        if self.dense:
+            shifted = self.q.copy()
+            index = np.arange(self.n)
+            shifted.reshape(self.n, 3, self.n, 3)[index, :, index, :] += blocks
+            try:
+                inverse = np.linalg.inv(np.linalg.cholesky(shifted))
+            except np.linalg.LinAlgError:
+                raise RuntimeError("not positive definite") from None
+            return inverse.T @ inverse
+        if self._layout is None:
+            self._layout = self._block_layout()
+        base, where, in_d = self._layout
+        data = base.data.copy()
+        data[where] += np.asarray(blocks, float).ravel()
+        kept = ~(in_d & (data == 0))  # D + M's zeros left out, as sparse addition leaves them
+        if kept.all():
+            block = sp.csc_matrix((data, base.indices, base.indptr), shape=base.shape)
+        else:
+            indptr = np.concatenate([[0], np.cumsum(kept)])[base.indptr]
+            block = sp.csc_matrix((data[kept], base.indices[kept], indptr), shape=base.shape)
         return splu(block, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                     options={"SymmetricMode": True})
 
+    def _block_layout(self) -> tuple[sp.csc_matrix, np.ndarray, np.ndarray]:
+        """``[[L, -B], [-B^T, D]]`` with the block diagonal of D's rows stored (explicit
+        zeros where D has none), the positions in its data of those blocks' entries in
+        :func:`_blocks` order (a shift is added there, without building the matrix again),
+        and which of its entries lie in the D block."""
+        m, index = self.n - 1, np.arange(self.n)
+        _, rows, cols = _blocks(index, index, np.zeros((self.n, 3, 3)))
+        marks = np.arange(1.0, len(rows) + 1.0)
+        stacked = sp.bmat([[self.lap, -self.b], [-self.bt, self.d]], format="coo")
+        entries = (np.concatenate([stacked.row, rows + m]),
+                   np.concatenate([stacked.col, cols + m]))
+        shape = stacked.shape
+        base = sp.coo_matrix((np.concatenate([stacked.data, np.zeros(len(rows))]), entries),
+                             shape=shape).tocsc()
+        marked = sp.coo_matrix((np.concatenate([np.zeros(len(stacked.data)), marks]), entries),
+                               shape=shape).tocsc()
+        where = np.empty(len(rows), np.int64)
+        mask = marked.data > 0
+        where[(marked.data[mask] - 1).astype(np.int64)] = np.flatnonzero(mask)
+        columns = np.repeat(np.arange(shape[1]), np.diff(base.indptr))
+        return base, where, (base.indices >= m) & (columns >= m)
+
     def solve_shifted(self, lu, v: np.ndarray) -> np.ndarray:
+        if self.dense:
+            return lu @ v
         m = self.n - 1
         return lu.solve(np.vstack([np.zeros((m, v.shape[1])), v]))[m:]
 
@@ -257,7 +330,7 @@ class _Problem(Relaxation):
 # --- the product of Stiefel manifolds St(3, r)^n ------------------------------------------
 
 def _sym(a: np.ndarray) -> np.ndarray:
-    return 0.5 * (a + np.transpose(a, (0, 2, 1)))
+    return 0.5 * (a + a.transpose(0, 2, 1))
 
 
 class _Stiefel(Manifold):
@@ -268,13 +341,13 @@ class _Stiefel(Manifold):
         return 3 * n
 
     def inner(self, a: np.ndarray, b: np.ndarray) -> float:
-        return float(np.sum(a * b))
+        return float((a * b).sum())
 
     def project(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """V_i - sym(V_i X_i^T) X_i."""
         r = x.shape[1]
         xb, vb = x.reshape(-1, 3, r), v.reshape(-1, 3, r)
-        return (vb - _sym(vb @ np.transpose(xb, (0, 2, 1))) @ xb).reshape(-1, r)
+        return (vb - _sym(vb @ xb.transpose(0, 2, 1)) @ xb).reshape(-1, r)
 
     def retract(self, x: np.ndarray) -> np.ndarray:
         """Each 3 x r block replaced by its polar factor (orthonormal rows)."""
@@ -285,7 +358,7 @@ class _Stiefel(Manifold):
     def multipliers(self, x: np.ndarray, qx: np.ndarray) -> np.ndarray:
         r = x.shape[1]
         xb, qb = x.reshape(-1, 3, r), qx.reshape(-1, 3, r)
-        return _sym(qb @ np.transpose(xb, (0, 2, 1)))
+        return _sym(qb @ xb.transpose(0, 2, 1))
 
     def times(self, lam: np.ndarray, v: np.ndarray) -> np.ndarray:
         r = v.shape[1]

@@ -13,7 +13,7 @@ from rlpgo_gtsam import se3
 from rlpgo_gtsam.certified import Status
 from rlpgo_gtsam.certified3d import certify3d, synchronize3d
 from rlpgo_gtsam.chordal3d import chordal_rotations
-from rlpgo_gtsam.errors import G2oFormatError, GraphError
+from rlpgo_gtsam.errors import G2oFormatError, GraphError, SolverError
 from rlpgo_gtsam.g2o3d import g2o3d_text, read_g2o3d, write_g2o3d
 from rlpgo_gtsam.graph import chi2
 from rlpgo_gtsam.graph3d import PoseGraph3D, edge_chi2
@@ -259,6 +259,63 @@ def test_certified_on_a_noisy_graph_is_certified_and_refined_by_gtsam():
     assert result.poses.shape == (50, 3, 4)
     chordal = INITIALIZERS_3D["chordal"]().run(PoseGraph3D.from_gtsam(graph, values))
     assert result.chi2 <= chordal.chi2 * 1.5
+
+
+@pytest.mark.parametrize("case", ["tinyGrid3D", "generated"])
+def test_the_dense_path_of_small_graphs_agrees_with_the_sparse_one(monkeypatch, case):
+    """Below the dense sizes (Q of rows < dense_below, normal equations of fewer unknowns
+    than translations3d's threshold) the relaxation, the chordal estimate and the
+    translation step are solved densely: the same certificate and estimate as the sparse
+    path, to round-off."""
+    import dataclasses
+
+    import rlpgo_gtsam.certified3d as certified3d
+    import rlpgo_gtsam.translations3d as translations3d
+
+    if case == "tinyGrid3D":
+        graph, values = gtsam.readG2o(str(DATA / "tinyGrid3D.g2o"), True)
+    else:
+        graph, values, _, _ = _exact_graph(np.random.default_rng(3), n=40, closures=20,
+                                           noise=0.05)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    assert 3 * g.num_poses < certified3d._STIEFEL.dense_below
+    assert 3 * (g.num_poses - 1) < translations3d._DENSE_BELOW
+    assert certified3d._Problem(g).dense
+    dense = INITIALIZERS_3D["certified"]().run(g)
+    monkeypatch.setattr(certified3d, "_STIEFEL",
+                        dataclasses.replace(certified3d._STIEFEL, dense_below=0))
+    monkeypatch.setattr(translations3d, "_DENSE_BELOW", 0)
+    assert not certified3d._Problem(g).dense
+    sparse = INITIALIZERS_3D["certified"]().run(g)
+    a, b = dense.certificate, sparse.certificate
+    assert a.status == b.status == Status.CERTIFIED and a.rank == b.rank == 3
+    scale = abs(b.estimate_cost)
+    for field in ("lower_bound", "estimate_cost"):
+        assert getattr(a, field) == pytest.approx(getattr(b, field), rel=1e-10)
+    assert abs(a.min_eigenvalue - b.min_eigenvalue) <= 1e-10 * scale
+    assert a.suboptimality_bound <= a.tolerance * 3 * g.num_poses
+    assert np.allclose(dense.poses, sparse.poses, atol=1e-9)
+    assert dense.chi2 == pytest.approx(sparse.chi2, rel=1e-10)
+
+
+def test_an_undetermined_pose_is_named_alike_by_the_dense_and_the_sparse_solve(monkeypatch):
+    """A dense factor that fails hands over to the sparse LU, whose pivots name the pose."""
+    import rlpgo_gtsam.translations3d as translations3d
+
+    blocks = np.broadcast_to(np.eye(3), (3, 3, 3))
+    edges = np.array([[0, 1], [1, 3], [0, 3]])  # pose 2 is in no edge
+    messages = []
+    for dense_below in (0, 10**6):
+        monkeypatch.setattr(translations3d, "_DENSE_BELOW", dense_below)
+        with pytest.raises(SolverError, match="undetermined") as error:
+            translations3d.solve_block_pairwise(4, edges, -blocks, blocks, np.ones((3, 3)),
+                                                np.array([0]), np.zeros((1, 3)))
+        messages.append(str(error.value))
+        solved = translations3d.solve_block_pairwise(3, edges[:1], -blocks[:1], blocks[:1],
+                                                     np.ones((1, 3)), np.array([0, 2]),
+                                                     np.zeros((2, 3)))
+        assert np.allclose(solved, [[0, 0, 0], [1, 1, 1], [0, 0, 0]])
+    assert messages[0] == messages[1]
 
 
 def test_certified_above_rank_three_polishes_its_rounded_rotations(monkeypatch):
