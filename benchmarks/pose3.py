@@ -15,7 +15,7 @@ first row, the first case is run once untimed (ours, InitializePose3 and the SE-
 imports, first calls and the driver's first load are not charged to it); then certified3d +
 LM30 and SE-Sync + LM30 each run ``--repeats`` times on each case, their seconds the medians
 (the runs give the same estimate; chi2 and certificates are the first run's); InitializePose3
-runs once.
+runs once. Seconds are printed with 3 significant digits.
 SE-Sync runs through its driver (``benchmarks/sesync``: ``--sesync`` or
 ``$RLPGO_SESYNC_BINARY``, default options, BLAS on one thread): its seconds are the driver's
 wall time of the whole ``SESync()`` call, its certificate the driver's (verification passed
@@ -195,9 +195,9 @@ def _sesync_cells(r: dict) -> tuple[str, str, str]:
     certified = f"{'yes' if r['sesync_certified'] else 'no'} ({r['sesync_rank']})"
     if r["sesync_lm30_chi2"] is None:
         return certified, f"fails: {r['sesync_lm30_failure'][:60]}", \
-            f"{r['sesync_seconds']:.2f}"
+            f"{r['sesync_seconds']:.3g}"
     return (certified, f"{r['sesync_lm30_chi2']:.6g}",
-            f"{r['sesync_seconds']:.2f} (+{r['sesync_lm30_seconds']:.2f})")
+            f"{r['sesync_seconds']:.3g} (+{r['sesync_lm30_seconds']:.3g})")
 
 
 def _generated_table(rows: list[dict]) -> str:
@@ -215,17 +215,17 @@ def _generated_table(rows: list[dict]) -> str:
         else:
             sesync = (f"{'certified' if r['sesync_certified'] else r['sesync_status']} "
                       f"({r['sesync_rank']}, {r['sesync_bound']:.3g}, "
-                      f"{r['sesync_seconds']:.2f})")
-            sesync_s = f"{r['sesync_seconds'] + (r['sesync_lm30_seconds'] or 0.0):.2f}"
+                      f"{r['sesync_seconds']:.3g})")
+            sesync_s = f"{r['sesync_seconds'] + (r['sesync_lm30_seconds'] or 0.0):.3g}"
         init = r["initialize_pose3_lm30_chi2"]
         init = number(init) if init is not None else \
             f"fails: {r['initialize_pose3_failure'][:40]}"
         lines.append(
             f"| {r['file']} | {r['edges']} | {cert['status']} ({cert['rank']}, "
-            f"{cert['suboptimality_bound']:.3g}, {r['certified_seconds']:.2f}) | "
-            f"{number(r['certified_lm30_chi2'])} | {r['in_process_seconds']:.2f} | {sesync} | "
+            f"{cert['suboptimality_bound']:.3g}, {r['certified_seconds']:.3g}) | "
+            f"{number(r['certified_lm30_chi2'])} | {r['in_process_seconds']:.3g} | {sesync} | "
             f"{number(r['sesync_lm30_chi2'])} | {sesync_s} | {init} "
-            f"({r['initialize_pose3_seconds']:.2f}) | {number(r['truth_lm30_chi2'])} |")
+            f"({r['initialize_pose3_seconds']:.3g}) | {number(r['truth_lm30_chi2'])} |")
     return "\n".join(lines) + "\n"
 
 
@@ -244,9 +244,9 @@ def _table(rows: list[dict]) -> str:
         sesync_certified, sesync_chi2, sesync_seconds = _sesync_cells(r)
         lines.append(
             f"| {r['file']} | {r['poses']} | {cert['status']} ({cert['rank']}, "
-            f"{r['certified_seconds']:.2f}) | {ours} | {sesync_certified} | {sesync_chi2} | "
-            f"{r['in_process_seconds']:.2f} | {sesync_seconds} | {init} "
-            f"({r['initialize_pose3_seconds']:.2f}) |")
+            f"{r['certified_seconds']:.3g}) | {ours} | {sesync_certified} | {sesync_chi2} | "
+            f"{r['in_process_seconds']:.3g} | {sesync_seconds} | {init} "
+            f"({r['initialize_pose3_seconds']:.3g}) |")
     return "\n".join(lines) + "\n"
 
 
