@@ -44,7 +44,10 @@ and lets GTSAM's GNC-LM (truncated least squares) finish from it:
    whole as well. Closures the map refutes go first; once none is refuted, the closures
    left out that fit come in, those the map checks best first where it is loose, none
    that the map would have to turn by more than ``_LINEAR_RAD`` to fit (the linearization
-   does not reach that far). Repeated until nothing changes (see :func:`_verify`). Then
+   does not reach that far: those are judged by a solve, :func:`_turned`, when nothing
+   else comes in); kept clusters of nearby closures that hold their stretch are judged by
+   a solve without them (:func:`_clusters`, :func:`_held`). Repeated until nothing
+   changes (see :func:`_verify`). Then
    the certified relaxation of the edges kept (the clean default on them); where its
    optimum lies lower than the rounds' map, which grew from the seed and can settle in a
    wrong basin (City10K), the rounds run again from it. (The own-covariance chi2 the step
