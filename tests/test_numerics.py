@@ -81,3 +81,21 @@ def test_the_usable_range_is_the_measured_one():
     assert information_problem(high * np.eye(3)) is None
     assert information_problem(np.diag([MAX_CONDITION, 1.0, 1.0])) is None
     assert information_problem(np.diag([MAX_CONDITION * 1.01, 1.0, 1.0])) is not None
+
+
+def test_a_command_started_with_one_thread_needs_no_limiting():
+    # what rlpgo-init does before numpy loads: every BLAS and OpenMP pool starts with one
+    # thread, and the hot calls then leave them alone (no threadpoolctl scan)
+    code = ("from rlpgo_gtsam.numerics import one_thread_from_start, _thread_limit\n"
+            "one_thread_from_start()\n" + _THREADS +
+            "import rlpgo_gtsam.numerics as n\nprint(_thread_limit(), bool(n._controller))\n")
+    clean = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")
+             and k != "RLPGO_THREADS"}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=True, timeout=120, env=clean)
+    import json
+
+    pools, limit = done.stdout.splitlines()
+    before, inside, after = json.loads(pools)
+    assert before and all(n == 1 for n in before + inside + after)
+    assert limit == "None False"
