@@ -9,8 +9,9 @@ A user's own setting wins: with any of ``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREA
 ``MKL_NUM_THREADS``, ``BLIS_NUM_THREADS`` or ``VECLIB_MAXIMUM_THREADS`` in the environment,
 or ``RLPGO_THREADS`` (a number, or ``auto`` for the libraries' defaults), the pools are left
 as the user set them. A command that calls :func:`one_thread_from_start` before numpy loads
-(``rlpgo-init``) starts OpenBLAS with one thread instead (same limit, and OpenBLAS does not
-start and spin workers it would not use: about 0.05 s of a small graph's run).
+(``rlpgo-init``, ``rlpgo-compare``) starts OpenBLAS with one thread instead (same limit, and
+OpenBLAS does not start and spin workers it would not use: about 0.05 s of a small graph's
+run).
 
 Floating point. Overflow or an invalid operation on extreme (finite) input is caught where it
 matters by explicit finiteness checks that raise the package's errors; numpy's warnings for

@@ -99,7 +99,7 @@ def refine(
     if params.getMaxIterations() == 0:
         return RefineResult(gtsam.Values(values), start_chi2, 0, [start_chi2])
     optimized = graph
-    if not _has_prior(graph):
+    if not _has_prior(graph, g):
         optimized = gtsam.NonlinearFactorGraph(graph)
         optimized.add(gauge_prior(g, values, _ANCHOR_SIGMA))
     after_iteration: dict[int, float] = {}  # GTSAM's LM may report an iteration twice
@@ -155,7 +155,13 @@ def gauge_prior(pose_graph: AnyPoseGraph, values: gtsam.Values,
                                   gtsam.noiseModel.Isotropic.Sigma(3, sigma))
 
 
-def _has_prior(graph: gtsam.NonlinearFactorGraph) -> bool:
+def _has_prior(graph: gtsam.NonlinearFactorGraph, pose_graph: AnyPoseGraph) -> bool:
+    """Whether ``graph`` holds a Pose2 or Pose3 prior. Where ``pose_graph`` is the extraction
+    of this very graph and found as many edges as the graph has factors, every factor is an
+    edge and the answer needs no walk over the factors (0.04-0.06 s on City10K, once per
+    refinement: six times in a comparison)."""
+    if pose_graph.graph is graph and graph.size() == pose_graph.num_edges:
+        return False
     return any(isinstance(graph.at(i), gtsam.PriorFactorPose2 | gtsam.PriorFactorPose3)
                for i in range(graph.size()))
 

@@ -103,3 +103,43 @@ def test_rows_stream_and_shonan_starts_from_the_best_so_far(tmp_path, small_nois
     assert len(shonan["details"]["runs"]) == 1  # one run, from the best; no random starts
     assert shonan["init_seconds"] >= shonan["details"]["runs"][0]["seconds"] > 0
     assert shonan["refined_chi2"] <= best["refined_chi2"] * (1 + 1e-6)
+
+
+def test_the_default_rows_stream_from_the_console_script(tmp_path):
+    """``rlpgo-compare FILE`` as a user runs it (the console script's launcher, stdout a
+    pipe): the default rows are the classical ones and certified, fastsync one name away;
+    each row arrives as its method finishes (at least half its own seconds after the row
+    before it), every row reports its seconds, and the JSON is complete."""
+    import itertools
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from rlpgo_cli.compare import DEFAULT_METHODS, LEFT_OUT
+
+    assert "fastsync" in LEFT_OUT and "fastsync" not in DEFAULT_METHODS.split(",")
+    json_path = tmp_path / "rows.json"
+    script = "import sys; from rlpgo_cli.launch import compare; sys.argv[0] = 'rlpgo-compare'; " \
+             "compare()"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    began = time.monotonic()
+    with subprocess.Popen([sys.executable, "-c", script, str(dataset("MIT.g2o")), "--json",
+                           str(json_path)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                          text=True, env=env) as process:
+        arrived = [(time.monotonic() - began, line) for line in process.stdout]
+    assert process.returncode == 0
+    records = json.loads(json_path.read_text())
+    assert [r["method"] for r in records] == ["odometry", "lago", "chordal", "shonan@best",
+                                             "certified"]
+    rows = [(t, line.split()[0]) for t, line in arrived
+            if line.startswith("  ") and not line.startswith("    ")
+            and line.split()[0] in {r["method"] for r in records}]
+    assert [method for _, method in rows] == [r["method"] for r in records]
+    for ((before, _), (after, _)), record in zip(itertools.pairwise(rows), records[1:],
+                                                strict=True):
+        seconds = record["init_seconds"] + record["refine_seconds"]
+        assert seconds > 0 and after - before >= 0.5 * seconds
+    result = CliRunner().invoke(main, [str(dataset("MIT.g2o")), "--methods", "chordal,fastsync"])
+    assert result.exit_code == 0, result.output
+    assert "  fastsync " in result.output

@@ -126,3 +126,24 @@ def test_unknown_options_are_named():
         make_initializer("chordal", episodes=3)
     with pytest.raises(RlpgoError, match="'lago@chordal': method lago takes no start"):
         make_initializer("lago@chordal")
+
+
+@pytest.mark.parametrize(("name", "models"), [("Intel.g2o", None), ("M3500.g2o", 3)])
+def test_edge_graphs_keep_each_edges_noise_with_one_model_per_value(name, models):
+    """The graphs the LAGO, Shonan and fastsync steps hand to GTSAM hold each edge as
+    measured with the noise it gets from its own information (Intel: nearly every edge its
+    own), a model made once per distinct value (M3500's 5453 edges: three)."""
+    from rlpgo_gtsam.graph import rotation_weights
+    from rlpgo_gtsam.initializers import _edge_factors
+
+    g = PoseGraph2D.from_gtsam(*read_g2o(dataset(name)))
+    weights = rotation_weights(g)
+    factors = _edge_factors(g, weights, lambda w: gtsam.noiseModel.Isotropic.Precision(3, w))
+    assert len(factors) == g.num_edges
+    for (i, j), z, w, factor in zip(g.edges.tolist(), g.measured, weights, factors,
+                                    strict=True):
+        alone = gtsam.BetweenFactorPose2(i, j, gtsam.Pose2(*z),
+                                         gtsam.noiseModel.Isotropic.Precision(3, float(w)))
+        assert factor.equals(alone, 0.0)
+    held = [factor.noiseModel() for factor in factors]  # alive: one wrapper per model
+    assert len({id(model) for model in held}) == (models or len(np.unique(weights)))

@@ -119,3 +119,27 @@ def test_robust_models_and_missing_keys_are_typed_errors(small_noisy):
         make_initializer("chordal").initialize(missing, small_noisy.initial)
     with pytest.raises(GraphError, match="key \"999\""):
         chi2(missing, small_noisy.initial)
+
+
+def test_the_gauge_prior_goes_only_where_the_graph_has_no_prior(small_noisy):
+    """refine reads from the extraction that a graph of edges alone has no prior, and walks
+    the factors otherwise: a soft prior added to the graph is honoured even when the
+    extraction handed in is the plain graph's (another graph)."""
+    from rlpgo_gtsam.graph3d import extract_pose_graph
+
+    plain = extract_pose_graph(small_noisy.graph, small_noisy.initial)
+    graph = gtsam.NonlinearFactorGraph(small_noisy.graph)
+    graph.add(gtsam.PriorFactorPose2(2, gtsam.Pose2(5.0, -3.0, 0.4),
+                                     gtsam.noiseModel.Isotropic.Sigma(3, 0.5)))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(50)
+    theirs = gtsam.LevenbergMarquardtOptimizer(graph, small_noisy.initial, params).optimize()
+    for pose_graph in (None, plain, extract_pose_graph(graph, small_noisy.initial)):
+        ours = refine(graph, small_noisy.initial, params, pose_graph=pose_graph)
+        assert ours.chi2 == pytest.approx(2.0 * graph.error(theirs), rel=1e-9)
+    anchored = gtsam.NonlinearFactorGraph(small_noisy.graph)  # the gauge prior, by hand
+    anchored.add(gtsam.PriorFactorPose2(0, small_noisy.initial.atPose2(0),
+                                        gtsam.noiseModel.Isotropic.Sigma(3, 1e-8)))
+    gauged = gtsam.LevenbergMarquardtOptimizer(anchored, small_noisy.initial, params).optimize()
+    ours = refine(small_noisy.graph, small_noisy.initial, params, pose_graph=plain)
+    assert ours.values.equals(gauged, 1e-9)

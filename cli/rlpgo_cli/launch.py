@@ -4,12 +4,13 @@ importing (GTSAM, numpy and torch take a while): one line and exit code 130.
 Start-up and exit are most of a small graph's run (rlpgo-init on an 800-pose file: about
 0.2 s of work in 1.2 s), so the launcher trims both. The imports run with Python's cycle
 collector off (they allocate much and free little: its passes there find nothing) and what
-they loaded is frozen out of later passes. ``rlpgo-init`` leaves through :func:`_leave`:
-once the command has returned, its files written (atomically, closed) and stdout and stderr
-flushed, the process ends with ``os._exit`` and the command's exit code, skipping the
-interpreter's teardown of GTSAM, numpy and SciPy (0.1-0.2 s); where a flush fails (a
-closed pipe) the ordinary exit runs instead and reports it as Python does. It also starts
-OpenBLAS with the one thread its hot calls use anyway (``rlpgo_gtsam.numerics``).
+they loaded is frozen out of later passes. ``rlpgo-init`` and ``rlpgo-compare`` leave
+through :func:`_leave`: once the command has returned, its files written (atomically,
+closed) and stdout and stderr flushed, the process ends with ``os._exit`` and the command's
+exit code, skipping the interpreter's teardown of GTSAM, numpy and SciPy (0.1-0.2 s); where
+a flush fails (a closed pipe) the ordinary exit runs instead and reports it as Python does.
+Both also start OpenBLAS with the one thread their hot calls use anyway
+(``rlpgo_gtsam.numerics``).
 """
 
 from __future__ import annotations
@@ -105,7 +106,7 @@ def init() -> None:
 
 
 def compare() -> None:
-    _run("compare")
+    _run("compare", lean=True)
 
 
 def generate() -> None:
