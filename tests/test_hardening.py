@@ -318,3 +318,25 @@ def test_ctrl_c_while_the_options_are_parsed_is_one_line():
                      callback=interrupt)])
     result = CliRunner().invoke(command, ["--slow-help"])
     assert (result.exit_code, result.stderr) == (130, "Error: interrupted\n")
+
+
+def test_a_command_s_scipy_import_leaves_numpy_s_tooling_unloaded():
+    # what rlpgo-init's launcher installs: SciPy's array-API copy of numpy built without
+    # importing f2py, numpy.testing, ... (0.3-0.4 s of a small file's run under load);
+    # numpy's own namespace is restored and SciPy's sparse solves work
+    code = (
+        "import sys\n"
+        "from rlpgo_cli.launch import _NumpyToolingUnloaded, _NUMPY_TOOLING\n"
+        "sys.meta_path.insert(0, _NumpyToolingUnloaded())\n"
+        "import numpy as np\n"
+        "names = list(np.__all__)\n"
+        "import scipy.sparse as sp\n"
+        "from scipy.sparse.linalg import splu\n"
+        "x = splu(sp.csc_matrix(np.diag([2.0, 4.0]))).solve(np.array([2.0, 4.0]))\n"
+        "assert np.allclose(x, 1.0)\n"
+        "assert list(np.__all__) == names and 'f2py' in dir(np)\n"
+        "print(sorted(n for n in _NUMPY_TOOLING if 'numpy.' + n in sys.modules))\n"
+        "print(any(isinstance(f, _NumpyToolingUnloaded) for f in sys.meta_path))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=True, timeout=120)
+    assert done.stdout.split("\n")[:2] == ["[]", "False"]

@@ -10,7 +10,8 @@ closed) and stdout and stderr flushed, the process ends with ``os._exit`` and th
 exit code, skipping the interpreter's teardown of GTSAM, numpy and SciPy (0.1-0.2 s); where
 a flush fails (a closed pipe) the ordinary exit runs instead and reports it as Python does.
 Both also start OpenBLAS with the one thread their hot calls use anyway
-(``rlpgo_gtsam.numerics``).
+(``rlpgo_gtsam.numerics``), and keep SciPy's import from loading numpy's tooling
+(:class:`_NumpyToolingUnloaded`).
 """
 
 from __future__ import annotations
@@ -54,6 +55,53 @@ def _leave(code: object) -> None:
     os._exit(code or 0)
 
 
+# numpy submodules that SciPy's array-API copy of the numpy namespace would load and that
+# nothing on a command's path uses (numpy's build and test tooling, masked arrays, ...)
+_NUMPY_TOOLING = ("f2py", "testing", "ma", "polynomial", "ctypeslib", "char", "rec", "strings")
+
+
+class _NumpyToolingUnloaded:
+    """A meta-path finder for a command's own process: while SciPy (1.17) builds its array-API
+    copy of the numpy namespace (``scipy._lib.array_api_compat.numpy``, imported with
+    ``scipy.sparse``), numpy's ``__all__`` and ``dir()`` leave out :data:`_NUMPY_TOOLING`
+    not yet loaded, so the copy does not import them: ``from numpy import *`` loads every
+    submodule named in ``__all__``, f2py's and numpy.testing's 0.1 s each among them, 0.29-0.43
+    s in all on this 2-core machine with another process running (SciPy's own part: about
+    0.37 s). Only that copy lacks them; numpy itself is unchanged and restored at once. Where
+    SciPy no longer has the module, nothing happens."""
+
+    TARGET = "scipy._lib.array_api_compat.numpy"
+
+    def find_spec(self, name, path, target=None):
+        if name != self.TARGET:
+            return None
+        sys.meta_path.remove(self)  # once
+        from importlib.machinery import PathFinder
+
+        spec = PathFinder.find_spec(name, path)
+        if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+            return spec
+        run = spec.loader.exec_module
+
+        def exec_module(module):
+            import numpy
+
+            names, listing = list(numpy.__all__), numpy.__dict__.get("__dir__")
+            left_out = {n for n in _NUMPY_TOOLING if f"numpy.{n}" not in sys.modules}
+            numpy.__all__[:] = [n for n in names if n not in left_out]
+            if listing is not None:
+                numpy.__dir__ = lambda: [n for n in listing() if n not in left_out]
+            try:
+                run(module)
+            finally:
+                numpy.__all__[:] = names
+                if listing is not None:
+                    numpy.__dir__ = listing
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
 def _import(module: str, lean: bool = False):
     """The command's module ``rlpgo_cli.<module>``, imported with the cycle collector off,
     and what it loaded frozen out of the collector's later passes; ``lean``: OpenBLAS
@@ -62,6 +110,7 @@ def _import(module: str, lean: bool = False):
         from rlpgo_gtsam.numerics import one_thread_from_start  # before numpy loads
 
         one_thread_from_start()
+        sys.meta_path.insert(0, _NumpyToolingUnloaded())
     collecting = gc.isenabled()
     gc.disable()
     try:
