@@ -122,7 +122,7 @@ def _tables(rows: list[dict], growth: list[dict], budgets: list[dict]) -> str:
             "peak MB (after read / default / write)", "SE-Sync s", "LM30 s",
             "ours / (SE-Sync + LM30)", "peak MB (SE-Sync / LM30)", "chi2 (ours / SE-Sync + LM30)",
             "certified (ours / SE-Sync)"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)] if rows else []
     for r in rows:
         seconds, peaks = r["phases"]["seconds"], r["phases"]["peaks_mb"]
         ours = cell(r["ours_seconds"]) if r["ours_failure"] is None else \
@@ -138,7 +138,7 @@ def _tables(rows: list[dict], growth: list[dict], budgets: list[dict]) -> str:
             f"{cell(r.get('sesync_peak_mb'), '.0f')} / {cell(r.get('lm30_peak_mb'), '.0f')}",
             f"{cell(r['ours_chi2'], '.6g')} / {cell(r.get('lm30_chi2'), '.6g')}",
             f"{cell(r['ours_certified'])} / {cell(r.get('sesync_certified'))}"]) + " |")
-    text = "\n".join(lines) + "\n"
+    text = "\n".join(lines) + "\n" if rows else ""
     if growth:
         text += "\nGrowth: k in figure ~ edges^k between consecutive sizes (1: linear)\n\n"
         text += "| sizes | " + " | ".join(GROWTH) + " |\n|" + "---|" * (len(GROWTH) + 1) + "\n"
@@ -190,8 +190,9 @@ def main() -> None:
                 print(json.dumps(budgets[-1]), flush=True)
     growth = _growth(rows)
     command = "python benchmarks/scale.py " + " ".join(sys.argv[1:])
-    text = (f"Made by `{command.strip()}`: wall seconds of whole processes; step seconds from "
-            "one instrumented run; chi2 = 2 x GTSAM error.\n\n" + _tables(rows, growth, budgets))
+    steps = "; step seconds from one instrumented run" if rows else ""
+    text = (f"Made by `{command.strip()}`: wall seconds of whole processes{steps}; chi2 = 2 x "
+            "GTSAM error.\n\n" + _tables(rows, growth, budgets).lstrip("\n"))
     print(text)
     (RESULTS / f"{args.name}.md").write_text(text)
     result = {"command": command.strip(), "rows": rows, "growth": growth, "budget": budgets,

@@ -32,6 +32,7 @@ ITERATION_PER_CHI2 = 25.0
 # refine_until runs all its iterations in one call where the time left holds this many times
 # their reckoning (ITERATION_PER_CHI2 runs 4 times low on the dense graph above).
 FITS_MARGIN = 4.0
+_PROGRESS_EVERY_S = 2.0  # refine_until's progress lines, as often as the staircase's
 
 
 @dataclass
@@ -130,6 +131,7 @@ def refine_row(
     pose_graph: AnyPoseGraph,
     iters: int = 30,
     deadline: float | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> MethodResult:
     """Refine ``row``'s guess with its ``solver`` (None: the guess is the result); ``row``
     is filled in and returned. A row whose initializer failed is returned as it is.
@@ -137,6 +139,8 @@ def refine_row(
     Args:
         deadline: a ``time.perf_counter()`` time the refinement must end by (see
             :func:`refine_until`); None: ``iters`` iterations or convergence, however long.
+        progress: with a deadline, one line at most every 2 s inside a long refinement
+            (:func:`refine_until`); None: silent.
     """
     if row.init is None:
         return row
@@ -150,7 +154,7 @@ def refine_row(
                          pose_graph=pose_graph)
     else:
         refined, row.cut = refine_until(graph, row.init.values, row.solver, iters, deadline,
-                                        pose_graph)
+                                        pose_graph, progress)
     row.refine_seconds = time.perf_counter() - began
     row.iters, row.refined_chi2 = refined.iterations, refined.chi2
     row.refined, row.failure = refined.values, refined.failure
@@ -164,6 +168,7 @@ def refine_until(
     iters: int,
     deadline: float,
     pose_graph: AnyPoseGraph | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> tuple[RefineResult, str | None]:
     """:func:`~rlpgo_gtsam.solvers.refine` in chunks that end by ``deadline``
     (a ``time.perf_counter()`` time), and what the deadline cut (None: nothing).
@@ -177,15 +182,26 @@ def refine_until(
     first LM iteration takes seconds). It stops at ``iters`` iterations, at convergence (a
     chunk that ended before its cap), at a failure, or when not one more iteration fits.
     The chunks restart LM's damping, so the path may differ slightly from one ``refine``
-    call.
+    call. ``progress`` (None: silent) gets a line at most every 2 s: the iterations done and
+    their chi2.
     """
     g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
-    began = time.perf_counter()
+    started = began = time.perf_counter()
     current = refine(graph, values, solver=solver, iters=0, pose_graph=g)
     per_iteration = ITERATION_PER_CHI2 * (time.perf_counter() - began)  # until one is timed
+    done, last = 0, [started]
+
+    def report(k: int, value: float) -> None:
+        now = time.perf_counter()
+        if progress is not None and now - last[0] >= _PROGRESS_EVERY_S:
+            last[0] = now
+            progress(f"{solver.upper()}: iteration {done + k} of {iters}, chi2 {value:.6g}, "
+                     f"{now - started:.1f} s")
+
     if deadline - time.perf_counter() >= FITS_MARGIN * iters * per_iteration:
-        return refine(graph, values, solver=solver, iters=iters, pose_graph=g), None
-    trace, done = list(current.chi2_trace), 0
+        return refine(graph, values, solver=solver, iters=iters, pose_graph=g,
+                      on_iteration=report), None
+    trace = list(current.chi2_trace)
     while done < iters:
         left = deadline - time.perf_counter()
         chunk = int(left >= per_iteration) if done == 0 else \
@@ -195,7 +211,8 @@ def refine_until(
                     f"the time limit stopped {solver.upper()} after {done} of {iters} "
                     "iterations")
         began = time.perf_counter()
-        step = refine(graph, current.values, solver=solver, iters=chunk, pose_graph=g)
+        step = refine(graph, current.values, solver=solver, iters=chunk, pose_graph=g,
+                      on_iteration=report)
         took = max((time.perf_counter() - began) / max(step.iterations, 1), 1e-9)
         per_iteration = took if done == 0 else max(per_iteration, took)
         done += step.iterations

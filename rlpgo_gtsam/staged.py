@@ -158,7 +158,7 @@ def staged_initialize(
               start: InitResult | None = None) -> MethodResult:
         row = initialize_row(g, method, solver, dataset, method_options, start)
         row.method = label
-        refine_row(row, graph, g, iters, deadline)
+        refine_row(row, graph, g, iters, deadline, (method_options or {}).get("progress"))
         if row.cut is not None:
             cuts.append(f"{label}: {row.cut}")
         run.rows.append(row)
