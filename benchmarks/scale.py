@@ -4,8 +4,8 @@ GTSAM LM30 in the same run; and ``--budget`` kept: wall seconds against 1.2 x th
 the largest graph and on a hard 2000-pose graph, with what the command said it cut.
 
     python benchmarks/scale.py [--sizes 10000,100000,200000] [--repeats 1] [--sesync BIN]
-        [--budget 30] [--hard-n 2000] [--cache DIR] [--timeout 600] [--no-budget]
-        [--name scale]
+        [--budget 30] [--hard-n 2000] [--cache DIR] [--timeout 600]
+        [--no-budget | --budget-only] [--name scale]
 
 Graphs (made once into ``--cache``, a folder outside the repository, and reused): the easy
 ones are ``rlpgo-generate --n N --sigma-r 0.05 --sigma-t 0.05 --d 3 --lc 0.3
@@ -20,7 +20,8 @@ peak resident set (VmHWM) after each; with the SE-Sync driver (``--sesync`` or
 ``$RLPGO_SESYNC_BINARY``), SE-Sync + LM30 as two processes, as ``benchmarks/process.py``
 runs them. Growth: for each pair of consecutive sizes, the exponent k in seconds ~ edges^k
 (1 is linear). Budget rows: ``rlpgo-init FILE -o OUT --budget B`` once each; "within" is
-wall seconds <= 1.2 B, the process's start-up and exit included.
+wall seconds <= 1.2 B, the process's start-up and exit included. ``--budget-only`` runs
+only these (the largest of ``--sizes`` is the easy graph), no size rows.
 
 Prints the tables, writes ``benchmarks/results/<name>.json`` and ``.md``.
 """
@@ -121,7 +122,7 @@ def _tables(rows: list[dict], growth: list[dict], budgets: list[dict]) -> str:
             "peak MB (after read / default / write)", "SE-Sync s", "LM30 s",
             "ours / (SE-Sync + LM30)", "peak MB (SE-Sync / LM30)", "chi2 (ours / SE-Sync + LM30)",
             "certified (ours / SE-Sync)"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)] if rows else []
     for r in rows:
         seconds, peaks = r["phases"]["seconds"], r["phases"]["peaks_mb"]
         ours = cell(r["ours_seconds"]) if r["ours_failure"] is None else \
@@ -137,7 +138,7 @@ def _tables(rows: list[dict], growth: list[dict], budgets: list[dict]) -> str:
             f"{cell(r.get('sesync_peak_mb'), '.0f')} / {cell(r.get('lm30_peak_mb'), '.0f')}",
             f"{cell(r['ours_chi2'], '.6g')} / {cell(r.get('lm30_chi2'), '.6g')}",
             f"{cell(r['ours_certified'])} / {cell(r.get('sesync_certified'))}"]) + " |")
-    text = "\n".join(lines) + "\n"
+    text = "\n".join(lines) + "\n" if rows else ""
     if growth:
         text += "\nGrowth: k in figure ~ edges^k between consecutive sizes (1: linear)\n\n"
         text += "| sizes | " + " | ".join(GROWTH) + " |\n|" + "---|" * (len(GROWTH) + 1) + "\n"
@@ -165,14 +166,18 @@ def main() -> None:
     parser.add_argument("--budget", type=float, default=30.0)
     parser.add_argument("--hard-n", type=int, default=2000)
     parser.add_argument("--no-budget", action="store_true")
+    parser.add_argument("--budget-only", action="store_true",
+                        help="only the budget rows (the easy graph: the largest of --sizes)")
     args = parser.parse_args()
+    if args.no_budget and args.budget_only:
+        parser.error("--no-budget and --budget-only leave nothing to run")
     check_binaries(parser, args, ("sesync",))
     print(f"SE-Sync driver: {args.sesync or 'none (left out)'}", flush=True)
     sizes = [int(s) for s in args.sizes.split(",")]
     rows, budgets = [], []
     with tempfile.TemporaryDirectory(prefix="rlpgo_scale_") as name:
         folder = Path(name)
-        for n in sizes:
+        for n in [] if args.budget_only else sizes:
             path = processes.generated_graph(args.cache, n, **EASY)
             rows.append(_size_row(n, path, folder, args))
             print(json.dumps(rows[-1]), flush=True)
@@ -185,8 +190,9 @@ def main() -> None:
                 print(json.dumps(budgets[-1]), flush=True)
     growth = _growth(rows)
     command = "python benchmarks/scale.py " + " ".join(sys.argv[1:])
-    text = (f"Made by `{command.strip()}`: wall seconds of whole processes; step seconds from "
-            "one instrumented run; chi2 = 2 x GTSAM error.\n\n" + _tables(rows, growth, budgets))
+    steps = "; step seconds from one instrumented run" if rows else ""
+    text = (f"Made by `{command.strip()}`: wall seconds of whole processes{steps}; chi2 = 2 x "
+            "GTSAM error.\n\n" + _tables(rows, growth, budgets).lstrip("\n"))
     print(text)
     (RESULTS / f"{args.name}.md").write_text(text)
     result = {"command": command.strip(), "rows": rows, "growth": growth, "budget": budgets,

@@ -143,13 +143,15 @@ def synchronize(
         max_iterations: trust-region iterations per rank.
         gradient_tolerance: stop a rank when the Riemannian gradient norm falls below this
             times ``sqrt(n) x mean(diag Q)``.
-        time_limit_s: checked between trust-region iterations and between ranks: once the
-            call has run this long it rounds the current ``Y`` and returns it with status
-            ``time_limit``. None: no limit.
+        time_limit_s: checked before each trust-region and truncated-CG iteration, each
+            factorization and each solve of the verification
+            (:func:`~rlpgo_gtsam.staircase.climb`): once the call has run this long it
+            rounds the lowest ``Y`` reached and returns it with status ``time_limit``. None:
+            no limit.
         progress: called with one short line per rank (rank, trust-region iterations, cost,
             gradient norm, lambda_min, seconds so far), one after the rounded estimate's
-            polish (where the staircase ended above rank 1) and, inside a long trust region,
-            one line at most every 2 s. None: silent.
+            polish (where the staircase ended above rank 1) and, inside a long trust region
+            or verification, one line at most every 2 s. None: silent.
 
     The certificate's ``status`` says how the staircase ended (:class:`Status`). Where the
     final rank is not certified, more than one reason may hold; the first of these is told:

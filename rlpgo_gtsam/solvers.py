@@ -4,6 +4,7 @@ trace."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import gtsam
@@ -66,6 +67,7 @@ def refine(
     solver: str | Params = "lm",
     iters: int = 30,
     pose_graph: AnyPoseGraph | None = None,
+    on_iteration: Callable[[int, float], None] | None = None,
 ) -> RefineResult:
     """Run GTSAM's GN or LM on ``graph`` (Pose2 or Pose3) from ``values``.
 
@@ -83,6 +85,8 @@ def refine(
             less than 1e-10 (relative or absolute) or ``iters`` steps ran.
         iters: iteration cap of "lm" / "gn".
         pose_graph: the graph's extraction, if the caller has it (saves a second one).
+        on_iteration: called once after each iteration with its number (from 1) and chi2
+            (for progress lines); None: nothing.
 
     A failure of the linear solver (an indeterminate system) or a non-finite error ends the
     run with ``failure`` set instead of raising.
@@ -103,8 +107,14 @@ def refine(
         optimized = gtsam.NonlinearFactorGraph(graph)
         optimized.add(gauge_prior(g, values, _ANCHOR_SIGMA))
     after_iteration: dict[int, float] = {}  # GTSAM's LM may report an iteration twice
+
+    def record(k: int, value: float) -> None:
+        if on_iteration is not None and k not in after_iteration:
+            on_iteration(k, value)
+        after_iteration[k] = value
+
     caller_hook = params.iterationHook  # the caller's params get their own hook back
-    params.iterationHook = lambda k, _before, after: after_iteration.__setitem__(k, 2.0 * after)
+    params.iterationHook = lambda k, _before, after: record(k, 2.0 * after)
     failure, optimizer = None, None
     try:
         if name == "GN":
@@ -112,7 +122,7 @@ def refine(
         else:
             optimizer = gtsam.LevenbergMarquardtOptimizer(optimized, values, params)
         if solver == "gn":
-            _iterate_through_increases(optimizer, params.getMaxIterations(), after_iteration)
+            _iterate_through_increases(optimizer, params.getMaxIterations(), record)
         else:
             optimizer.optimize()
     except RuntimeError as error:
@@ -128,13 +138,15 @@ def refine(
     return RefineResult(result, final, iterations, trace, failure)
 
 
-def _iterate_through_increases(optimizer, iters: int, after_iteration: dict) -> None:
-    """g2o's Gauss-Newton loop over GTSAM's ``iterate()``: an error increase does not stop it."""
+def _iterate_through_increases(optimizer, iters: int,
+                               record: Callable[[int, float], None]) -> None:
+    """g2o's Gauss-Newton loop over GTSAM's ``iterate()``: an error increase does not stop it.
+    ``record`` gets each iteration's number and chi2."""
     previous = optimizer.error()
     for k in range(1, iters + 1):
         optimizer.iterate()
         current = optimizer.error()
-        after_iteration[k] = 2.0 * current
+        record(k, 2.0 * current)
         if not math.isfinite(current):
             return
         decrease = abs(previous - current)

@@ -36,10 +36,12 @@ On a planar graph or a 3D one alike (dispatched on what the graph holds, extract
    certified run skips the test.
 
 The time budget bounds the whole run. The certified stage gets the budget less a reserve
-(:data:`REFINE_RESERVE` of it) as its time limit; cut there, it hands over its best estimate
-so far, not certified. Once the run is into its reserve, a refinement runs in chunks that
-end with the budget (:func:`~rlpgo_gtsam.ranking.refine_until`); no search starts after the
-budget is spent, and one that has started runs to its end. ``stopped`` says what was cut.
+(:data:`REFINE_RESERVE` of it) as its time limit, the steps after its staircase included
+(:class:`~rlpgo_gtsam.initializers.CertifiedInitializer`); cut there, it hands over its best
+estimate so far, not certified. A refinement that the time left may not hold runs in chunks
+that end with the budget (:func:`~rlpgo_gtsam.ranking.refine_until`; one that it holds four
+times over runs as it would without a budget); no search starts after the budget is spent,
+and one that has started runs to its end. ``stopped`` says what was cut.
 """
 
 from __future__ import annotations
@@ -145,7 +147,6 @@ def staged_initialize(
     """
     began = time.perf_counter()
     deadline = began + budget_s
-    into_reserve = began + budget_s * (1.0 - REFINE_RESERVE)
     g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
     for method, _ in searches:
         check_method_for(g.dimension, method)
@@ -157,8 +158,7 @@ def staged_initialize(
               start: InitResult | None = None) -> MethodResult:
         row = initialize_row(g, method, solver, dataset, method_options, start)
         row.method = label
-        bounded = time.perf_counter() >= into_reserve
-        refine_row(row, graph, g, iters, deadline if bounded else None)
+        refine_row(row, graph, g, iters, deadline, (method_options or {}).get("progress"))
         if row.cut is not None:
             cuts.append(f"{label}: {row.cut}")
         run.rows.append(row)

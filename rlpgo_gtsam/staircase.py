@@ -26,6 +26,7 @@ Sylvester's inertia from a pivot-free LU, then ARPACK's shift-invert), :func:`es
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -40,7 +41,7 @@ from rlpgo_gtsam.errors import SolverError
 
 __all__ = ["Status", "Certificate", "Check", "Relaxation", "Manifold", "climb", "trust_region",
            "truncated_cg", "verify", "unverified", "escape", "polish", "certificate",
-           "check_start", "negative_pivots", "Progress", "Run"]
+           "check_start", "negative_pivots", "Progress", "Run", "TimeUp"]
 
 RELATIVE_TOLERANCE = 1e-7  # eta / scale (the mean of diag Q's weights)
 GAP_TOLERANCE = 1e-6  # relative gap between f(rounded) and tr(Lambda) still called exact
@@ -52,6 +53,11 @@ STARTED_NCV = 6
 ESCAPE_HALVINGS = 30  # step halvings an escape from a saddle tries before it gives up
 # truncated CG stops at ||r|| <= ||g|| min(||g||^theta, kappa), or after max_inner iterations
 CG_THETA, CG_KAPPA, CG_MAX_INNER = 1.0, 0.1, 200
+# A staircase with a deadline that climbs above its first rank keeps this share of the time
+# then left for the polish of its rounded estimate (the rounding of a higher rank's Y can land
+# far uphill: see polish): on the 2000-pose generated graph of
+# benchmarks/results/scale_budget.md cut at rank 2, rounded chi2 1.5e6 unpolished.
+POLISH_SHARE = 0.25
 PROGRESS_EVERY_S = 2.0  # at most one progress line this often inside a trust region
 # A rank's trust region stalls when its last STALL_WINDOW iterations lowered the cost by less
 # than STALL_FRACTION x (rows of Q) x eta: the certificate's own resolution (its gap tolerance
@@ -59,6 +65,18 @@ PROGRESS_EVERY_S = 2.0  # at most one progress line this often inside a trust re
 # min(lambda_min, 0) holds at any Y, so a stalled Y with lambda_min >= -eta is solved to that
 # resolution, and one below it is escaped from.
 STALL_WINDOW, STALL_FRACTION = 10, 1e-2
+
+
+class TimeUp(Exception):
+    """The deadline passed inside a step that has no partial result to hand over (the
+    verification of ``S``: its factorization and eigen-solver's solves): the caller rounds
+    the ``Y`` it has, unverified."""
+
+
+def _late(deadline: float | None, ahead: float = 0.0) -> bool:
+    """Whether ``deadline`` (a ``time.perf_counter()`` time; None: none) has passed, or
+    will have once ``ahead`` more seconds are spent."""
+    return deadline is not None and time.perf_counter() + ahead > deadline
 
 
 class Status(str, Enum):
@@ -355,9 +373,17 @@ def climb(problem: Any, manifold: Manifold, y: np.ndarray, eta: float, max_rank:
     one reason holds, the first of ``eigenvalue_imprecise``, ``saddle_escape_failed`` (the
     escape into the final rank), ``iteration_limit`` (at the final rank), ``rank_limit``.
 
-    ``progress`` (None: silent) gets one line per rank and, inside a long trust region, one
-    at most every 2 s; its seconds count from ``started`` (default: now)."""
+    ``deadline`` (a ``time.perf_counter()`` time; None: none) is checked before each
+    trust-region iteration, each truncated-CG iteration and each factorization, and before
+    each solve of the verification: once it has passed, the last ``Y`` is returned
+    unverified with status ``time_limit``. Escaping above its first rank, the staircase
+    keeps :data:`POLISH_SHARE` of the time left for the :func:`polish` that follows.
+
+    ``progress`` (None: silent) gets one line per rank and, inside a long trust region or
+    verification, one at most every 2 s; its seconds count from ``started`` (default:
+    now)."""
     escaped = True  # whether the escape into the current rank descended
+    first_rank = y.shape[1]
     stall = _stall(problem, manifold, eta)
     report = Progress(progress, time.perf_counter() if started is None else started)
     while True:
@@ -368,7 +394,13 @@ def climb(problem: Any, manifold: Manifold, y: np.ndarray, eta: float, max_rank:
             check, stop = unverified(problem, y), Status.TIME_LIMIT
             report.rank(y.shape[1], run, check)
             break
-        check = verify(problem, manifold, y, eta)
+        try:
+            check = verify(problem, manifold, y, eta,
+                           functools.partial(_verifying, deadline, report, y.shape[1]))
+        except TimeUp:
+            check, stop = unverified(problem, y), Status.TIME_LIMIT
+            report.rank(y.shape[1], run, check, "the verification cut by the time limit")
+            break
         report.rank(y.shape[1], run, check)
         if check.imprecise and check.vector is None and not check.certified:
             stop = Status.EIGENVALUE_IMPRECISE  # no direction to escape along
@@ -380,8 +412,19 @@ def climb(problem: Any, manifold: Manifold, y: np.ndarray, eta: float, max_rank:
         if deadline is not None and time.perf_counter() > deadline:
             stop = Status.TIME_LIMIT
             break
+        if deadline is not None and y.shape[1] == first_rank:  # the polish's share
+            now = time.perf_counter()
+            deadline = now + (deadline - now) * (1.0 - POLISH_SHARE)
         y, escaped = escape(problem, manifold, y, check.vector)
     return y, check, stop
+
+
+def _verifying(deadline: float | None, report: Progress, rank: int, solves: int) -> None:
+    """Before each long step of :func:`verify` (``solves``: the eigen-solver's solves so
+    far): TimeUp once ``deadline`` has passed; a progress line at most every 2 s."""
+    if _late(deadline):
+        raise TimeUp
+    report.verifying(rank, solves)
 
 
 def polish(problem: Any, manifold: Manifold, y: np.ndarray, eta: float, max_iterations: int,
@@ -426,20 +469,28 @@ class Progress:
         self.last = started
 
     def iteration(self, rank: int, iteration: int, cost: float, gradient: float) -> None:
+        self._every(lambda: f"rank {rank}: iteration {iteration}, cost {cost:.9g}, gradient "
+                            f"{gradient:.3g}")
+
+    def verifying(self, rank: int, solves: int) -> None:
+        self._every(lambda: f"rank {rank}: verifying S, {solves} eigen-solver solves")
+
+    def _every(self, line: Callable[[], str]) -> None:
+        """``line()`` and the seconds so far, at most every ``PROGRESS_EVERY_S``."""
         if self.progress is None:
             return
         now = time.perf_counter()
         if now - self.last >= PROGRESS_EVERY_S:
             self.last = now
-            self.progress(f"rank {rank}: iteration {iteration}, cost {cost:.9g}, gradient "
-                          f"{gradient:.3g}, {now - self.started:.1f} s")
+            self.progress(f"{line()}, {now - self.started:.1f} s")
 
-    def rank(self, rank: int, run: Run, check: Check) -> None:
+    def rank(self, rank: int, run: Run, check: Check, note: str = "") -> None:
         if self.progress is not None:
             self.last = now = time.perf_counter()
             self.progress(f"rank {rank}: {run.iterations} iterations, cost {run.cost:.9g}, "
                           f"gradient {run.gradient:.3g}, lambda_min "
-                          f"{check.min_eigenvalue:.3g}, {now - self.started:.1f} s")
+                          f"{check.min_eigenvalue:.3g}, {now - self.started:.1f} s"
+                          + (f" ({note})" if note else ""))
 
 
 @dataclass
@@ -466,8 +517,11 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
     Returns Y and how it ended: None (gradient tolerance met, no progress left above
     round-off, or stalled: the last ``STALL_WINDOW`` iterations lowered the cost by less
     than ``stall``), ``ITERATION_LIMIT`` (``max_iterations`` used) or ``TIME_LIMIT``
-    (``time.perf_counter()`` passed ``deadline`` before an iteration); ``run`` (if given)
-    gets the iterations, cost and gradient norm."""
+    (``time.perf_counter()`` passed ``deadline`` before an iteration, or a factorization of
+    the preconditioner would have ended past it, as long as the last one took); ``run`` (if
+    given) gets the iterations, cost and gradient norm. A truncated CG run that the
+    deadline stops hands its step so far to the iteration, which takes it if it descends:
+    Y is the lowest point reached."""
     m = manifold
     run = Run() if run is None else run
     qy = problem.apply(y)
@@ -478,6 +532,7 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
     rejected, path = False, []  # whether the last step was rejected; its CG run's path
     products = [0]  # Hessian products of the last CG run
     hessian = False  # whether the last CG run had the Hessian preconditioner
+    factor_s = 0.0  # seconds of the longest preconditioner factorization so far
     for iteration in range(max_iterations + 1):
         lam = m.multipliers(y, qy)
         grad = 2.0 * (qy - m.times(lam, y))
@@ -500,10 +555,17 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
             pre = None
             if m.hessian_preconditioner_after is not None and \
                     (hessian or products[0] >= m.hessian_preconditioner_after):
+                if _late(deadline, factor_s):  # a factorization is not cut once begun
+                    ended = Status.TIME_LIMIT
+                    break
+                factoring = time.perf_counter()
                 pre = problem.hessian_preconditioner(m, y, lam)
+                factor_s = max(factor_s, time.perf_counter() - factoring)
             hessian = pre is not None
             if pre is None:
-                pre = _shared_preconditioner(problem, m, y)
+                factoring = time.perf_counter()
+                pre = _shared_preconditioner(problem, m, y)  # factored once, then cached
+                factor_s = max(factor_s, time.perf_counter() - factoring)
 
         def hess(v: np.ndarray, y=y, lam=lam) -> np.ndarray:
             products[0] += 1
@@ -516,7 +578,7 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
         shortened = _shortened(path, radius) if rejected else None
         if shortened is None:
             path, products[0] = [], 0
-            shortened = truncated_cg(grad, hess, pre, radius, path)
+            shortened = truncated_cg(grad, hess, pre, radius, path, deadline)
         step, h_step, on_boundary, length = shortened
         model_decrease = -(m.inner(grad, step) + 0.5 * m.inner(step, h_step))
         y_new = m.retract(y + step)
@@ -547,11 +609,15 @@ def _shared_preconditioner(problem: Any, manifold: Manifold,
     return lambda v: 0.5 * manifold.project(y, problem.solve_shifted(factor, v))
 
 
-def truncated_cg(grad, hess, pre, radius, path: list | None = None):
+def truncated_cg(grad, hess, pre, radius, path: list | None = None,
+                 deadline: float | None = None):
     """Steihaug-Toint truncated CG for min <g, e> + <e, H e> / 2 in the preconditioner's
     norm ball of ``radius``; returns (step, H step, whether it stopped on the boundary, the
     step's length in the preconditioner's norm). ``path`` (if given) gets the iterations
-    that a run with a quarter of the radius or less would stop in (see :func:`_shortened`)."""
+    that a run with a quarter of the radius or less would stop in (see :func:`_shortened`).
+    Once ``time.perf_counter()`` passes ``deadline`` (None: never) it stops after the
+    iteration it is in (at least one runs): its step so far lowers the model as each of
+    CG's iterates does."""
     step = np.zeros_like(grad)
     h_step = np.zeros_like(grad)
     residual = grad.copy()
@@ -561,7 +627,9 @@ def truncated_cg(grad, hess, pre, radius, path: list | None = None):
     direction = -z
     e_pe, e_pd, d_pd = 0.0, 0.0, z_r
     target = r0 * min(r0 ** CG_THETA, CG_KAPPA)
-    for _ in range(CG_MAX_INNER):
+    for inner in range(CG_MAX_INNER):
+        if inner > 0 and _late(deadline):
+            break
         h_dir = hess(direction)
         curvature = _inner(direction, h_dir)
         alpha = z_r / curvature if curvature > 0 else np.inf
@@ -618,9 +686,16 @@ def unverified(problem: Any, y: np.ndarray) -> Check:
 
 
 
-def verify(problem: Any, manifold: Manifold, y: np.ndarray, eta: float) -> Check:
-    """lambda_min(S), S = Q - Lambda(Y), and whether S + eta I >= 0."""
+def verify(problem: Any, manifold: Manifold, y: np.ndarray, eta: float,
+           before: Callable[[int], None] | None = None) -> Check:
+    """lambda_min(S), S = Q - Lambda(Y), and whether S + eta I >= 0.
+
+    ``before`` (None: nothing) is called before each sparse factorization and each of the
+    eigen-solver's solves with the number of solves so far; it may raise :class:`TimeUp`,
+    which ends the verification (the caller's deadline)."""
     m = manifold
+    if before is not None:  # the eigen-solver's solves call it through the problem
+        problem = _Counted(problem, before)
     lam = m.multipliers(y, problem.apply(y))
     trace = m.trace(lam)
     if m.size(problem.n) < m.dense_below:
@@ -630,6 +705,8 @@ def verify(problem: Any, manifold: Manifold, y: np.ndarray, eta: float) -> Check
     floor = -max(m.largest(lam), 0.0)  # lambda_min(S) >= -max Lambda as Q >= 0
     # S + eta I > 0  iff  the sparse matrix with Schur complement S + eta I has positive
     # pivots; the same LU then serves shift-invert at -eta
+    if before is not None:
+        before(0)
     factor = _factor(problem, m.shift(lam, -eta))
     negatives = _negative_pivots(m, factor)
     if negatives == 0:
@@ -648,11 +725,29 @@ def verify(problem: Any, manifold: Manifold, y: np.ndarray, eta: float) -> Check
                      imprecise=not converged)
     # many negative eigenvalues: shift below them all
     sigma = floor - eta - 1e-3 * problem.scale
+    if before is not None:
+        before(0)
     value, vector = _nearest_above(problem, m, problem.factor(m.shift(lam, sigma)), sigma, None,
                                    None)
     if vector is None:
         return Check(False, floor, trace, None, imprecise=True)
     return Check(bool(value >= -eta), value, trace, vector)
+
+
+class _Counted:
+    """A problem whose shifted solves first call ``before`` with the solves so far (the rest
+    of the problem as it is)."""
+
+    def __init__(self, problem: Any, before: Callable[[int], None]) -> None:
+        self._problem, self._before, self._solves = problem, before, 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._problem, name)
+
+    def solve_shifted(self, factor: Any, v: np.ndarray) -> np.ndarray:
+        self._before(self._solves)
+        self._solves += 1
+        return self._problem.solve_shifted(factor, v)
 
 
 def _factor(problem: Any, shift: np.ndarray) -> Any:

@@ -23,6 +23,19 @@ def test_gn_iteration_cap_is_respected(small_exact):
     assert result.chi2 < result.chi2_trace[0]
 
 
+@pytest.mark.parametrize("solver", ["lm", "gn"])
+def test_each_iteration_is_told_with_its_chi2_and_changes_nothing(small_noisy, solver):
+    """``on_iteration`` (progress lines of a long refinement) is told each iteration once,
+    with its chi2; the result is the same without it."""
+    seen: list[tuple[int, float]] = []
+    told = refine(small_noisy.graph, small_noisy.initial, solver, 10,
+                  on_iteration=lambda k, value: seen.append((k, value)))
+    plain = refine(small_noisy.graph, small_noisy.initial, solver, 10)
+    assert told.iterations >= 2 and [k for k, _ in seen] == list(range(1, told.iterations + 1))
+    assert seen[-1][1] == told.chi2
+    assert (told.chi2_trace, told.chi2) == (plain.chi2_trace, plain.chi2)
+
+
 def test_refine_keeps_the_anchor_pose(small_noisy):
     result = refine(small_noisy.graph, small_noisy.initial, "lm", 10)
     before, after = small_noisy.initial.atPose2(0), result.values.atPose2(0)

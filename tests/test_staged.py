@@ -73,6 +73,42 @@ def test_a_budget_cut_in_the_certified_stage_hands_over_its_estimate(heavy):
     assert lines  # the stage reported progress
 
 
+@pytest.fixture(scope="module")
+def hard():
+    """1000 poses, sigma_R 3, a loop closure at every step: the staircase climbs past rank 1,
+    still unverified at rank 2 after 3 s."""
+    return generate(1000, 3.0, 0.05, 3.0, 1.0, np.random.default_rng(1), noisy_measurements=True)
+
+
+def test_a_small_budget_cuts_inside_the_certified_stage_and_bounds_the_whole_run(hard):
+    """The deadline bites inside the stage (trust region, CG, factorizations, the
+    verification) and leaves the translations and the refinement their time: the run ends
+    within 1.2 x its budget with the lowest estimate reached, and says it was cut."""
+    import rlpgo_gtsam.certified  # noqa: F401  (scipy's first import is not the run's time)
+
+    lines: list[str] = []
+    run = staged_initialize(hard.graph, hard.initial, budget_s=2.0,
+                            options={"certified": {"progress": lines.append}})
+    assert run.seconds <= 1.2 * 2.0
+    assert [r.method for r in run.rows] == ["certified"] and not run.certified
+    assert run.rows[0].init.certificate.status == "time_limit"
+    assert run.stopped.startswith("time budget of 2 s spent during the certified stage: its "
+                                  "best estimate so far, not certified")
+    assert run.best.refined_chi2 == pytest.approx(chi2(hard.graph, run.values))
+    assert run.best.refined_chi2 < chi2(hard.graph, hard.initial) / 100  # a guess
+    assert lines and "lambda_min nan" in " ".join(lines)  # progress; nothing verified
+
+
+def test_refine_until_with_time_to_spare_is_one_refine_exactly(heavy):
+    """A refinement the time left holds four times over (as reckoned before an iteration is
+    timed) runs as one ``refine``: a budget that is not reached changes nothing."""
+    values = make_initializer("chordal").initialize(heavy.graph, heavy.initial)
+    whole = refine(heavy.graph, values, iters=30)
+    spared, cut = refine_until(heavy.graph, values, "lm", 30, time.perf_counter() + 600.0)
+    assert cut is None
+    assert (spared.iterations, spared.chi2_trace) == (whole.iterations, whole.chi2_trace)
+
+
 def test_refine_until_ends_by_its_deadline(heavy):
     values = make_initializer("chordal").initialize(heavy.graph, heavy.initial)
     spent, cut = refine_until(heavy.graph, values, "lm", 30, time.perf_counter() - 1.0)
