@@ -324,35 +324,26 @@ def _vertigo_on(name: str, mode: str):
     return bad, values, wrong, graph, best.chi2
 
 
-def test_closures_alone_in_their_loops_come_back():
+@pytest.mark.parametrize(("name", "mode"), [
     # MIT: each of its 20 true closures is the only one around its loop, so none has
     # support from another; against 82 random wrong ones the seed held 5 of them and 1
     # wrong one. Judged by each closure's fit under the map's own uncertainty, admitted
     # where the map checks them best first, all 20 come back and every wrong one goes
     # (before: 8 true closures rejected, precision 0.91).
-    bad, values, wrong, clean, lowest = _vertigo_on("MIT.g2o", "random")
-    result = robust_initialize(bad, values)
-    assert result.rejected == wrong
-    assert refine(clean, result.values, "lm", 100).chi2 == pytest.approx(lowest, rel=1e-6)
-
-
-def test_runs_of_wrong_closures_are_judged_whole():
+    pytest.param("MIT.g2o", "random", id="closures_alone_in_their_loops_come_back"),
     # Intel, Vertigo's local groups (5 consecutive pairs a few poses apart, one measurement):
     # each member fits the map its run holds; left out together, the run does not (before:
     # 20 of the 150 kept, recall 0.867)
-    bad, values, wrong, clean, lowest = _vertigo_on("Intel.g2o", "localgroup")
-    result = robust_initialize(bad, values)
-    assert result.rejected == wrong
-    assert refine(clean, result.values, "lm", 100).chi2 == pytest.approx(lowest, rel=1e-6)
-
-
-def test_true_closures_the_map_must_turn_far_are_judged_by_a_solve():
+    pytest.param("Intel.g2o", "localgroup", id="runs_of_wrong_closures_are_judged_whole"),
     # MIT, Vertigo's groups: four true closures close the last loop; each fits (innovation
     # chi2 2-4 against 21) but the loose map would have to turn 1.0-1.4 rad, beyond what the
     # linear test judges. Solved with them, the optimum rises by 2-3: they come back, the
     # true closure first, before the run of five wrong ones that fits as loosely
     # (before: 4 true closures rejected, precision 0.953).
-    bad, values, wrong, clean, lowest = _vertigo_on("MIT.g2o", "group")
+    pytest.param("MIT.g2o", "group", id="closures_the_map_must_turn_far_are_judged_by_a_solve"),
+])
+def test_vertigo_policies_are_rejected_exactly(name, mode):
+    bad, values, wrong, clean, lowest = _vertigo_on(name, mode)
     result = robust_initialize(bad, values)
     assert result.rejected == wrong
     assert refine(clean, result.values, "lm", 100).chi2 == pytest.approx(lowest, rel=1e-6)

@@ -452,8 +452,7 @@ def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray,
     except GraphError:  # the edges kept do not span the graph (odometry judged and rejected)
         return None
     start = group.certified().run(inliers).values
-    return _settle(_without(graph, factor_of_edge[~kept].tolist()), start, g, _RESTART_ITERS,
-                   _TOLERANCE).values
+    return _solved(graph, g, factor_of_edge, kept, start, _RESTART_ITERS).values
 
 
 def _runs(g: PoseGraph, among: np.ndarray) -> list[np.ndarray]:
@@ -504,9 +503,9 @@ def _clusters(g: PoseGraph, among: np.ndarray) -> list[np.ndarray]:
             if abs(int(diagonal[b]) - int(diagonal[a])) <= _RUN_REACH:
                 parent[root(b)] = root(a)
     roots = np.array([root(a) for a in range(len(index))], dtype=np.int64)
+    by_root = np.argsort(roots, kind="stable")  # each component's members in low-end order
     pieces = []
-    for r in np.unique(roots):
-        members = np.flatnonzero(roots == r)
+    for members in np.split(by_root, np.flatnonzero(np.diff(roots[by_root])) + 1):
         for k in range(0, len(members), _RUN_MAX):
             piece = members[k:k + _RUN_MAX]
             if len(piece) >= 2 and len(np.unique(diagonal[piece])) >= 2:
@@ -640,8 +639,7 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, poses: np.ndarray,
     tried = np.zeros(len(kept), bool)  # closures a solve has judged (_turned, _held)
     checks = [0]  # _held's solves so far
     rounds = 0
-    values = _settle(_without(graph, factor_of_edge[~kept].tolist()), group.to_values(g, poses),
-                     g, _LM_ITERS, _TOLERANCE).values
+    values = _solved(graph, g, factor_of_edge, kept, group.to_values(g, poses)).values
     while rounds < _VERIFY_ROUNDS:
         rounds += 1
         candidates = judged & (kept | ~banned)
@@ -706,8 +704,7 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, poses: np.ndarray,
         # a round's map needs its shape and its residuals to a few digits, not convergence
         # to 1e-10 (MIT's weak odometry took 30-40 Gauss-Newton steps for that); GTSAM's
         # GNC-LM converges from the last one
-        values = _settle(_without(graph, factor_of_edge[~kept].tolist()), values, g,
-                         _ROUND_ITERS, _TOLERANCE).values
+        values = _solved(graph, g, factor_of_edge, kept, values, _ROUND_ITERS).values
     return values, kept, rounds
 
 
@@ -725,17 +722,16 @@ def _turned(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
     Only sets whose every closure is open (``open_``: a candidate no chi2 refuted) are tried;
     ``tried`` marks every set judged so, admitted or not: each gets one solve. Returns the
     new optimum and kept edges at the first set that passes, or None when none does."""
+    before = chi2(_without(graph, factor_of_edge[~kept].tolist()), values)
     for _, which in sorted(turning, key=lambda item: (len(item[1]), item[0])):
         if tried[which].any() or not open_[which].all():
             continue
         tried[which] = True
-        group = group_of(g)
-        before = chi2(_without(graph, factor_of_edge[~kept].tolist()), values)
         grown = kept.copy()
         grown[which] = True
-        refined = _settle(_without(graph, factor_of_edge[~grown].tolist()), values, g,
-                          _LM_ITERS, _TOLERANCE)
-        if refined.chi2 - before < chi2_quantile(inlier_probability, group.dof * len(which)):
+        refined = _solved(graph, g, factor_of_edge, grown, values)
+        if refined.chi2 - before < chi2_quantile(inlier_probability,
+                                                 group_of(g).dof * len(which)):
             return refined.values, grown
     return None
 
@@ -752,20 +748,27 @@ def _held(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Values,
     three wrong closures that collapse a 12-pose stretch, linear chi2 23 against 34, fell by
     59). Each set once (``tried``). Returns the optimum and kept edges without the first set
     refuted, or None."""
-    group = group_of(g)
+    before = chi2(_without(graph, factor_of_edge[~kept].tolist()), values)
     for _, which in sorted(holding, key=lambda item: item[0]):
         if tried[which].all() or checks[0] >= _HELD_CHECKS:
             continue
         checks[0] += 1
         tried[which] = True
-        before = chi2(_without(graph, factor_of_edge[~kept].tolist()), values)
         shrunk = kept.copy()
         shrunk[which] = False
-        refined = _settle(_without(graph, factor_of_edge[~shrunk].tolist()), values, g,
-                          _LM_ITERS, _TOLERANCE)
-        if before - refined.chi2 >= chi2_quantile(inlier_probability, group.dof * len(which)):
+        refined = _solved(graph, g, factor_of_edge, shrunk, values)
+        if before - refined.chi2 >= chi2_quantile(inlier_probability,
+                                                  group_of(g).dof * len(which)):
             return refined.values, shrunk
     return None
+
+
+def _solved(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
+            values: gtsam.Values, iterations: int = _LM_ITERS):
+    """:func:`_settle` on the ``kept`` edges (the other between factors left out) from
+    ``values``."""
+    return _settle(_without(graph, factor_of_edge[~kept].tolist()), values, g, iterations,
+                   _TOLERANCE)
 
 
 def _settle(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, g: PoseGraph,
