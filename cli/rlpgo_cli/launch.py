@@ -11,7 +11,8 @@ exit code, skipping the interpreter's teardown of GTSAM, numpy and SciPy (0.1-0.
 a flush fails (a closed pipe) the ordinary exit runs instead and reports it as Python does.
 Both also start OpenBLAS with the one thread their hot calls use anyway
 (``rlpgo_gtsam.numerics``), and keep SciPy's import from loading numpy's tooling
-(:class:`_NumpyToolingUnloaded`).
+(:class:`_NumpyToolingUnloaded`) and from rewriting its own docstrings
+(:class:`_ScipyDocsUnparsed`).
 """
 
 from __future__ import annotations
@@ -60,8 +61,38 @@ def _leave(code: object) -> None:
 _NUMPY_TOOLING = ("f2py", "testing", "ma", "polynomial", "ctypeslib", "char", "rec", "strings")
 
 
-class _NumpyToolingUnloaded:
-    """A meta-path finder for a command's own process: while SciPy (1.17) builds its array-API
+def _exec_wrapped(name: str, path, around) -> object:
+    """The spec of module ``name`` as the path finders find it, its execution run through
+    ``around(run, module)``; the spec unchanged where its loader has no ``exec_module``."""
+    from importlib.machinery import PathFinder
+
+    spec = PathFinder.find_spec(name, path)
+    if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+        return spec
+    run = spec.loader.exec_module
+    spec.loader.exec_module = lambda module: around(run, module)
+    return spec
+
+
+class _OnFirstImport:
+    """A meta-path finder for a command's own process that runs module :attr:`TARGET`
+    through :meth:`around` the first time it is imported, then leaves ``sys.meta_path``."""
+
+    TARGET = ""
+
+    def find_spec(self, name, path, target=None):
+        if name != self.TARGET:
+            return None
+        sys.meta_path.remove(self)  # once
+        return _exec_wrapped(name, path, self.around)
+
+    @staticmethod
+    def around(run, module) -> None:
+        run(module)
+
+
+class _NumpyToolingUnloaded(_OnFirstImport):
+    """While SciPy (1.17) builds its array-API
     copy of the numpy namespace (``scipy._lib.array_api_compat.numpy``, imported with
     ``scipy.sparse``), numpy's ``__all__`` and ``dir()`` leave out :data:`_NUMPY_TOOLING`
     not yet loaded, so the copy does not import them: ``from numpy import *`` loads every
@@ -72,45 +103,73 @@ class _NumpyToolingUnloaded:
 
     TARGET = "scipy._lib.array_api_compat.numpy"
 
-    def find_spec(self, name, path, target=None):
-        if name != self.TARGET:
-            return None
-        sys.meta_path.remove(self)  # once
-        from importlib.machinery import PathFinder
+    @staticmethod
+    def around(run, module) -> None:
+        import numpy
 
-        spec = PathFinder.find_spec(name, path)
-        if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
-            return spec
-        run = spec.loader.exec_module
-
-        def exec_module(module):
-            import numpy
-
-            names, listing = list(numpy.__all__), numpy.__dict__.get("__dir__")
-            left_out = {n for n in _NUMPY_TOOLING if f"numpy.{n}" not in sys.modules}
-            numpy.__all__[:] = [n for n in names if n not in left_out]
+        names, listing = list(numpy.__all__), numpy.__dict__.get("__dir__")
+        left_out = {n for n in _NUMPY_TOOLING if f"numpy.{n}" not in sys.modules}
+        numpy.__all__[:] = [n for n in names if n not in left_out]
+        if listing is not None:
+            numpy.__dir__ = lambda: [n for n in listing() if n not in left_out]
+        try:
+            run(module)
+        finally:
+            numpy.__all__[:] = names
             if listing is not None:
-                numpy.__dir__ = lambda: [n for n in listing() if n not in left_out]
-            try:
-                run(module)
-            finally:
-                numpy.__all__[:] = names
-                if listing is not None:
-                    numpy.__dir__ = listing
+                numpy.__dir__ = listing
 
-        spec.loader.exec_module = exec_module
-        return spec
+
+class _DocUnparsed:
+    """What :class:`_ScipyDocsUnparsed` puts in place of SciPy's ``FunctionDoc`` in
+    ``scipy._lib._util``: the function's docstring as it is, no section parsed. Its two
+    decorators there then leave a docstring unchanged: ``_apply_over_batch`` appends to an
+    'Extended Summary' that is not written back, ``_transition_to_rng`` finds no
+    'Parameters' (so no ``rng`` entry to rewrite)."""
+
+    def __init__(self, function, *args, **kwargs) -> None:
+        self._text = getattr(function, "__doc__", None) or ""
+        self._sections: dict[str, list] = {}
+
+    def __getitem__(self, section: str) -> list:
+        return self._sections.setdefault(section, [])
+
+    def __setitem__(self, section: str, value) -> None:
+        self._sections[section] = value
+
+    def __str__(self) -> str:
+        return "\n" + self._text  # the callers drop the first line (the signature)
+
+
+class _ScipyDocsUnparsed(_OnFirstImport):
+    """Once ``scipy._lib._util`` has run, its ``FunctionDoc`` is :class:`_DocUnparsed`.
+    SciPy (1.17) rewrites the docstrings of the functions it decorates as it imports them
+    (``scipy.linalg``, ``scipy.sparse`` and ``scipy.sparse.linalg``: 75 of them, each parsed
+    by numpydoc's parser and printed again, for a batch note and an ``rng`` parameter's
+    text): 0.04-0.07 s of a small file's run on this 2-core machine with another process
+    running, for text nobody reads in a command's process. What the functions compute is
+    unchanged. Where SciPy no longer has ``FunctionDoc`` there, nothing happens."""
+
+    TARGET = "scipy._lib._util"
+
+    @staticmethod
+    def around(run, module) -> None:
+        run(module)
+        if isinstance(getattr(module, "FunctionDoc", None), type):
+            module.FunctionDoc = _DocUnparsed
 
 
 def _import(module: str, lean: bool = False):
     """The command's module ``rlpgo_cli.<module>``, imported with the cycle collector off,
     and what it loaded frozen out of the collector's later passes; ``lean``: OpenBLAS
-    started with one thread (:func:`~rlpgo_gtsam.numerics.one_thread_from_start`)."""
+    started with one thread (:func:`~rlpgo_gtsam.numerics.one_thread_from_start`) and
+    SciPy's import trimmed, when it comes (:class:`_NumpyToolingUnloaded`,
+    :class:`_ScipyDocsUnparsed`)."""
     if lean:
         from rlpgo_gtsam.numerics import one_thread_from_start  # before numpy loads
 
         one_thread_from_start()
-        sys.meta_path.insert(0, _NumpyToolingUnloaded())
+        sys.meta_path[:0] = [_NumpyToolingUnloaded(), _ScipyDocsUnparsed()]
     collecting = gc.isenabled()
     gc.disable()
     try:
