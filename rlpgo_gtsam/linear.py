@@ -193,12 +193,11 @@ class PairwiseSystem:
         """The error naming the first pose the system leaves undetermined: one the kept
         edges do not tie to a held pose, else the first with a vanishing pivot."""
         import scipy.sparse as sp
-        from scipy.sparse.csgraph import connected_components
 
-        edges = self.edges if kept is None else self.edges[kept]
-        n = self.num_poses
-        links = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
-        _, labels = connected_components(links, directed=False)
+        from rlpgo_gtsam.graph import component_labels
+
+        labels = component_labels(self.num_poses, self.edges if kept is None
+                                  else self.edges[kept])
         loose = self.free & ~np.isin(labels, labels[self.held])
         if not loose.any() and not vanishing.any():
             # exactly singular although tied: find the pivots on a slightly shifted matrix

@@ -14,6 +14,7 @@ from rlpgo_gtsam import (
     refine,
     register,
 )
+from rlpgo_gtsam.graph import component_labels
 from rlpgo_gtsam.initializers import OdometryInitializer
 from rlpgo_gtsam.se2 import wrap
 from tests.conftest import dataset
@@ -76,6 +77,34 @@ def test_disconnected_graph_from_code_is_refused():
         values.insert(key, gtsam.Pose2(float(key), 0.0, 0.0))
     with pytest.raises(GraphError, match=r"2 connected components \(keys 0-1 and keys 2-3\)"):
         make_initializer("chordal").initialize(graph, values)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_component_labels_are_the_components_a_search_finds(seed):
+    # a generated graph cut into pieces (a random half of its edges dropped, edges shuffled
+    # and turned round): each pose labelled with the smallest pose index of its component
+    rng = np.random.default_rng(seed)
+    synthetic = generate(300, 0.05, 0.1, 1.0, 0.3, rng)
+    edges = PoseGraph2D.from_gtsam(synthetic.graph, synthetic.initial).edges
+    edges = edges[rng.permutation(len(edges))[: len(edges) // 2]]
+    edges = np.where(rng.random((len(edges), 1)) < 0.5, edges, edges[:, ::-1])
+    n = len(synthetic.initial.keys())
+    neighbours: dict[int, list[int]] = {k: [] for k in range(n)}
+    for i, j in edges.tolist():
+        neighbours[i].append(j)
+        neighbours[j].append(i)
+    expected = np.full(n, -1)
+    for start in range(n):  # in index order: the first pose reached is the smallest
+        if expected[start] < 0:
+            expected[start], frontier = start, [start]
+            while frontier:
+                for other in neighbours[frontier.pop()]:
+                    if expected[other] < 0:
+                        expected[other] = start
+                        frontier.append(other)
+    labels = component_labels(n, edges)
+    assert np.array_equal(labels, expected)
+    assert len(np.unique(expected)) > 10  # really cut into pieces
 
 
 def test_non_pose2_factor_is_refused(small_noisy):
