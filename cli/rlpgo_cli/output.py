@@ -4,7 +4,6 @@ atomically by the library."""
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from collections.abc import Iterable
@@ -39,6 +38,8 @@ def json_ready(data: object) -> object:
 
 def json_text(data: object) -> str:
     """Strict JSON text of ``data`` (see :func:`json_ready`), indented, ending in a newline."""
+    import json  # only a run that writes JSON pays its import
+
     return json.dumps(json_ready(data), indent=2, allow_nan=False) + "\n"
 
 
