@@ -363,6 +363,23 @@ def test_a_command_s_scipy_import_leaves_its_docstrings_unparsed():
     assert _printed_by(code)[:2] == ["True", "False"]
 
 
+def test_a_command_s_lazy_scipy_import_runs_with_the_collector_off():
+    # what rlpgo-init's launcher installs: the certified relaxation's import (SciPy's) as the
+    # command's own imports run, the collector off, then on again with what it loaded frozen
+    code = (
+        "import gc, sys\n"
+        "from rlpgo_cli.launch import _CollectorOffDuring\n"
+        "sys.meta_path.insert(0, _CollectorOffDuring('rlpgo_gtsam.certified'))\n"
+        "import rlpgo_gtsam.initializers\n"
+        "passes = []\n"
+        "gc.callbacks.append(lambda phase, info: passes.append(phase))\n"
+        "frozen = gc.get_freeze_count()\n"
+        "import rlpgo_gtsam.certified\n"
+        "print(passes, gc.isenabled(), gc.get_freeze_count() > frozen)\n"
+        "print(any(isinstance(f, _CollectorOffDuring) for f in sys.meta_path))\n")
+    assert _printed_by(code)[:2] == ["[] True True", "False"]
+
+
 def _printed_by(code: str) -> list[str]:
     """The lines ``python -c code`` prints (a fresh process: what it imports is its own)."""
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -10,9 +10,10 @@ closed) and stdout and stderr flushed, the process ends with ``os._exit`` and th
 exit code, skipping the interpreter's teardown of GTSAM, numpy and SciPy (0.1-0.2 s); where
 a flush fails (a closed pipe) the ordinary exit runs instead and reports it as Python does.
 Both also start OpenBLAS with the one thread their hot calls use anyway
-(``rlpgo_gtsam.numerics``), and keep SciPy's import from loading numpy's tooling
+(``rlpgo_gtsam.numerics``), keep SciPy's import from loading numpy's tooling
 (:class:`_NumpyToolingUnloaded`) and from rewriting its own docstrings
-(:class:`_ScipyDocsUnparsed`).
+(:class:`_ScipyDocsUnparsed`), and run it, when a step brings it, with the collector off
+too (:class:`_CollectorOffDuring`).
 """
 
 from __future__ import annotations
@@ -159,25 +160,53 @@ class _ScipyDocsUnparsed(_OnFirstImport):
             module.FunctionDoc = _DocUnparsed
 
 
-def _import(module: str, lean: bool = False):
-    """The command's module ``rlpgo_cli.<module>``, imported with the cycle collector off,
-    and what it loaded frozen out of the collector's later passes; ``lean``: OpenBLAS
-    started with one thread (:func:`~rlpgo_gtsam.numerics.one_thread_from_start`) and
-    SciPy's import trimmed, when it comes (:class:`_NumpyToolingUnloaded`,
-    :class:`_ScipyDocsUnparsed`)."""
-    if lean:
-        from rlpgo_gtsam.numerics import one_thread_from_start  # before numpy loads
-
-        one_thread_from_start()
-        sys.meta_path[:0] = [_NumpyToolingUnloaded(), _ScipyDocsUnparsed()]
+def _collector_off(run, *args):
+    """``run(*args)`` with the cycle collector off, and what it loaded frozen out of the
+    collector's later passes (where the collector was on): imports allocate much and free
+    little, so its passes there find nothing."""
     collecting = gc.isenabled()
     gc.disable()
     try:
-        return importlib.import_module(f"rlpgo_cli.{module}")
+        return run(*args)
     finally:
         if collecting:
             gc.freeze()
             gc.enable()
+
+
+class _CollectorOffDuring(_OnFirstImport):
+    """The first import of ``target``, a module a command imports only when a step needs
+    it, runs as the command's own imports do (:func:`_collector_off`). For the certified
+    relaxations, which load SciPy: the collector's passes during that import took 4-7 ms
+    of a small file's run on this 2-core machine with another process running."""
+
+    def __init__(self, target: str) -> None:
+        self.TARGET = target
+
+    @staticmethod
+    def around(run, module) -> None:
+        _collector_off(run, module)
+
+
+# modules the lean commands import inside a step (rlpgo_gtsam.initializers,
+# initializers3d) that bring SciPy with them
+_LOADING_SCIPY = ("rlpgo_gtsam.certified", "rlpgo_gtsam.certified3d")
+
+
+def _import(module: str, lean: bool = False):
+    """The command's module ``rlpgo_cli.<module>``, imported with the cycle collector off,
+    and what it loaded frozen out of the collector's later passes; ``lean``: OpenBLAS
+    started with one thread (:func:`~rlpgo_gtsam.numerics.one_thread_from_start`), and
+    SciPy's import, when a step brings it, trimmed (:class:`_NumpyToolingUnloaded`,
+    :class:`_ScipyDocsUnparsed`) and run with the collector off
+    (:class:`_CollectorOffDuring`)."""
+    if lean:
+        from rlpgo_gtsam.numerics import one_thread_from_start  # before numpy loads
+
+        one_thread_from_start()
+        sys.meta_path[:0] = [_NumpyToolingUnloaded(), _ScipyDocsUnparsed(),
+                             *map(_CollectorOffDuring, _LOADING_SCIPY)]
+    return _collector_off(importlib.import_module, f"rlpgo_cli.{module}")
 
 
 def _run(module: str, *, lean: bool = False) -> None:
