@@ -93,14 +93,14 @@ class _OnFirstImport:
 
 
 class _NumpyToolingUnloaded(_OnFirstImport):
-    """While SciPy (1.17) builds its array-API
-    copy of the numpy namespace (``scipy._lib.array_api_compat.numpy``, imported with
-    ``scipy.sparse``), numpy's ``__all__`` and ``dir()`` leave out :data:`_NUMPY_TOOLING`
-    not yet loaded, so the copy does not import them: ``from numpy import *`` loads every
-    submodule named in ``__all__``, f2py's and numpy.testing's 0.1 s each among them, 0.29-0.43
-    s in all on this 2-core machine with another process running (SciPy's own part: about
-    0.37 s). Only that copy lacks them; numpy itself is unchanged and restored at once. Where
-    SciPy no longer has the module, nothing happens."""
+    """While SciPy (1.17) builds its array-API copy of the numpy namespace
+    (``scipy._lib.array_api_compat.numpy``, imported with ``scipy.sparse``), numpy's
+    ``__all__`` and ``dir()`` leave out :data:`_NUMPY_TOOLING` not yet loaded, so the copy
+    does not import them: ``from numpy import *`` loads every submodule named in
+    ``__all__``, f2py's and numpy.testing's 0.1 s each among them, 0.29-0.43 s in all on this
+    2-core machine with another process running (SciPy's own part: about 0.37 s). Only that
+    copy lacks them; numpy itself is unchanged and restored at once. Where SciPy no longer
+    has the module, nothing happens."""
 
     TARGET = "scipy._lib.array_api_compat.numpy"
 
