@@ -333,9 +333,36 @@ def _sym(a: np.ndarray) -> np.ndarray:
     return 0.5 * (a + a.transpose(0, 2, 1))
 
 
+# Poses from which the blocks' products run field by field: (3n, r) arrays turned into
+# (3, r, n) fields, each product one einsum over the poses, instead of n small matrix
+# products (numpy's matmul on (n, 3, r) stacks). The tangent projection (CPU ms): 1661 poses
+# 0.66 / 0.17, 125: 0.065 / 0.050, 80: 0.048 / 0.040, 40: 0.035 / 0.040, 20: 0.024 / 0.038.
+# 50 poses: the sparse problems (3n >= _DENSE_BELOW) take fields, the dense ones stacks.
+_FIELDS_FROM = _DENSE_BELOW // 3
+
+
+def _fields(a: np.ndarray) -> np.ndarray:
+    """(3, r, n) fields ``F[i, k, p] = a[3p + i, k]`` of (3n, r) stacked blocks."""
+    r = a.shape[1]
+    return np.ascontiguousarray(a.reshape(-1, 3 * r).T).reshape(3, r, -1)
+
+
+def _stacked(fields: np.ndarray) -> np.ndarray:
+    """The (3n, r) stacked blocks of (3, r, n) fields (:func:`_fields`' inverse)."""
+    r = fields.shape[1]
+    return np.ascontiguousarray(fields.reshape(3 * r, -1).T).reshape(-1, r)
+
+
+def _projected(x: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """:meth:`_Stiefel.project` on (3, r, n) fields."""
+    a = np.einsum("ikn,jkn->ijn", v, x)
+    return v - np.einsum("ijn,jkn->ikn", 0.5 * (a + a.transpose(1, 0, 2)), x)
+
+
 class _Stiefel(Manifold):
     """3 x r blocks ``X_i`` with orthonormal rows: the staircase's manifold in 3D; the
-    multipliers are the blocks ``Lambda_i = sym((Q X)_i X_i^T)`` (n, 3, 3)."""
+    multipliers are the blocks ``Lambda_i = sym((Q X)_i X_i^T)`` (n, 3, 3). From
+    :data:`_FIELDS_FROM` poses the blockwise products run on fields (:func:`_fields`)."""
 
     def size(self, n: int) -> int:
         return 3 * n
@@ -346,6 +373,8 @@ class _Stiefel(Manifold):
     def project(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """V_i - sym(V_i X_i^T) X_i."""
         r = x.shape[1]
+        if x.shape[0] >= 3 * _FIELDS_FROM:
+            return _stacked(_projected(_fields(x), _fields(v)))
         xb, vb = x.reshape(-1, 3, r), v.reshape(-1, 3, r)
         return (vb - _sym(vb @ xb.transpose(0, 2, 1)) @ xb).reshape(-1, r)
 
@@ -357,14 +386,22 @@ class _Stiefel(Manifold):
 
     def multipliers(self, x: np.ndarray, qx: np.ndarray) -> np.ndarray:
         r = x.shape[1]
+        if x.shape[0] >= 3 * _FIELDS_FROM:
+            a = np.einsum("ikn,jkn->nij", _fields(qx), _fields(x))
+            return _sym(a)
         xb, qb = x.reshape(-1, 3, r), qx.reshape(-1, 3, r)
         return _sym(qb @ xb.transpose(0, 2, 1))
 
     def times(self, lam: np.ndarray, v: np.ndarray) -> np.ndarray:
         r = v.shape[1]
+        if v.shape[0] >= 3 * _FIELDS_FROM:
+            return _stacked(np.einsum("nij,jkn->ikn", lam, _fields(v)))
         return (lam @ v.reshape(-1, 3, r)).reshape(-1, r)
 
     def hessian(self, x, lam, v, qv) -> np.ndarray:
+        if x.shape[0] >= 3 * _FIELDS_FROM:
+            fields = _fields(qv) - np.einsum("nij,jkn->ikn", lam, _fields(v))
+            return 2.0 * _stacked(_projected(_fields(x), fields))
         return 2.0 * self.project(x, qv - self.times(lam, v))
 
     def diagonal(self, n: int, value: float) -> np.ndarray:
