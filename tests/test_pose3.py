@@ -395,3 +395,22 @@ def test_truncated_cg_stops_at_half_the_gradient_tolerance_on_parking_garage(mon
     assert with_floor < 0.75 * products[0]
     assert floored.estimate_cost == pytest.approx(plain.estimate_cost, rel=1e-8)
     assert floored.suboptimality_bound <= 1e-4 * floored.tolerance * 3 * g.num_poses
+
+
+def test_the_newton_retraction_is_the_svd_polar_factor():
+    """At rank 3 from 50 poses the retraction runs Newton's polar iteration: the SVD's polar
+    factor to round-off along small and large tangent steps, orthonormal rows; a singular
+    block falls back to the SVD."""
+    import rlpgo_gtsam.certified3d as certified3d
+
+    rng = np.random.default_rng(5)
+    n = 200
+    x = certified3d._stack(_rotations(rng, n))
+    for size in (0.01, 1.0, 5.0):
+        step = certified3d._STIEFEL.project(x, size * rng.normal(size=x.shape))
+        moved = x + step
+        moved[3:6] = np.outer([1.0, 2.0, 3.0], [1.0, 1.0, 1.0])  # rank one
+        polar = certified3d._STIEFEL.retract(moved)
+        assert np.allclose(polar, certified3d._polar_svd(moved), rtol=0, atol=1e-12)
+        blocks = polar.reshape(n, 3, 3)
+        assert np.allclose(blocks @ blocks.transpose(0, 2, 1), np.eye(3), atol=1e-12)
