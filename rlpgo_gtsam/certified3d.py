@@ -373,9 +373,12 @@ _FIELDS_FROM = _DENSE_BELOW // 3
 # Newton's iteration for the polar factor of a square block converges quadratically from
 # any invertible one: it stops once no entry moved by more than _NEWTON_CHANGE (the error,
 # squared at each step, is then at round-off), after _NEWTON_ITERATIONS at most. The
-# retraction of 5000 rotations moved along random tangent steps (CPU ms): SVD 19, Newton 3.7
-# (steps of 0.01, 2 iterations) to 10 (3.0, 8 iterations), entries within 1e-14 of the SVD's.
+# retraction of 5000 rotations moved along random tangent steps (CPU ms): SVD 19, Newton 3.1
+# (steps of 0.01, 2 iterations) to 8.5 (3.0, 8 iterations), entries within 1e-14 of the SVD's.
 _NEWTON_CHANGE, _NEWTON_ITERATIONS = 1e-9, 50
+# Poses from which the rank-3 retraction is Newton's: steps of 0.3 rad (CPU ms, SVD /
+# Newton) 125 poses 0.52 / 0.85, 300: 1.15 / 0.97, 600: 2.30 / 1.13, 1661: 6.3 / 1.5.
+_NEWTON_FROM = 250
 
 
 def _fields(a: np.ndarray) -> np.ndarray:
@@ -403,6 +406,13 @@ def _polar_svd(x: np.ndarray) -> np.ndarray:
     return (u @ vt).reshape(-1, r)
 
 
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(3, n) the cross products of the columns of (3, n) ``u`` and ``v`` (np.cross's
+    set-up took half of a 125-pose retraction)."""
+    return np.stack([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+                     u[0] * v[1] - u[1] * v[0]])
+
+
 def _polar_newton(x: np.ndarray) -> np.ndarray:
     """The polar factors of the 3 x 3 blocks of (3n, 3) ``x`` by Newton's iteration
     ``X <- (X + X^-T) / 2`` on fields (``X^-T``: the rows' cross products over the
@@ -413,8 +423,7 @@ def _polar_newton(x: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for _ in range(_NEWTON_ITERATIONS):
             a, b, c = fields
-            cofactors = np.stack([np.cross(b, c, axis=0), np.cross(c, a, axis=0),
-                                  np.cross(a, b, axis=0)])
+            cofactors = np.stack([_cross(b, c), _cross(c, a), _cross(a, b)])
             new = 0.5 * (fields + cofactors / np.einsum("kn,kn->n", a, cofactors[0]))
             change = np.abs(new - fields).max(axis=(0, 1))
             fields = new
@@ -449,9 +458,9 @@ class _Stiefel(Manifold):
 
     def retract(self, x: np.ndarray) -> np.ndarray:
         """Each 3 x r block replaced by its polar factor (orthonormal rows): at rank 3 from
-        :data:`_FIELDS_FROM` poses by Newton's iteration (:func:`_polar_newton`), else by
+        :data:`_NEWTON_FROM` poses by Newton's iteration (:func:`_polar_newton`), else by
         the SVD."""
-        if x.shape[1] == 3 and x.shape[0] >= 3 * _FIELDS_FROM:
+        if x.shape[1] == 3 and x.shape[0] >= 3 * _NEWTON_FROM:
             return _polar_newton(x)
         return _polar_svd(x)
 

@@ -398,13 +398,13 @@ def test_truncated_cg_stops_at_half_the_gradient_tolerance_on_parking_garage(mon
 
 
 def test_the_newton_retraction_is_the_svd_polar_factor():
-    """At rank 3 from 50 poses the retraction runs Newton's polar iteration: the SVD's polar
+    """At rank 3 from 250 poses the retraction runs Newton's polar iteration: the SVD's polar
     factor to round-off along small and large tangent steps, orthonormal rows; a singular
     block falls back to the SVD."""
     import rlpgo_gtsam.certified3d as certified3d
 
     rng = np.random.default_rng(5)
-    n = 200
+    n = certified3d._NEWTON_FROM
     x = certified3d._stack(_rotations(rng, n))
     for size in (0.01, 1.0, 5.0):
         step = certified3d._STIEFEL.project(x, size * rng.normal(size=x.shape))
