@@ -414,3 +414,33 @@ def test_the_newton_retraction_is_the_svd_polar_factor():
         assert np.allclose(polar, certified3d._polar_svd(moved), rtol=0, atol=1e-12)
         blocks = polar.reshape(n, 3, 3)
         assert np.allclose(blocks @ blocks.transpose(0, 2, 1), np.eye(3), atol=1e-12)
+
+
+def test_the_isotropic_translation_step_is_the_direct_solve():
+    """Isotropic translation informations (a generated graph, held poses included): the
+    translation step's CG with the scalar Laplacian gives the direct 3n solve's positions
+    and chi2; anisotropic ones (5, 6, 7 on the axes) are left to the direct solve."""
+    import rlpgo_gtsam.translations3d as translations3d
+    from rlpgo_gtsam.synthetic import generate3d
+
+    sample = generate3d(300, 0.05, 0.1, 1.0, 0.5, np.random.default_rng(2),
+                        noisy_measurements=True)
+    g = PoseGraph3D.from_gtsam(sample.graph, sample.initial)
+    rotations = chordal_rotations(g)
+    step = translations3d.TranslationStep3D(g)
+    a_j, b = step.whitened(rotations)
+    held = np.array([g.anchor, 17, 150])
+    held_t = np.random.default_rng(3).normal(size=(3, 3))
+    fast = translations3d._solve_isotropic(g.num_poses, g.edges, a_j, b, held, held_t)
+    assert fast is not None
+    direct = translations3d.solve_block_pairwise(g.num_poses, g.edges, -a_j, a_j, b, held,
+                                                 held_t)
+    assert np.allclose(fast, direct, rtol=0, atol=1e-9 * np.abs(direct).max())
+    assert np.array_equal(fast[held], held_t)
+    assert edge_chi2(g, rotations, fast).sum() == pytest.approx(
+        edge_chi2(g, rotations, direct).sum(), rel=1e-12)
+    graph, values, _, _ = _exact_graph(np.random.default_rng(6), noise=0.05)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    a_j, b = translations3d.TranslationStep3D(g).whitened(chordal_rotations(g))
+    held, _, held_t = g.held
+    assert translations3d._solve_isotropic(g.num_poses, g.edges, a_j, b, held, held_t) is None
