@@ -272,6 +272,9 @@ class Manifold:
             problem's :meth:`Relaxation.hessian_preconditioner` at its ``Y`` (refactored at
             each new ``Y`` from then on, as long as it is positive definite; else back to
             ``Q + delta I``); None: always ``Q + delta I``.
+        cg_floor: truncated CG also stops once its residual is below this fraction of the
+            trust region's gradient tolerance (the next gradient is about that residual:
+            solving further only overshoots the stop test); 0: never.
     """
 
     dense_below: int
@@ -284,6 +287,7 @@ class Manifold:
     escape_halvings: int = ESCAPE_HALVINGS
     arpack_options: dict[str, Any] = field(default_factory=lambda: dict(ARPACK_OPTIONS))
     hessian_preconditioner_after: int | None = None
+    cg_floor: float = 0.0
     dtype: ClassVar[type] = float
     """The scalars of ``Y`` (and of the eigenvectors of ``S``)."""
 
@@ -578,7 +582,8 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
         shortened = _shortened(path, radius) if rejected else None
         if shortened is None:
             path, products[0] = [], 0
-            shortened = truncated_cg(grad, hess, pre, radius, path, deadline)
+            shortened = truncated_cg(grad, hess, pre, radius, path, deadline,
+                                     m.cg_floor * grad_tol)
         step, h_step, on_boundary, length = shortened
         model_decrease = -(m.inner(grad, step) + 0.5 * m.inner(step, h_step))
         y_new = m.retract(y + step)
@@ -610,14 +615,15 @@ def _shared_preconditioner(problem: Any, manifold: Manifold,
 
 
 def truncated_cg(grad, hess, pre, radius, path: list | None = None,
-                 deadline: float | None = None):
+                 deadline: float | None = None, floor: float = 0.0):
     """Steihaug-Toint truncated CG for min <g, e> + <e, H e> / 2 in the preconditioner's
     norm ball of ``radius``; returns (step, H step, whether it stopped on the boundary, the
     step's length in the preconditioner's norm). ``path`` (if given) gets the iterations
     that a run with a quarter of the radius or less would stop in (see :func:`_shortened`).
     Once ``time.perf_counter()`` passes ``deadline`` (None: never) it stops after the
     iteration it is in (at least one runs): its step so far lowers the model as each of
-    CG's iterates does."""
+    CG's iterates does. It stops at ``||r|| <= ||g|| min(||g||^theta, kappa)``, or at
+    ``||r|| <= floor`` where that is larger."""
     step = np.zeros_like(grad)
     h_step = np.zeros_like(grad)
     residual = grad.copy()
@@ -626,7 +632,7 @@ def truncated_cg(grad, hess, pre, radius, path: list | None = None,
     z_r = _inner(z, residual)
     direction = -z
     e_pe, e_pd, d_pd = 0.0, 0.0, z_r
-    target = r0 * min(r0 ** CG_THETA, CG_KAPPA)
+    target = max(r0 * min(r0 ** CG_THETA, CG_KAPPA), floor)
     for inner in range(CG_MAX_INNER):
         if inner > 0 and _late(deadline):
             break

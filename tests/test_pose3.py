@@ -335,3 +335,112 @@ def test_certified_above_rank_three_polishes_its_rounded_rotations(monkeypatch):
     _, plain = synchronize3d(g)
     assert certificate.estimate_cost <= plain.estimate_cost
     assert certificate.lower_bound == pytest.approx(plain.lower_bound, rel=1e-12)
+
+
+def test_the_blocks_products_on_fields_equal_the_small_matrix_products(monkeypatch):
+    """From 50 poses the Stiefel blocks' projection, multipliers, Lambda V and Hessian run
+    on (3, r, n) fields: the same numbers as the (n, 3, r) matrix products, at ranks 3 and 5,
+    and the projection lands in the tangent space."""
+    import rlpgo_gtsam.certified3d as certified3d
+
+    manifold = certified3d._STIEFEL
+    rng = np.random.default_rng(4)
+    n = 80
+    for r in (3, 5):
+        x = manifold.retract(rng.normal(size=(3 * n, r)))
+        v, qv, qx = (rng.normal(size=(3 * n, r)) for _ in range(3))
+        fields = (manifold.project(x, v), manifold.multipliers(x, qx))
+        lam = fields[1]
+        fields += (manifold.times(lam, v), manifold.hessian(x, lam, v, qv))
+        monkeypatch.setattr(certified3d, "_FIELDS_FROM", n + 1)
+        stacks = (manifold.project(x, v), manifold.multipliers(x, qx))
+        stacks += (manifold.times(lam, v), manifold.hessian(x, lam, v, qv))
+        monkeypatch.undo()
+        for a, b in zip(fields, stacks, strict=True):
+            assert a.shape == b.shape and np.allclose(a, b, rtol=0, atol=1e-12)
+        xb, pb = x.reshape(n, 3, r), fields[0].reshape(n, 3, r)
+        sym = pb @ xb.transpose(0, 2, 1)
+        assert np.allclose(sym + sym.transpose(0, 2, 1), 0.0, atol=1e-12)
+
+
+def test_truncated_cg_stops_at_half_the_gradient_tolerance_on_parking_garage(monkeypatch):
+    """parking-garage's last trust-region step starts at a gradient just above the
+    tolerance: CG stopping at half the tolerance (the 3D manifold's cg_floor) takes fewer
+    Hessian products than CG solving to its relative target, and the staircase is certified
+    at the same cost."""
+    import dataclasses
+
+    import rlpgo_gtsam.certified3d as certified3d
+    import rlpgo_gtsam.staircase as staircase
+
+    graph, values = gtsam.readG2o(str(DATA / "parking-garage.g2o"), True)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    products = [0]
+    truncated_cg = staircase.truncated_cg
+
+    def counted(grad, hess, pre, radius, *args):
+        def product(v):
+            products[0] += 1
+            return hess(v)
+        return truncated_cg(grad, product, pre, radius, *args)
+
+    monkeypatch.setattr(staircase, "truncated_cg", counted)
+    assert certified3d._STIEFEL.cg_floor == 0.5
+    _, floored = synchronize3d(g)
+    with_floor, products[0] = products[0], 0
+    monkeypatch.setattr(certified3d, "_STIEFEL",
+                        dataclasses.replace(certified3d._STIEFEL, cg_floor=0.0))
+    _, plain = synchronize3d(g)
+    assert floored.certified and plain.certified
+    assert with_floor < 0.75 * products[0]
+    assert floored.estimate_cost == pytest.approx(plain.estimate_cost, rel=1e-8)
+    assert floored.suboptimality_bound <= 1e-4 * floored.tolerance * 3 * g.num_poses
+
+
+def test_the_newton_retraction_is_the_svd_polar_factor():
+    """At rank 3 from 250 poses the retraction runs Newton's polar iteration: the SVD's polar
+    factor to round-off along small and large tangent steps, orthonormal rows; a singular
+    block falls back to the SVD."""
+    import rlpgo_gtsam.certified3d as certified3d
+
+    rng = np.random.default_rng(5)
+    n = certified3d._NEWTON_FROM
+    x = certified3d._stack(_rotations(rng, n))
+    for size in (0.01, 1.0, 5.0):
+        step = certified3d._STIEFEL.project(x, size * rng.normal(size=x.shape))
+        moved = x + step
+        moved[3:6] = np.outer([1.0, 2.0, 3.0], [1.0, 1.0, 1.0])  # rank one
+        polar = certified3d._STIEFEL.retract(moved)
+        assert np.allclose(polar, certified3d._polar_svd(moved), rtol=0, atol=1e-12)
+        blocks = polar.reshape(n, 3, 3)
+        assert np.allclose(blocks @ blocks.transpose(0, 2, 1), np.eye(3), atol=1e-12)
+
+
+def test_the_isotropic_translation_step_is_the_direct_solve():
+    """Isotropic translation informations (a generated graph, held poses included): the
+    translation step's CG with the scalar Laplacian gives the direct 3n solve's positions
+    and chi2; anisotropic ones (5, 6, 7 on the axes) are left to the direct solve."""
+    import rlpgo_gtsam.translations3d as translations3d
+    from rlpgo_gtsam.synthetic import generate3d
+
+    sample = generate3d(300, 0.05, 0.1, 1.0, 0.5, np.random.default_rng(2),
+                        noisy_measurements=True)
+    g = PoseGraph3D.from_gtsam(sample.graph, sample.initial)
+    rotations = chordal_rotations(g)
+    step = translations3d.TranslationStep3D(g)
+    a_j, b = step.whitened(rotations)
+    held = np.array([g.anchor, 17, 150])
+    held_t = np.random.default_rng(3).normal(size=(3, 3))
+    fast = translations3d._solve_isotropic(g.num_poses, g.edges, a_j, b, held, held_t)
+    assert fast is not None
+    direct = translations3d.solve_block_pairwise(g.num_poses, g.edges, -a_j, a_j, b, held,
+                                                 held_t)
+    assert np.allclose(fast, direct, rtol=0, atol=1e-9 * np.abs(direct).max())
+    assert np.array_equal(fast[held], held_t)
+    assert edge_chi2(g, rotations, fast).sum() == pytest.approx(
+        edge_chi2(g, rotations, direct).sum(), rel=1e-12)
+    graph, values, _, _ = _exact_graph(np.random.default_rng(6), noise=0.05)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    a_j, b = translations3d.TranslationStep3D(g).whitened(chordal_rotations(g))
+    held, _, held_t = g.held
+    assert translations3d._solve_isotropic(g.num_poses, g.edges, a_j, b, held, held_t) is None
