@@ -276,8 +276,8 @@ def robust_initialize(
     # rejected; the relaxation of the edges left is the map the rounds start from
     # (City10K, 10% grouped wrong closures: chi2 407 after its 30 LM steps, 2 s, against
     # 2742 after 100 Gauss-Newton steps from the seed's map, 30 s)
-    start = _relaxed(graph, g, factor_of_edge, kept)
-    settled = start is not None  # refined on the kept edges already
+    start = _relaxed(graph, g, factor_of_edge, kept, iterations=_ROUND_ITERS)
+    settled = start is not None  # refined on the kept edges already, as far as a round is
     if not settled:
         start = group.to_values(g, group.with_positions(rotations, positions))
     steps.append(_step("start", step_began, iterations, kept, known))
@@ -452,11 +452,13 @@ def noise_scale(errors: np.ndarray, information: np.ndarray) -> np.ndarray:
 
 
 def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
-             near: gtsam.Values | None = None) -> gtsam.Values | None:
+             near: gtsam.Values | None = None,
+             iterations: int = _RESTART_ITERS) -> gtsam.Values | None:
     """The certified relaxation of the kept edges, refined by GTSAM on them (the clean
-    default on the edges judged right: ``_RESTART_ITERS`` iterations, enough to tell its
-    basin from the rounds' map; to convergence, MIT's weak odometry took LM 99 iterations,
-    0.54 s of a 1.35 s run, to end where the rounds had); None where they do not span the
+    default on the edges judged right: ``iterations`` steps, by default ``_RESTART_ITERS``,
+    enough to tell its basin from the rounds' map; to convergence, MIT's weak odometry took LM
+    99 iterations, 0.54 s of a 1.35 s run, to end where the rounds had); None where they do
+    not span the
     graph, or where the relaxation's estimate turns no pose more than ``_SAME_BASIN_RAD``
     from ``near`` (the map it would be compared with: the same basin, nothing to refine)."""
     group = group_of(g)
@@ -470,7 +472,7 @@ def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
         turned = group.logmap(group.between(group.poses_of(g, near), group.poses_of(g, start)))
         if np.linalg.norm(turned[:, group.rotation_axes], axis=1).max() < _SAME_BASIN_RAD:
             return None
-    return _solved(graph, g, factor_of_edge, kept, start, _RESTART_ITERS).values
+    return _solved(graph, g, factor_of_edge, kept, start, iterations).values
 
 
 def _runs(g: PoseGraph, among: np.ndarray) -> list[np.ndarray]:
