@@ -129,8 +129,11 @@ class Group:
         own (planar: the default's; 3D: rank 3, ``_RELAXATION_ITERATIONS``)."""
         raise NotImplementedError
 
-    def relaxation_rotations(self, g: PoseGraph) -> np.ndarray:
-        """The rotations of the certified relaxation's estimate of ``g``."""
+    def relaxation_rotations(self, g: PoseGraph, max_iterations: int | None = None
+                             ) -> np.ndarray:
+        """The rotations of the certified relaxation's estimate of ``g`` at the group's lowest
+        rank, after at most ``max_iterations`` trust-region iterations (None: the group's
+        own cap)."""
         raise NotImplementedError
 
     def translation_system(self, g: PoseGraph, rotations: np.ndarray) -> TranslationSystem:
@@ -201,8 +204,9 @@ class _Planar(Group):
         return make_initializer("certified",
                                 **{k: v for k, v in options.items() if v is not None})
 
-    def relaxation_rotations(self, g):
-        return self.certified().run(g).poses[:, 2]
+    def relaxation_rotations(self, g, max_iterations=None):
+        return self.certified(max_rank=self.lowest_rank,
+                              max_iterations=max_iterations).run(g).poses[:, 2]
 
     def translation_system(self, g, rotations):
         a_j, b, _ = whitened_system(g, rotations)
@@ -264,10 +268,11 @@ class _Spatial(Group):
         return Certified3D(max_rank=max_rank or self.lowest_rank,
                            max_iterations=max_iterations or _RELAXATION_ITERATIONS)
 
-    def relaxation_rotations(self, g):
+    def relaxation_rotations(self, g, max_iterations=None):
         from rlpgo_gtsam.certified3d import synchronize3d
 
-        rotations, _ = synchronize3d(g, max_rank=3, max_iterations=_RELAXATION_ITERATIONS)
+        rotations, _ = synchronize3d(g, max_rank=3, max_iterations=min(
+            _RELAXATION_ITERATIONS, max_iterations or _RELAXATION_ITERATIONS))
         held, held_r, _ = g.held
         rotations[held] = held_r
         return rotations

@@ -131,8 +131,14 @@ _ADMIT_CHANCE = 1e-3  # ... or that a wrong closure would pass less often than t
 # minority of closures (sphere_bignoise_vertex3, tested: 96% of the pairs; Vertigo's policies
 # at 10%: 2-51%), and the noise_scale stop may pass
 _NOISE_CONFLICTS = 0.5
+_START_ITERATIONS = _ALL_EDGES_ITERATIONS  # the seed's relaxation: its lowest rank, so many
+# trust-region iterations (its rotations only start the translation step; see "start")
 _RESTART_ITERS = 30  # the kept edges' relaxation refined this far before it is compared
 _RESTART_GAIN = 1e-6  # verify again from the kept edges' relaxation if it is this much lower
+# ... unless it turns no pose of the rounds' map by this much (radians): where the basin was
+# the same, its rotations lay 0.017-0.097 rad from the rounds' map (MIT, Intel, FR079, gen,
+# M3500, four policies at 5% and 20%), and LM30 from it ended at the rounds' chi2 every time
+_SAME_BASIN_RAD = 0.25
 _LINEAR_RAD = 1.0  # admitted only if the map need not turn the edge more than this to fit
 _RUN_REACH = 2  # parallel closures this many poses apart (or closer) form a run (_runs) ...
 _RUN_MAX = 5  # ... judged in pieces of at most this many (Vertigo's group size)
@@ -262,26 +268,33 @@ def robust_initialize(
                  for k, r in consistency.ambiguous]
 
     step_began = time.perf_counter()
-    rotations = group.relaxation_rotations(group.subgraph(g, kept))
+    rotations = group.relaxation_rotations(group.subgraph(g, kept), _START_ITERATIONS)
     positions, weights, iterations = robust_positions(g, rotations, known, ~kept,
                                                       translation_bar, gnc_iterations)
     kept &= weights >= REJECTED_BELOW
-    poses = group.with_positions(rotations, positions)
+    # the seed's rotations were bent by the wrong closures the translation step just
+    # rejected; the relaxation of the edges left is the map the rounds start from
+    # (City10K, 10% grouped wrong closures: chi2 407 after its 30 LM steps, 2 s, against
+    # 2742 after 100 Gauss-Newton steps from the seed's map, 30 s)
+    start = _relaxed(graph, g, factor_of_edge, kept, iterations=_ROUND_ITERS)
+    settled = start is not None  # refined on the kept edges already, as far as a round is
+    if not settled:
+        start = group.to_values(g, group.with_positions(rotations, positions))
     steps.append(_step("start", step_began, iterations, kept, known))
 
     step_began = time.perf_counter()
-    verified, kept, rounds = _verify(graph, g, factor_of_edge, poses, kept, known,
+    verified, kept, rounds = _verify(graph, g, factor_of_edge, start, settled, kept, known,
                                      inlier_probability)
     # the map the rounds settled in grew from the seed's start; the certified relaxation of
     # the edges now kept may lie in a lower basin (City10K, 10% local wrong closures: the
     # decision exact, the rounds' map 1.83x the optimum after LM): then judge again from it
-    restart = _relaxed(graph, g, factor_of_edge, kept)
+    restart = _relaxed(graph, g, factor_of_edge, kept, near=verified)
     kept_graph = _without(graph, factor_of_edge[~kept].tolist())
     restarted = restart is not None and chi2(kept_graph, restart) < (
         1.0 - _RESTART_GAIN) * chi2(kept_graph, verified)
     if restarted:
-        verified, kept, more = _verify(graph, g, factor_of_edge, group.poses_of(g, restart),
-                                       kept, known, inlier_probability)
+        verified, kept, more = _verify(graph, g, factor_of_edge, restart, True, kept, known,
+                                       inlier_probability)
         rounds += more
     steps.append(_step("verify", step_began, rounds, kept, known) | {"restarted": restarted})
 
@@ -438,13 +451,16 @@ def noise_scale(errors: np.ndarray, information: np.ndarray) -> np.ndarray:
     return scale if scale.max() <= _MAX_NOISE_SCALE else np.ones_like(scale)
 
 
-def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray,
-             kept: np.ndarray) -> gtsam.Values | None:
+def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
+             near: gtsam.Values | None = None,
+             iterations: int = _RESTART_ITERS) -> gtsam.Values | None:
     """The certified relaxation of the kept edges, refined by GTSAM on them (the clean
-    default on the edges judged right: ``_RESTART_ITERS`` iterations, enough to tell its
-    basin from the rounds' map; to convergence, MIT's weak odometry took LM 99 iterations,
-    0.54 s of a 1.35 s run, to end where the rounds had); None where they do not span the
-    graph."""
+    default on the edges judged right: ``iterations`` steps, by default ``_RESTART_ITERS``,
+    enough to tell its basin from the rounds' map; to convergence, MIT's weak odometry took LM
+    99 iterations, 0.54 s of a 1.35 s run, to end where the rounds had); None where they do
+    not span the
+    graph, or where the relaxation's estimate turns no pose more than ``_SAME_BASIN_RAD``
+    from ``near`` (the map it would be compared with: the same basin, nothing to refine)."""
     group = group_of(g)
     inliers = group.subgraph(g, kept)
     try:
@@ -452,7 +468,11 @@ def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray,
     except GraphError:  # the edges kept do not span the graph (odometry judged and rejected)
         return None
     start = group.certified().run(inliers).values
-    return _solved(graph, g, factor_of_edge, kept, start, _RESTART_ITERS).values
+    if near is not None:
+        turned = group.logmap(group.between(group.poses_of(g, near), group.poses_of(g, start)))
+        if np.linalg.norm(turned[:, group.rotation_axes], axis=1).max() < _SAME_BASIN_RAD:
+            return None
+    return _solved(graph, g, factor_of_edge, kept, start, iterations).values
 
 
 def _runs(g: PoseGraph, among: np.ndarray) -> list[np.ndarray]:
@@ -598,8 +618,8 @@ def _innovations(edges: gtsam.NonlinearFactorGraph, g: PoseGraph, values: gtsam.
     return chi2_sets, spread, turn
 
 
-def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, poses: np.ndarray,
-            kept: np.ndarray, known: np.ndarray,
+def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Values,
+            settled: bool, kept: np.ndarray, known: np.ndarray,
             inlier_probability: float) -> tuple[gtsam.Values, np.ndarray, int]:
     """Re-decide the closures by :func:`_innovations` at the kept edges' optimum, solving
     again after each change, until nothing changes (at most ``_VERIFY_ROUNDS`` rounds).
@@ -639,7 +659,8 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, poses: np.ndarray,
     tried = np.zeros(len(kept), bool)  # closures a solve has judged (_turned, _held)
     checks = [0]  # _held's solves so far
     rounds = 0
-    values = _solved(graph, g, factor_of_edge, kept, group.to_values(g, poses)).values
+    if not settled:  # ``values``: the kept edges' map, refined already where settled
+        values = _solved(graph, g, factor_of_edge, kept, values).values
     while rounds < _VERIFY_ROUNDS:
         rounds += 1
         candidates = judged & (kept | ~banned)
