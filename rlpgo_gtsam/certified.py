@@ -96,7 +96,7 @@ from rlpgo_gtsam.staircase import (
     verify,
 )
 
-__all__ = ["Certificate", "Status", "synchronize", "certify", "relaxation_cost"]
+__all__ = ["Certificate", "Status", "synchronize", "descend", "certify", "relaxation_cost"]
 
 _DENSE_BELOW = 300  # graphs with fewer poses get dense eigenvalue computations
 _ARPACK_OPTIONS = ARPACK_OPTIONS  # ARPACK's settings besides k, which, v0 and tol
@@ -185,6 +185,25 @@ def synchronize(
     theta = wrap(np.angle(z))
     estimate = problem.cost(z[:, None])
     return theta, certificate(check, estimate, eta, problem.n, y.shape[1], started, stop)
+
+
+@numeric_call
+def descend(pose_graph: PoseGraph2D, max_iterations: int,
+            gradient_tolerance: float = 1e-9) -> np.ndarray:
+    """Orientations (n,) of the rotation problem (the relaxation at rank 1) descended from
+    the chordal estimate by at most ``max_iterations`` trust-region iterations, with the
+    staircase's tolerances: :func:`synchronize`'s first rank without its verification (no
+    certificate, no escape), for a caller that wants good orientations and no proof (the
+    robust path's start: on City10K with 10% local wrong closures the verification of that
+    one rank took 6 s of sparse factorizations, against 1 s for the descent). The anchor
+    keeps its angle."""
+    problem = _Problem(pose_graph)
+    eta = problem.tolerance(None)
+    z = np.exp(1j * chordal_orientations(pose_graph))
+    grad_tol = gradient_tolerance * np.sqrt(problem.n) * problem.scale
+    z = polish(problem, _manifold(), z[:, None], eta, max_iterations, grad_tol, None)[:, 0]
+    z *= np.exp(1j * pose_graph.poses[pose_graph.anchor, 2]) / z[pose_graph.anchor]
+    return wrap(np.angle(z))
 
 
 @numeric_call

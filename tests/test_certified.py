@@ -14,7 +14,7 @@ from rlpgo_cli.init import main as init_main
 
 import rlpgo_gtsam.certified as certified
 from rlpgo_gtsam import PoseGraph2D, generate, write_g2o
-from rlpgo_gtsam.certified import Status, certify, synchronize
+from rlpgo_gtsam.certified import Status, certify, descend, synchronize
 from rlpgo_gtsam.chordal import chordal_orientations
 from rlpgo_gtsam.se2 import wrap
 
@@ -54,6 +54,14 @@ def test_an_exact_graph_ends_certified():
     theta, certificate = synchronize(_graph(100, 0.3, 21, noisy=False))
     _ended(certificate, Status.CERTIFIED)
     assert certificate.rank == 1 and certificate.suboptimality_bound < 1e-6
+
+
+@pytest.mark.parametrize("iterations", [2, 300])
+def test_descend_is_the_staircase_first_rank_without_its_verification(heavy, iterations):
+    # the same trust region from the same chordal start: rank 1 held, capped alike
+    theta, certificate = synchronize(heavy, max_rank=1, max_iterations=iterations)
+    assert np.abs(wrap(descend(heavy, iterations) - theta)).max() < 1e-12
+    assert certificate.rank == 1 and not certificate.certified  # a saddle there: no proof
 
 
 def test_a_solved_relaxation_that_is_not_exact_ends_not_tight(heavy):

@@ -40,6 +40,7 @@ __all__ = ["Group", "PLANAR", "SPATIAL", "group_of", "TranslationSystem"]
 # sphere2500 and torus3D ran 91 and 45 there (15 s CPU each, against 1.0 and 1.8 s clean)
 # and the staircase then climbed to rank 10 (250 s) without a certificate.
 _RELAXATION_ITERATIONS = 20
+_PLANAR_ITERATIONS = 300  # the planar relaxation's own cap (the clean default's)
 
 PoseGraph = AnyPoseGraph
 # The translation step at fixed rotations: (m, d, d) blocks A_e and (m, d) b_e of the whitened
@@ -131,9 +132,11 @@ class Group:
 
     def relaxation_rotations(self, g: PoseGraph, max_iterations: int | None = None
                              ) -> np.ndarray:
-        """The rotations of the certified relaxation's estimate of ``g`` at the group's lowest
-        rank, after at most ``max_iterations`` trust-region iterations (None: the group's
-        own cap)."""
+        """The rotations of the relaxation's estimate of ``g`` at the group's lowest rank, from
+        the chordal estimate, after at most ``max_iterations`` trust-region iterations (None:
+        the group's own cap). Planar: the descent alone
+        (:func:`~rlpgo_gtsam.certified.descend`, no verification); 3D: the staircase held at
+        rank 3."""
         raise NotImplementedError
 
     def translation_system(self, g: PoseGraph, rotations: np.ndarray) -> TranslationSystem:
@@ -205,8 +208,9 @@ class _Planar(Group):
                                 **{k: v for k, v in options.items() if v is not None})
 
     def relaxation_rotations(self, g, max_iterations=None):
-        return self.certified(max_rank=self.lowest_rank,
-                              max_iterations=max_iterations).run(g).poses[:, 2]
+        from rlpgo_gtsam.certified import descend
+
+        return descend(g, max_iterations or _PLANAR_ITERATIONS)
 
     def translation_system(self, g, rotations):
         a_j, b, _ = whitened_system(g, rotations)
