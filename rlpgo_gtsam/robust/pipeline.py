@@ -35,9 +35,10 @@ and lets GTSAM's GNC-LM (truncated least squares) finish from it:
    odds with the seed's map. (Chordal orientations instead fail under heavy rotation
    noise: imprecise, they put true closures' translations at odds too, and LM from the
    thinned seed's chordal estimate settled in a wrong basin on the generator's graphs with
-   0.2 rad per measurement.) The map the rounds start from is then the certified
-   relaxation of the edges kept (the wrong seed closures the translation step dropped had
-   bent the seed's orientations), refined as far as a round is.
+   0.2 rad per measurement.) On planar graphs the map the rounds start from is then the
+   certified relaxation of the edges kept (the wrong seed closures the translation step
+   dropped had bent the seed's orientations), refined as far as a round is; in 3D it is
+   the start's own map (see ``Group.relaxed_start``).
 3. ``verify``: from that map, every closure is judged by the chi2 of its residual under
    the map's own uncertainty (:func:`_innovations`): a kept closure by its leave-one-out residual (the
    map without it), a closure left out by its innovation (how far its measurement lies
@@ -280,7 +281,8 @@ def robust_initialize(
     # rejected; the relaxation of the edges left is the map the rounds start from
     # (City10K, 10% grouped wrong closures: chi2 407 after its 30 LM steps, 2 s, against
     # 2742 after 100 Gauss-Newton steps from the seed's map, 30 s)
-    start = _relaxed(graph, g, factor_of_edge, kept, iterations=_ROUND_ITERS)
+    start = (_relaxed(graph, g, factor_of_edge, kept, iterations=_ROUND_ITERS)
+             if group.relaxed_start else None)
     settled = start is not None  # refined on the kept edges already, as far as a round is
     if not settled:
         start = group.to_values(g, group.with_positions(rotations, positions))
