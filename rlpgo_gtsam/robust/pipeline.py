@@ -26,17 +26,21 @@ and lets GTSAM's GNC-LM (truncated least squares) finish from it:
    closures they contradict. The seed is the closures left that have positive support
    (agreeing tests); the others are judged later by the map's fit. Sets that conflict and
    are nearly equally supported are reported in :attr:`RobustResult.ambiguous`.
-2. ``start``: the certified relaxation (:mod:`rlpgo_gtsam.certified`) of the seed (the
-   odometry edges and the seed closures) gives the orientations; then GNC-TLS on the
+2. ``start``: the relaxation of the seed (the odometry edges and the seed closures) at its
+   lowest rank, descended from the chordal estimate (planar:
+   :func:`~rlpgo_gtsam.certified.descend`, 25 trust-region iterations, no verification;
+   3D: the staircase held at rank 3) gives the orientations; then GNC-TLS on the
    translation step at those orientations (odometry at weight 1, seed closures judged, the
    rest left out): a seed closure that agreed by chance goes here, its translation at
    odds with the seed's map. (Chordal orientations instead fail under heavy rotation
    noise: imprecise, they put true closures' translations at odds too, and LM from the
    thinned seed's chordal estimate settled in a wrong basin on the generator's graphs with
-   0.2 rad per measurement.)
-3. ``verify``: the kept edges' optimum (Gauss-Newton, LM where GN does not lower the cost),
-   then every closure is judged against it by the chi2 of its residual under the map's own
-   uncertainty (:func:`_innovations`): a kept closure by its leave-one-out residual (the
+   0.2 rad per measurement.) On planar graphs the map the rounds start from is then the
+   certified relaxation of the edges kept (the wrong seed closures the translation step
+   dropped had bent the seed's orientations), refined as far as a round is; in 3D it is
+   the start's own map (see ``Group.relaxed_start``).
+3. ``verify``: from that map, every closure is judged by the chi2 of its residual under
+   the map's own uncertainty (:func:`_innovations`): a kept closure by its leave-one-out residual (the
    map without it), a closure left out by its innovation (how far its measurement lies
    from what the map predicts, given how well the map knows its two poses), both
    chi-square with the group's dof (3 planar, 6 in 3D) for a true closure; runs of
@@ -47,10 +51,11 @@ and lets GTSAM's GNC-LM (truncated least squares) finish from it:
    does not reach that far: those are judged by a solve, :func:`_turned`, when nothing
    else comes in); kept clusters of nearby closures that hold their stretch are judged by
    a solve without them (:func:`_clusters`, :func:`_held`). Repeated until nothing
-   changes (see :func:`_verify`). Then
-   the certified relaxation of the edges kept (the clean default on them); where its
-   optimum lies lower than the rounds' map, which grew from the seed and can settle in a
-   wrong basin (City10K), the rounds run again from it. (The own-covariance chi2 the step
+   changes (see :func:`_verify`). Then the certified relaxation of the edges kept (the
+   clean default on them); where it turns some pose of the rounds' map by
+   ``_SAME_BASIN_RAD`` or more and its optimum lies lower than the rounds' map (which can
+   settle in a wrong basin: City10K, when the rounds grew from the seed's map), the rounds
+   run again from it. (The own-covariance chi2 the step
    used before, under a falling bar of 10x to 1x the threshold, ignored how well the map
    knows a closure's two poses: on MIT's weak odometry true closures far from the seed
    never came back, and on Intel wrong local closures that alone held a stretch of the
@@ -276,7 +281,8 @@ def robust_initialize(
     # rejected; the relaxation of the edges left is the map the rounds start from
     # (City10K, 10% grouped wrong closures: chi2 407 after its 30 LM steps, 2 s, against
     # 2742 after 100 Gauss-Newton steps from the seed's map, 30 s)
-    start = _relaxed(graph, g, factor_of_edge, kept, iterations=_ROUND_ITERS)
+    start = (_relaxed(graph, g, factor_of_edge, kept, iterations=_ROUND_ITERS)
+             if group.relaxed_start else None)
     settled = start is not None  # refined on the kept edges already, as far as a round is
     if not settled:
         start = group.to_values(g, group.with_positions(rotations, positions))
