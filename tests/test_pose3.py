@@ -332,6 +332,36 @@ def test_a_dense_q_verified_by_arpack_agrees_with_the_sparse_path(monkeypatch, n
     assert dense.chi2 == pytest.approx(sparse.chi2, rel=1e-9)
 
 
+def test_the_isotropic_translation_step_is_the_same_with_a_dense_laplacian(monkeypatch):
+    """Below ``_DENSE_LAPLACIAN_BELOW`` free poses the CG translation step's incidence and
+    scalar Laplacian are dense arrays: the same positions as the sparse ones, to round-off,
+    and GTSAM's chi2 there the same."""
+    import rlpgo_gtsam.translations3d as translations3d
+    from rlpgo_gtsam.chordal3d import chordal_rotations
+    from rlpgo_gtsam.synthetic import generate3d
+
+    sample = generate3d(80, 0.05, 0.1, 1.0, 0.5, np.random.default_rng(4),
+                        noisy_measurements=True)
+    g = PoseGraph3D.from_gtsam(sample.graph, sample.initial)
+    assert translations3d._DENSE_BELOW <= 3 * (g.num_poses - 1)
+    assert g.num_poses - 1 < translations3d._DENSE_LAPLACIAN_BELOW
+    step = translations3d.TranslationStep3D(g)
+    rotations = chordal_rotations(g)
+    a_j, b = step.whitened(rotations)
+    held, _, held_t = g.held
+    solved = []
+    for below in (translations3d._DENSE_LAPLACIAN_BELOW, 0):
+        monkeypatch.setattr(translations3d, "_DENSE_LAPLACIAN_BELOW", below)
+        positions = translations3d._solve_isotropic(g.num_poses, g.edges, a_j, b, held, held_t)
+        assert positions is not None  # the isotropic step ran, not the 3n fallback
+        solved.append((positions, step.solve(rotations)[1]))
+    (dense, dense_chi2), (sparse, sparse_chi2) = solved
+    assert np.allclose(dense, sparse, atol=1e-10)
+    assert dense_chi2 == pytest.approx(sparse_chi2, rel=1e-12)
+    exact = translations3d.solve_block_pairwise(g.num_poses, g.edges, -a_j, a_j, b, held, held_t)
+    assert np.allclose(dense, exact, atol=1e-8)
+
+
 def test_an_undetermined_pose_is_named_alike_by_the_dense_and_the_sparse_solve(monkeypatch):
     """A dense factor that fails hands over to the sparse LU, whose pivots name the pose."""
     import rlpgo_gtsam.translations3d as translations3d
