@@ -10,9 +10,10 @@ with SE-Sync's weights for d = 3 (:func:`~rlpgo_gtsam.graph3d.rotation_weights`,
 held) leaves ``f(X) = tr(X^T Q X)`` with ``X`` the 3n x r matrix of stacked blocks
 ``X_i = R_i^T`` (3 x r at rank r) and ``Q = D - B^T L^-1 B`` (SE-Sync's simplified
 ``L(G^rho) + Q^tau``), applied through one sparse factorization of the anchored translation
-Laplacian ``L``, never formed; below ``_DENSE_BELOW`` rows (graphs of fewer than 50 poses)
+Laplacian ``L``, never formed; below ``_DENSE_Q_BELOW`` rows (graphs of fewer than 134 poses)
 ``Q`` is formed as a dense matrix instead, and its factors are dense (scipy's sparse set-up
-cost more than the whole solve there). Rows of each block ``X_i`` are orthonormal: ``X_i^T`` is a
+cost more than the whole solve there; S's eigenvalues are dense below ``_DENSE_BELOW``).
+Rows of each block ``X_i`` are orthonormal: ``X_i^T`` is a
 point of the Stiefel manifold St(3, r), and SE-Sync's ``Y`` is ``X^T``.
 
 How (as :mod:`rlpgo_gtsam.certified`, in real 3x3 blocks). A Riemannian staircase: at each
