@@ -10,9 +10,10 @@ with SE-Sync's weights for d = 3 (:func:`~rlpgo_gtsam.graph3d.rotation_weights`,
 held) leaves ``f(X) = tr(X^T Q X)`` with ``X`` the 3n x r matrix of stacked blocks
 ``X_i = R_i^T`` (3 x r at rank r) and ``Q = D - B^T L^-1 B`` (SE-Sync's simplified
 ``L(G^rho) + Q^tau``), applied through one sparse factorization of the anchored translation
-Laplacian ``L``, never formed; below ``_DENSE_BELOW`` rows (graphs of fewer than 50 poses)
+Laplacian ``L``, never formed; below ``_DENSE_Q_BELOW`` rows (graphs of fewer than 134 poses)
 ``Q`` is formed as a dense matrix instead, and its factors are dense (scipy's sparse set-up
-cost more than the whole solve there). Rows of each block ``X_i`` are orthonormal: ``X_i^T`` is a
+cost more than the whole solve there; S's eigenvalues are dense below ``_DENSE_BELOW``).
+Rows of each block ``X_i`` are orthonormal: ``X_i^T`` is a
 point of the Stiefel manifold St(3, r), and SE-Sync's ``Y`` is ``X^T``.
 
 How (as :mod:`rlpgo_gtsam.certified`, in real 3x3 blocks). A Riemannian staircase: at each
@@ -51,6 +52,7 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import cho_factor, cho_solve, solve_triangular
 from scipy.sparse.linalg import splu
 
 from rlpgo_gtsam.certified import Certificate, Status
@@ -77,6 +79,9 @@ __all__ = ["synchronize3d", "certify3d", "relaxation_cost3d"]
 # 40: 20.5 / 15.9, 50: 24.0 / 20.2, 60: 27.6 / 27.1, 80: 29.0 / 37.5. 150 keeps every graph
 # of 50 poses or more on the sparse path it had.
 _DENSE_BELOW = 150
+# Rows of Q below which Q itself is dense (from _DENSE_BELOW on, S's eigenvalues are still
+# found by ARPACK, shift-inverted through a dense Cholesky factor instead of a sparse LU).
+_DENSE_Q_BELOW = 400
 _REFLECT = np.diag([1.0, 1.0, -1.0])
 # (Q + delta I)^-1 preconditions the Hessian; delta / mean(diag D). The planar 1e-3 took
 # 1.5x the inner iterations on parking-garage; 1e-7 stalls at round-off.
@@ -232,7 +237,7 @@ class _Problem(Relaxation):
         ]
         data, rows, cols = (np.concatenate(p) for p in zip(*parts, strict=True))
         self.n = n
-        self.dense = 3 * n < _STIEFEL.dense_below
+        self.dense = 3 * n < max(_DENSE_Q_BELOW, _STIEFEL.dense_below)
         self._layout: tuple[sp.csc_matrix, np.ndarray, np.ndarray] | None = None
         self._order: np.ndarray | None = None  # the first sparse factor's elimination order
         keep = np.delete(np.arange(n), g.anchor)
@@ -249,9 +254,13 @@ class _Problem(Relaxation):
             d, lap, coupling = (_dense(*entries, shape) for entries, shape in matrices)
             self.scale = float(np.mean(np.diagonal(d)))
             try:  # Q = D - W^T W, W = C^-1 B and C C^T = L
-                w = np.linalg.solve(np.linalg.cholesky(lap[np.ix_(keep, keep)]), coupling[keep])
+                lower = np.linalg.cholesky(lap[np.ix_(keep, keep)])
             except np.linalg.LinAlgError:
                 raise SolverError("the measurements do not determine the translations") from None
+            if 3 * n < _DENSE_BELOW:
+                w = np.linalg.solve(lower, coupling[keep])
+            else:
+                w = solve_triangular(lower, coupling[keep], lower=True, check_finite=False)
             self.q = d - w.T @ w
         else:
             d, lap, coupling = (sp.coo_matrix(entries, shape=shape).tocsr()
@@ -289,6 +298,8 @@ class _Problem(Relaxation):
             index = np.arange(self.n)
             shifted.reshape(self.n, 3, self.n, 3)[index, :, index, :] += blocks
             try:
+                if 3 * self.n >= _DENSE_BELOW:
+                    return _Cholesky(cho_factor(shifted, lower=True, check_finite=False))
                 inverse = np.linalg.inv(np.linalg.cholesky(shifted))
             except np.linalg.LinAlgError:
                 raise RuntimeError("not positive definite") from None
@@ -338,9 +349,22 @@ class _Problem(Relaxation):
 
     def solve_shifted(self, lu: Any, v: np.ndarray) -> np.ndarray:
         if self.dense:
-            return lu @ v
+            return lu @ v if isinstance(lu, np.ndarray) else lu.solve(v)
         m = self.n - 1
         return lu.solve(np.vstack([np.zeros((m, v.shape[1])), v]))[m:]
+
+
+class _Cholesky:
+    """A dense problem's factor of ``Q + M`` from :data:`_DENSE_BELOW` rows: its Cholesky
+    factor (the explicit inverse below, where its products are cheaper than two triangular
+    solves; above, the inverse cost more than the whole trust region). It exists only where
+    ``Q + M`` is positive definite: no pivot is negative."""
+
+    def __init__(self, factor: tuple[np.ndarray, bool]) -> None:
+        self.factor = factor
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        return cho_solve(self.factor, b, check_finite=False)
 
 
 class _Reordered:
@@ -504,6 +528,13 @@ class _Stiefel(Manifold):
 
     def superlu(self, factor: Any) -> Any:
         return factor.lu if isinstance(factor, _Reordered) else factor
+
+    def negative_pivots(self, factor: Any) -> int | None:
+        """A dense factor (:class:`_Cholesky`, or the explicit inverse) is made only where
+        the matrix is positive definite."""
+        if isinstance(factor, (_Cholesky, np.ndarray)):
+            return 0
+        return super().negative_pivots(factor)
 
     def dense(self, problem: _Problem, lam: np.ndarray) -> np.ndarray:
         s = problem.apply(np.eye(3 * problem.n))

@@ -348,6 +348,11 @@ class Manifold:
         """The ``SuperLU`` of a :meth:`factor`'s result (for its pivots)."""
         return factor
 
+    def negative_pivots(self, factor: Any) -> int | None:
+        """:func:`negative_pivots` of a :meth:`factor`'s result (not None); by default
+        through its :meth:`superlu`."""
+        return negative_pivots(self.superlu(factor))
+
 
 def check_start(started: float, initial_rank: int, max_rank: int, lowest: int,
                 time_limit_s: float | None) -> float | None:
@@ -772,7 +777,7 @@ def _negative_pivots(manifold: Manifold, factor: Any) -> int | None:
     inertia)."""
     if factor is None:
         return None
-    return negative_pivots(manifold.superlu(factor))
+    return manifold.negative_pivots(factor)
 
 
 def negative_pivots(lu: Any) -> int | None:

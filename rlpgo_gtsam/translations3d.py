@@ -39,6 +39,11 @@ _DENSE_BELOW = 150
 # iterations; else (cubicle's informations: condition numbers up to 1e7) the 3n LU.
 _ISOTROPIC = 0.1
 _CG_TOLERANCE, _CG_ITERATIONS = 1e-13, 30
+# Free poses below which _solve_isotropic's incidence and scalar Laplacian are dense arrays
+# (the same products; scipy.sparse's set-up took most of a 125-pose step). The translation
+# step (CPU ms, dense / sparse): smallGrid3D 4.5 / 5.9, generated graphs of 60 poses 2.3 /
+# 4.0, 150: 3.9 / 5.0, 200: 5.2 / 5.6, 300: 9.1 / 6.7; the positions within 4e-15.
+_DENSE_LAPLACIAN_BELOW = 200
 
 
 def solve_block_pairwise(num_poses: int, edges: np.ndarray, a_i: np.ndarray, a_j: np.ndarray,
@@ -163,6 +168,7 @@ def _solve_isotropic(num_poses: int, edges: np.ndarray, a: np.ndarray, b: np.nda
     if 3 * (num_poses - len(np.unique(held))) < _DENSE_BELOW:
         return None  # the dense Cholesky is faster there
     import scipy.sparse as sp
+    from scipy.linalg import cho_factor
     from scipy.sparse.linalg import splu
 
     weights = np.transpose(a, (0, 2, 1)) @ a
@@ -180,21 +186,40 @@ def _solve_isotropic(num_poses: int, edges: np.ndarray, a: np.ndarray, b: np.nda
     column = np.full(num_poses, -1, np.int64)
     column[free] = np.arange(int(free.sum()))
     i, j = edges[:, 0], edges[:, 1]
-    incidence = sp.coo_matrix((np.concatenate([-np.ones(m), np.ones(m)]),
-                               (np.concatenate([np.arange(m), np.arange(m)]),
-                                np.concatenate([i, j]))), shape=(m, num_poses)).tocsc()
-    held_part = incidence @ x  # the held poses' differences
-    incidence = incidence[:, free].tocsr()
-    incidence_t = incidence.T.tocsr()
-    laplacian = (incidence_t @ sp.diags(w) @ incidence).tocsc()
-    try:
-        lu = splu(laplacian, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                  options={"SymmetricMode": True})
-    except RuntimeError:
-        return None
-    if np.any(np.abs(lu.U.diagonal()) <= _PIVOT_FLOOR * np.abs(laplacian.diagonal()[
-            lu.perm_c])):
-        return None
+    entries = (np.concatenate([-np.ones(m), np.ones(m)]),
+               (np.concatenate([np.arange(m), np.arange(m)]), np.concatenate([i, j])))
+    if int(free.sum()) < _DENSE_LAPLACIAN_BELOW:  # dense arrays: the same products
+        incidence = np.bincount(entries[1][0] * num_poses + entries[1][1], weights=entries[0],
+                                minlength=m * num_poses).reshape(m, num_poses)
+        held_part = incidence @ x  # the held poses' differences
+        incidence = incidence[:, free]
+        incidence_t = incidence.T
+        laplacian = np.bincount(np.concatenate([i, j, i, j]) * num_poses
+                                + np.concatenate([i, j, j, i]),
+                                weights=np.concatenate([w, w, -w, -w]),
+                                minlength=num_poses * num_poses
+                                ).reshape(num_poses, num_poses)[np.ix_(free, free)]
+        try:
+            factor = cho_factor(laplacian, lower=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            return None
+        if np.any(np.diagonal(factor[0]) ** 2 <= _PIVOT_FLOOR * np.diagonal(laplacian)):
+            return None
+        lu = _DenseFactor(factor)
+    else:
+        incidence = sp.coo_matrix(entries, shape=(m, num_poses)).tocsc()
+        held_part = incidence @ x  # the held poses' differences
+        incidence = incidence[:, free].tocsr()
+        incidence_t = incidence.T.tocsr()
+        laplacian = (incidence_t @ sp.diags(w) @ incidence).tocsc()
+        try:
+            lu = splu(laplacian, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                      options={"SymmetricMode": True})
+        except RuntimeError:
+            return None
+        if np.any(np.abs(lu.U.diagonal()) <= _PIVOT_FLOOR * np.abs(laplacian.diagonal()[
+                lu.perm_c])):
+            return None
 
     def normal(v: np.ndarray) -> np.ndarray:
         return incidence_t @ np.einsum("eab,eb->ea", weights, incidence @ v)
@@ -222,6 +247,18 @@ def _solve_isotropic(num_poses: int, edges: np.ndarray, a: np.ndarray, b: np.nda
         return None
     x[free] = solution
     return x
+
+
+class _DenseFactor:
+    """A dense Cholesky factor (``scipy.linalg.cho_factor``'s) that solves as a SuperLU."""
+
+    def __init__(self, factor: tuple[np.ndarray, bool]) -> None:
+        self.factor = factor
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        from scipy.linalg import cho_solve
+
+        return cho_solve(self.factor, b, check_finite=False)
 
 
 class TranslationStep3D:

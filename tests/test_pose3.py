@@ -284,6 +284,7 @@ def test_the_dense_path_of_small_graphs_agrees_with_the_sparse_one(monkeypatch, 
     dense = INITIALIZERS_3D["certified"]().run(g)
     monkeypatch.setattr(certified3d, "_STIEFEL",
                         dataclasses.replace(certified3d._STIEFEL, dense_below=0))
+    monkeypatch.setattr(certified3d, "_DENSE_Q_BELOW", 0)
     monkeypatch.setattr(translations3d, "_DENSE_BELOW", 0)
     assert not certified3d._Problem(g).dense
     sparse = INITIALIZERS_3D["certified"]().run(g)
@@ -296,6 +297,69 @@ def test_the_dense_path_of_small_graphs_agrees_with_the_sparse_one(monkeypatch, 
     assert a.suboptimality_bound <= a.tolerance * 3 * g.num_poses
     assert np.allclose(dense.poses, sparse.poses, atol=1e-9)
     assert dense.chi2 == pytest.approx(sparse.chi2, rel=1e-10)
+
+
+@pytest.mark.parametrize("noise", [0.05, 0.5])
+def test_a_dense_q_verified_by_arpack_agrees_with_the_sparse_path(monkeypatch, noise):
+    """Between the dense eigenvalue size and ``_DENSE_Q_BELOW`` rows, Q is dense, its
+    factors dense Cholesky factors (S + eta I's proves S's inertia, then ARPACK's
+    shift-invert runs through it): the same certificate and estimate as the sparse LU path,
+    to round-off, on a graph that certifies at rank 3 and on one whose staircase climbs."""
+    import rlpgo_gtsam.certified3d as certified3d
+
+    graph, values, _, _ = _exact_graph(np.random.default_rng(5), n=80, closures=40,
+                                       noise=noise)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    assert certified3d._STIEFEL.dense_below <= 3 * g.num_poses < certified3d._DENSE_Q_BELOW
+    problem = certified3d._Problem(g)
+    assert problem.dense
+    factor = problem.factor(certified3d._STIEFEL.diagonal(g.num_poses, problem.scale))
+    assert isinstance(factor, certified3d._Cholesky)
+    assert certified3d._STIEFEL.negative_pivots(factor) == 0
+    dense = INITIALIZERS_3D["certified"]().run(g)
+    monkeypatch.setattr(certified3d, "_DENSE_Q_BELOW", 0)
+    assert not certified3d._Problem(g).dense
+    sparse = INITIALIZERS_3D["certified"]().run(g)
+    a, b = dense.certificate, sparse.certificate
+    assert a.status == b.status and a.rank == b.rank
+    assert (a.status, a.rank == 3) == ((Status.CERTIFIED, True) if noise < 0.1 else
+                                       (Status.NOT_TIGHT, False))
+    scale = abs(b.estimate_cost)
+    for field in ("lower_bound", "estimate_cost"):
+        assert getattr(a, field) == pytest.approx(getattr(b, field), rel=1e-9)
+    assert abs(a.min_eigenvalue - b.min_eigenvalue) <= 1e-9 * scale
+    assert np.allclose(dense.poses, sparse.poses, atol=1e-7)
+    assert dense.chi2 == pytest.approx(sparse.chi2, rel=1e-9)
+
+
+def test_the_isotropic_translation_step_is_the_same_with_a_dense_laplacian(monkeypatch):
+    """Below ``_DENSE_LAPLACIAN_BELOW`` free poses the CG translation step's incidence and
+    scalar Laplacian are dense arrays: the same positions as the sparse ones, to round-off,
+    and GTSAM's chi2 there the same."""
+    import rlpgo_gtsam.translations3d as translations3d
+    from rlpgo_gtsam.chordal3d import chordal_rotations
+    from rlpgo_gtsam.synthetic import generate3d
+
+    sample = generate3d(80, 0.05, 0.1, 1.0, 0.5, np.random.default_rng(4),
+                        noisy_measurements=True)
+    g = PoseGraph3D.from_gtsam(sample.graph, sample.initial)
+    assert translations3d._DENSE_BELOW <= 3 * (g.num_poses - 1)
+    assert g.num_poses - 1 < translations3d._DENSE_LAPLACIAN_BELOW
+    step = translations3d.TranslationStep3D(g)
+    rotations = chordal_rotations(g)
+    a_j, b = step.whitened(rotations)
+    held, _, held_t = g.held
+    solved = []
+    for below in (translations3d._DENSE_LAPLACIAN_BELOW, 0):
+        monkeypatch.setattr(translations3d, "_DENSE_LAPLACIAN_BELOW", below)
+        positions = translations3d._solve_isotropic(g.num_poses, g.edges, a_j, b, held, held_t)
+        assert positions is not None  # the isotropic step ran, not the 3n fallback
+        solved.append((positions, step.solve(rotations)[1]))
+    (dense, dense_chi2), (sparse, sparse_chi2) = solved
+    assert np.allclose(dense, sparse, atol=1e-10)
+    assert dense_chi2 == pytest.approx(sparse_chi2, rel=1e-12)
+    exact = translations3d.solve_block_pairwise(g.num_poses, g.edges, -a_j, a_j, b, held, held_t)
+    assert np.allclose(dense, exact, atol=1e-8)
 
 
 def test_an_undetermined_pose_is_named_alike_by_the_dense_and_the_sparse_solve(monkeypatch):
