@@ -181,8 +181,7 @@ def synchronize(
     if y.shape[1] > 1:
         z = polish(problem, manifold, z[:, None], eta, max_iterations, grad_tol, deadline,
                    progress, started)[:, 0]
-    z *= np.exp(1j * pose_graph.poses[pose_graph.anchor, 2]) / z[pose_graph.anchor]
-    theta = wrap(np.angle(z))
+    theta = _anchored(pose_graph, z)
     estimate = problem.cost(z[:, None])
     return theta, certificate(check, estimate, eta, problem.n, y.shape[1], started, stop)
 
@@ -202,6 +201,12 @@ def descend(pose_graph: PoseGraph2D, max_iterations: int,
     z = np.exp(1j * chordal_orientations(pose_graph))
     grad_tol = gradient_tolerance * np.sqrt(problem.n) * problem.scale
     z = polish(problem, _manifold(), z[:, None], eta, max_iterations, grad_tol, None)[:, 0]
+    return _anchored(pose_graph, z)
+
+
+def _anchored(pose_graph: PoseGraph2D, z: np.ndarray) -> np.ndarray:
+    """The angles of unit complex orientations ``z`` (n,), turned (in place) so that the
+    anchor keeps its own angle."""
     z *= np.exp(1j * pose_graph.poses[pose_graph.anchor, 2]) / z[pose_graph.anchor]
     return wrap(np.angle(z))
 

@@ -164,20 +164,10 @@ class ChainTree:
         child = np.flatnonzero(via >= 0)
         steps[child], step_cov[child] = _oriented(group, group.measured(g)[via[child]],
                                                   covariance[via[child]], reverse[child])
-        # each pose chained from the root and the covariance of its steps, by doubling: per
-        # round every pose composes what it holds (from its ``jump`` down to it) onto what
-        # its jump holds, log2(depth) vectorized rounds instead of a loop over the poses
-        jump = parent.copy()
-        poses = steps
-        for _ in range(int(depth.max()).bit_length()):
-            poses = group.compose(poses[jump], poses)
-            jump = jump[jump]
-        moved = _sandwich(group.adjoint(poses), step_cov)
-        jump = parent.copy()
-        prefix = moved
-        for _ in range(int(depth.max()).bit_length()):
-            prefix = prefix[jump] + prefix
-            jump = jump[jump]
+        rounds = int(depth.max()).bit_length()
+        poses = _from_root(parent, rounds, steps, group.compose)
+        prefix = _from_root(parent, rounds, _sandwich(group.adjoint(poses), step_cov),
+                            np.add)
         # the sparse table of the shallowest pose over preorder ranges (see ancestor)
         by_rank = np.array(order, np.int64)
         rank_depth = depth[by_rank]
@@ -420,6 +410,19 @@ def _ambiguous(num: int, a: np.ndarray, b: np.ndarray, removed: np.ndarray,
         if len(kept) >= 2 and len(other) >= AMBIGUOUS_RATIO * len(kept):
             found.append((kept, other))
     return found
+
+
+def _from_root(parent: np.ndarray, rounds: int, steps: np.ndarray, combine) -> np.ndarray:
+    """Per pose, ``combine`` folded over the ``steps`` from the root down to it (the root's
+    own step the identity of ``combine``), by doubling: each round, every pose combines what
+    its jump holds with what it holds (from the jump down to it) and jumps twice as far;
+    ``rounds`` = bit length of the tree's depth reaches the root from every pose, in that
+    many vectorized rounds instead of a loop over the poses."""
+    jump = parent.copy()
+    for _ in range(rounds):
+        steps = combine(steps[jump], steps)
+        jump = jump[jump]
+    return steps
 
 
 def _sandwich(a: np.ndarray, covariance: np.ndarray) -> np.ndarray:

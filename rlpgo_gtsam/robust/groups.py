@@ -40,7 +40,6 @@ __all__ = ["Group", "PLANAR", "SPATIAL", "group_of", "TranslationSystem"]
 # sphere2500 and torus3D ran 91 and 45 there (15 s CPU each, against 1.0 and 1.8 s clean)
 # and the staircase then climbed to rank 10 (250 s) without a certificate.
 _RELAXATION_ITERATIONS = 20
-_PLANAR_ITERATIONS = 300  # the planar relaxation's own cap (the clean default's)
 
 PoseGraph = AnyPoseGraph
 # The translation step at fixed rotations: (m, d, d) blocks A_e and (m, d) b_e of the whitened
@@ -137,13 +136,11 @@ class Group:
         own (planar: the default's; 3D: rank 3, ``_RELAXATION_ITERATIONS``)."""
         raise NotImplementedError
 
-    def relaxation_rotations(self, g: PoseGraph, max_iterations: int | None = None
-                             ) -> np.ndarray:
+    def relaxation_rotations(self, g: PoseGraph, max_iterations: int) -> np.ndarray:
         """The rotations of the relaxation's estimate of ``g`` at the group's lowest rank, from
-        the chordal estimate, after at most ``max_iterations`` trust-region iterations (None:
-        the group's own cap). Planar: the descent alone
-        (:func:`~rlpgo_gtsam.certified.descend`, no verification); 3D: the staircase held at
-        rank 3."""
+        the chordal estimate, after at most ``max_iterations`` trust-region iterations.
+        Planar: the descent alone (:func:`~rlpgo_gtsam.certified.descend`, no verification);
+        3D: the staircase held at rank 3, at most ``_RELAXATION_ITERATIONS`` iterations."""
         raise NotImplementedError
 
     def translation_system(self, g: PoseGraph, rotations: np.ndarray) -> TranslationSystem:
@@ -215,10 +212,10 @@ class _Planar(Group):
         return make_initializer("certified",
                                 **{k: v for k, v in options.items() if v is not None})
 
-    def relaxation_rotations(self, g, max_iterations=None):
+    def relaxation_rotations(self, g, max_iterations):
         from rlpgo_gtsam.certified import descend
 
-        return descend(g, max_iterations or _PLANAR_ITERATIONS)
+        return descend(g, max_iterations)
 
     def translation_system(self, g, rotations):
         a_j, b, _ = whitened_system(g, rotations)
@@ -281,11 +278,11 @@ class _Spatial(Group):
         return Certified3D(max_rank=max_rank or self.lowest_rank,
                            max_iterations=max_iterations or _RELAXATION_ITERATIONS)
 
-    def relaxation_rotations(self, g, max_iterations=None):
+    def relaxation_rotations(self, g, max_iterations):
         from rlpgo_gtsam.certified3d import synchronize3d
 
-        rotations, _ = synchronize3d(g, max_rank=3, max_iterations=min(
-            _RELAXATION_ITERATIONS, max_iterations or _RELAXATION_ITERATIONS))
+        rotations, _ = synchronize3d(g, max_rank=3,
+                                     max_iterations=min(_RELAXATION_ITERATIONS, max_iterations))
         held, held_r, _ = g.held
         rotations[held] = held_r
         return rotations

@@ -40,9 +40,10 @@ and lets GTSAM's GNC-LM (truncated least squares) finish from it:
    dropped had bent the seed's orientations), refined as far as a round is; in 3D it is
    the start's own map (see ``Group.relaxed_start``).
 3. ``verify``: from that map, every closure is judged by the chi2 of its residual under
-   the map's own uncertainty (:func:`_innovations`): a kept closure by its leave-one-out residual (the
-   map without it), a closure left out by its innovation (how far its measurement lies
-   from what the map predicts, given how well the map knows its two poses), both
+   the map's own uncertainty (:func:`_innovations`): a kept closure by its leave-one-out
+   residual (the map without it), a closure left out by its innovation (how far its
+   measurement lies from what the map predicts, given how well the map knows its two
+   poses), both
    chi-square with the group's dof (3 planar, 6 in 3D) for a true closure; runs of
    parallel closures (:func:`_runs`: Vertigo's groups hold each other up) are judged as a
    whole as well. Closures the map refutes go first; once none is refuted, the closures
@@ -55,11 +56,10 @@ and lets GTSAM's GNC-LM (truncated least squares) finish from it:
    clean default on them); where it turns some pose of the rounds' map by
    ``_SAME_BASIN_RAD`` or more and its optimum lies lower than the rounds' map (which can
    settle in a wrong basin: City10K, when the rounds grew from the seed's map), the rounds
-   run again from it. (The own-covariance chi2 the step
-   used before, under a falling bar of 10x to 1x the threshold, ignored how well the map
-   knows a closure's two poses: on MIT's weak odometry true closures far from the seed
-   never came back, and on Intel wrong local closures that alone held a stretch of the
-   map fitted it because they bent it.)
+   run again from it. (The own-covariance chi2 the step used before, under a falling bar
+   of 10x to 1x the threshold, ignored how well the map knows a closure's two poses: on
+   MIT's weak odometry true closures far from the seed never came back, and on Intel wrong
+   local closures that alone held a stretch of the map fitted it because they bent it.)
 4. ``gnc``: GTSAM's ``GncLMOptimizer`` (TLS, super-linear schedule, the project's LM
    settings) from the verified optimum on the edges kept, the trusted edges as known
    inliers. Its weights are the last word on those edges: rejected means weight < 0.5.
@@ -278,9 +278,9 @@ def robust_initialize(
                                                       translation_bar, gnc_iterations)
     kept &= weights >= REJECTED_BELOW
     # the seed's rotations were bent by the wrong closures the translation step just
-    # rejected; the relaxation of the edges left is the map the rounds start from
-    # (City10K, 10% grouped wrong closures: chi2 407 after its 30 LM steps, 2 s, against
-    # 2742 after 100 Gauss-Newton steps from the seed's map, 30 s)
+    # rejected; on planar graphs the relaxation of the edges left is the map the rounds
+    # start from (City10K, 10% grouped wrong closures: that relaxation and 30 LM steps
+    # reached chi2 407 in 2 s, 100 Gauss-Newton steps from the seed's map 2742 in 30 s)
     start = (_relaxed(graph, g, factor_of_edge, kept, iterations=_ROUND_ITERS)
              if group.relaxed_start else None)
     settled = start is not None  # refined on the kept edges already, as far as a round is
@@ -464,9 +464,9 @@ def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
     default on the edges judged right: ``iterations`` steps, by default ``_RESTART_ITERS``,
     enough to tell its basin from the rounds' map; to convergence, MIT's weak odometry took LM
     99 iterations, 0.54 s of a 1.35 s run, to end where the rounds had); None where they do
-    not span the
-    graph, or where the relaxation's estimate turns no pose more than ``_SAME_BASIN_RAD``
-    from ``near`` (the map it would be compared with: the same basin, nothing to refine)."""
+    not span the graph, or where the relaxation's estimate turns no pose more than
+    ``_SAME_BASIN_RAD`` from ``near`` (the map it would be compared with: the same basin,
+    nothing to refine)."""
     group = group_of(g)
     inliers = group.subgraph(g, kept)
     try:
