@@ -28,6 +28,25 @@ def dataset(name: str) -> Path:
 
 
 @pytest.fixture
+def hessian_products(monkeypatch) -> list[int]:
+    """A one-element counter of the Hessian products the staircase's truncated CG takes,
+    counted from here on (reset it by assigning ``[0]``)."""
+    import rlpgo_gtsam.staircase as staircase
+
+    products = [0]
+    truncated_cg = staircase.truncated_cg
+
+    def counted(grad, hess, pre, radius, *args):
+        def product(v):
+            products[0] += 1
+            return hess(v)
+        return truncated_cg(grad, product, pre, radius, *args)
+
+    monkeypatch.setattr(staircase, "truncated_cg", counted)
+    return products
+
+
+@pytest.fixture
 def small_exact() -> SyntheticGraph:
     """n = 60 lawn mower, exact measurements, noisy initial guess."""
     return generate(60, 0.3, 0.05, 3.0, 0.5, np.random.default_rng(7))

@@ -239,25 +239,15 @@ def test_the_hessian_preconditioners_invert_the_hessian_and_refuse_a_saddle(heav
     assert np.allclose(pre2(w), expected, rtol=1e-6)
 
 
-def test_long_runs_switch_to_the_hessian_preconditioner_and_need_fewer_products(monkeypatch):
+def test_long_runs_switch_to_the_hessian_preconditioner_and_need_fewer_products(
+        monkeypatch, hessian_products):
     """3000 poses in long rows: CG preconditioned by Q + delta I needs 202 Hessian products;
     switching to the Hessian's own after a run of 10 or more, far fewer; the same
     estimate."""
-    import rlpgo_gtsam.staircase as staircase
-
     sample = generate(3000, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(1),
                       noisy_measurements=True)
     graph = PoseGraph2D.from_gtsam(sample.graph, sample.initial)
-    products = [0]
-    truncated_cg = staircase.truncated_cg
-
-    def counted(grad, hess, pre, radius, *args):
-        def product(v):
-            products[0] += 1
-            return hess(v)
-        return truncated_cg(grad, product, pre, radius, *args)
-
-    monkeypatch.setattr(staircase, "truncated_cg", counted)
+    products = hessian_products
     _, switched = synchronize(graph)
     with_switch, products[0] = products[0], 0
     monkeypatch.setattr(certified, "_HESSIAN_PRECONDITIONER_AFTER", None)

@@ -427,7 +427,8 @@ def test_the_blocks_products_on_fields_equal_the_small_matrix_products(monkeypat
         assert np.allclose(sym + sym.transpose(0, 2, 1), 0.0, atol=1e-12)
 
 
-def test_truncated_cg_stops_at_half_the_gradient_tolerance_on_parking_garage(monkeypatch):
+def test_truncated_cg_stops_at_half_the_gradient_tolerance_on_parking_garage(
+        monkeypatch, hessian_products):
     """parking-garage's last trust-region step starts at a gradient just above the
     tolerance: CG stopping at half the tolerance (the 3D manifold's cg_floor) takes fewer
     Hessian products than CG solving to its relative target, and the staircase is certified
@@ -435,20 +436,10 @@ def test_truncated_cg_stops_at_half_the_gradient_tolerance_on_parking_garage(mon
     import dataclasses
 
     import rlpgo_gtsam.certified3d as certified3d
-    import rlpgo_gtsam.staircase as staircase
 
     graph, values = gtsam.readG2o(str(DATA / "parking-garage.g2o"), True)
     g = PoseGraph3D.from_gtsam(graph, values)
-    products = [0]
-    truncated_cg = staircase.truncated_cg
-
-    def counted(grad, hess, pre, radius, *args):
-        def product(v):
-            products[0] += 1
-            return hess(v)
-        return truncated_cg(grad, product, pre, radius, *args)
-
-    monkeypatch.setattr(staircase, "truncated_cg", counted)
+    products = hessian_products
     assert certified3d._STIEFEL.cg_floor == 0.5
     _, floored = synchronize3d(g)
     with_floor, products[0] = products[0], 0
