@@ -142,6 +142,7 @@ _ADMIT_CHANCE = 1e-3  # ... or that a wrong closure would pass less often than t
 _NOISE_CONFLICTS = 0.5
 _START_ITERATIONS = _ALL_EDGES_ITERATIONS  # the seed's relaxation: its lowest rank, so many
 # trust-region iterations (its rotations only start the translation step; see "start")
+_WARM_ITERATIONS = 20  # a relaxation from the map at hand (_relaxed)
 _RESTART_ITERS = 30  # the kept edges' relaxation refined this far before it is compared
 _RESTART_GAIN = 1e-6  # verify again from the kept edges' relaxation if it is this much lower
 # ... unless it turns no pose of the rounds' map by this much (radians): where the basin was
@@ -285,7 +286,8 @@ def robust_initialize(
     # rejected; on planar graphs the relaxation of the edges left is the map the rounds
     # start from (City10K, 10% grouped wrong closures: that relaxation and 30 LM steps
     # reached chi2 407 in 2 s, 100 Gauss-Newton steps from the seed's map 2742 in 30 s)
-    start = (_relaxed(graph, g, factor_of_edge, kept, iterations=_ROUND_ITERS)
+    start = (_relaxed(graph, g, factor_of_edge, kept,
+                      group.with_positions(rotations, positions), iterations=_ROUND_ITERS)
              if group.relaxed_start else None)
     settled = start is not None  # refined on the kept edges already, as far as a round is
     if not settled:
@@ -298,7 +300,8 @@ def robust_initialize(
     # the map the rounds settled in grew from the seed's start; the certified relaxation of
     # the edges now kept may lie in a lower basin (City10K, 10% local wrong closures: the
     # decision exact, the rounds' map 1.83x the optimum after LM): then judge again from it
-    restart = _relaxed(graph, g, factor_of_edge, kept, near=verified)
+    restart = _relaxed(graph, g, factor_of_edge, kept, group.poses_of(g, verified),
+                       near=verified)
     kept_graph = _without(graph, factor_of_edge[~kept].tolist())
     restarted = restart is not None and chi2(kept_graph, restart) < (
         1.0 - _RESTART_GAIN) * chi2(kept_graph, verified)
@@ -462,7 +465,7 @@ def noise_scale(errors: np.ndarray, information: np.ndarray) -> np.ndarray:
 
 
 def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
-             near: gtsam.Values | None = None,
+             warm: np.ndarray, near: gtsam.Values | None = None,
              iterations: int = _RESTART_ITERS) -> gtsam.Values | None:
     """The certified relaxation of the kept edges, refined by GTSAM on them (the clean
     default on the edges judged right: ``iterations`` steps, by default ``_RESTART_ITERS``,
@@ -470,19 +473,36 @@ def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
     99 iterations, 0.54 s of a 1.35 s run, to end where the rounds had); None where they do
     not span the graph, or where the relaxation's estimate turns no pose more than
     ``_SAME_BASIN_RAD`` from ``near`` (the map it would be compared with: the same basin,
-    nothing to refine)."""
+    nothing to refine).
+
+    The relaxation starts from ``warm`` (poses, the group's rows: the map at hand) at its
+    lowest rank: where that is certified, it is the relaxation's optimum, the one the
+    chordal start would reach too; otherwise it is solved again from the chordal estimate,
+    the full staircase (see :func:`_certified_estimate`)."""
     group = group_of(g)
     inliers = group.subgraph(g, kept)
     try:
         inliers.check_connected()
     except GraphError:  # the edges kept do not span the graph (odometry judged and rejected)
         return None
-    start = group.certified().run(inliers).values
+    start = group.to_values(g, _certified_estimate(group, inliers, warm))
     if near is not None:
         turned = group.logmap(group.between(group.poses_of(g, near), group.poses_of(g, start)))
         if np.linalg.norm(turned[:, group.rotation_axes], axis=1).max() < _SAME_BASIN_RAD:
             return None
     return _solved(graph, g, factor_of_edge, kept, start, iterations).values
+
+
+def _certified_estimate(group, g: PoseGraph, warm: np.ndarray) -> np.ndarray:
+    """The poses of the certified relaxation of ``g``: from ``warm`` at the group's lowest
+    rank (at most ``_WARM_ITERATIONS`` trust-region iterations) where that is certified, else
+    from the chordal estimate (``group.certified()``, the clean default's relaxation). A
+    certified estimate is the relaxation's global optimum whatever the start."""
+    quick = group.certified(max_rank=group.lowest_rank, max_iterations=_WARM_ITERATIONS)
+    estimate = quick.estimate(g, warm)
+    if estimate.certificate is None or not estimate.certificate.certified:
+        estimate = group.certified().estimate(g, None)
+    return estimate.poses
 
 
 def _runs(g: PoseGraph, among: np.ndarray) -> list[np.ndarray]:
@@ -543,8 +563,15 @@ def _clusters(g: PoseGraph, among: np.ndarray) -> list[np.ndarray]:
     return pieces
 
 
+def _draws(g: PoseGraph) -> np.ndarray:
+    """(m, dof, ``_SAMPLES``) the whitened noise :func:`_innovations` draws on the edges,
+    seeded: the same for every round (drawn once per :func:`_verify`, not once per round:
+    MIT's 827 edges took 4 ms a round of about 30)."""
+    return np.random.default_rng(0).standard_normal((g.num_edges, group_of(g).dof, _SAMPLES))
+
+
 def _innovations(edges: gtsam.NonlinearFactorGraph, g: PoseGraph, values: gtsam.Values,
-                 kept: np.ndarray, sets: list[np.ndarray]
+                 kept: np.ndarray, sets: list[np.ndarray], noise: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per set of edges (all kept or all left out), its residual at ``values`` (the optimum
     of the ``kept`` edges) as a chi2 against the map's own uncertainty (``edges``: the
@@ -561,10 +588,10 @@ def _innovations(edges: gtsam.NonlinearFactorGraph, g: PoseGraph, values: gtsam.
     Each is the linearized change of the optimum's chi2 when the set is added or removed:
     chi-square with ``dof |S|`` dof for true edges (the group's dof: 3 planar, 6 in 3D).
     The covariances ``I -+ C_S`` are those of the residuals themselves under the model, and
-    are estimated as such, from ``_SAMPLES`` draws (seeded: the same graph gives the same
-    numbers): whitened noise ``z`` on every kept edge moves the optimum by ``P A^T z`` and
-    leaves a kept edge the residual ``z_e - A_e P A^T z``; a left-out edge sees
-    ``z_e + A_e P A^T z`` with its own ``z_e``. One sparse factorization and one
+    are estimated as such, from ``_SAMPLES`` draws (``noise``, :func:`_draws`: the same
+    graph gives the same numbers): whitened noise ``z`` on every kept edge moves the optimum
+    by ``P A^T z`` and leaves a kept edge the residual ``z_e - A_e P A^T z``; a left-out edge
+    sees ``z_e + A_e P A^T z`` with its own ``z_e``. One sparse factorization and one
     multi-column solve serve every set; the estimate's relative error, about
     ``sqrt(2 / _SAMPLES)``, is the same at any leverage (estimating ``C_S`` and subtracting
     it from I would not be: near I the difference is noise).
@@ -591,8 +618,6 @@ def _innovations(edges: gtsam.NonlinearFactorGraph, g: PoseGraph, values: gtsam.
     free[(dof * g.held[0][:, None] + np.arange(dof)).ravel()] = False
     a_edges = sp.csr_matrix((entries[~is_b], (rows[~is_b], cols[~is_b])),
                             shape=(dof * len(kept), size))[:, free]
-    rng = np.random.default_rng(0)
-    noise = rng.standard_normal((len(kept), dof, _SAMPLES))
     kept_rows = np.repeat(kept, dof)
     a_kept = a_edges[kept_rows]
     # the Hessian is symmetric positive definite: a symmetric ordering without pivoting
@@ -669,6 +694,7 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
     was_refuted = np.zeros(len(kept), bool)
     tried = np.zeros(len(kept), bool)  # closures a solve has judged (_turned, _held)
     checks = [0]  # _held's solves so far
+    noise = _draws(g)
     rounds = 0
     if not settled:  # ``values``: the kept edges' map, refined already where settled
         values = _solved(graph, g, factor_of_edge, kept, values).values
@@ -680,7 +706,7 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
         runs = _runs(g, candidates & kept) + _runs(g, candidates & ~kept)
         clusters = _clusters(g, candidates & kept)
         chi2_sets, spread, turn = _innovations(edges, g, values, kept,
-                                               singles + runs + clusters)
+                                               singles + runs + clusters, noise)
         is_cluster = np.arange(len(chi2_sets)) >= len(singles) + len(runs)
         fails = np.zeros(len(kept), bool)
         misfit = np.zeros(len(kept), bool)  # by the chi2 alone
