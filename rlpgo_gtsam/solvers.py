@@ -43,8 +43,9 @@ class RefineResult:
     failure: str | None = None
 
 
-def solver_params(solver: str = "lm", iters: int = 30) -> Params:
-    """GTSAM parameters of the project's GN / LM: ``iters`` at most, tolerances 1e-10.
+def solver_params(solver: str = "lm", iters: int = 30, tolerance: float = _TOLERANCE) -> Params:
+    """GTSAM parameters of the project's GN / LM: ``iters`` at most, relative and absolute
+    error tolerances ``tolerance`` (by default 1e-10).
 
     LM also stops once its damping exceeds 1e5 (no step that lowers the error is left).
     """
@@ -54,8 +55,8 @@ def solver_params(solver: str = "lm", iters: int = 30) -> Params:
         raise SolverError(f"iteration cap must be >= 0, got {iters}")
     params = gtsam.GaussNewtonParams() if solver == "gn" else gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(iters)
-    params.setRelativeErrorTol(_TOLERANCE)
-    params.setAbsoluteErrorTol(_TOLERANCE)
+    params.setRelativeErrorTol(tolerance)
+    params.setAbsoluteErrorTol(tolerance)
     if solver == "lm":
         params.setlambdaUpperBound(_LM_LAMBDA_MAX)
     return params
@@ -68,6 +69,9 @@ def refine(
     iters: int = 30,
     pose_graph: AnyPoseGraph | None = None,
     on_iteration: Callable[[int, float], None] | None = None,
+    *,
+    tolerance: float = _TOLERANCE,
+    has_prior: bool | None = None,
 ) -> RefineResult:
     """Run GTSAM's GN or LM on ``graph`` (Pose2 or Pose3) from ``values``.
 
@@ -87,6 +91,10 @@ def refine(
         pose_graph: the graph's extraction, if the caller has it (saves a second one).
         on_iteration: called once after each iteration with its number (from 1) and chi2
             (for progress lines); None: nothing.
+        tolerance: "lm" / "gn" stop once an iteration changes the error by less than this,
+            relative or absolute.
+        has_prior: whether ``graph`` holds a Pose2 or Pose3 prior, where the caller knows;
+            None: found out by a walk over its factors (MIT: 3 ms a call).
 
     A failure of the linear solver (an indeterminate system) or a non-finite error ends the
     run with ``failure`` set instead of raising.
@@ -96,14 +104,14 @@ def refine(
         GraphError: a graph the package cannot work on (see
             :func:`~rlpgo_gtsam.graph3d.extract_pose_graph`).
     """
-    params = solver if isinstance(solver, Params) else solver_params(solver, iters)
+    params = solver if isinstance(solver, Params) else solver_params(solver, iters, tolerance)
     name = "GN" if isinstance(params, gtsam.GaussNewtonParams) else "LM"
     g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
     start_chi2 = chi2(graph, values)
     if params.getMaxIterations() == 0:
         return RefineResult(gtsam.Values(values), start_chi2, 0, [start_chi2])
     optimized = graph
-    if not _has_prior(graph, g):
+    if not (_has_prior(graph, g) if has_prior is None else has_prior):
         optimized = gtsam.NonlinearFactorGraph(graph)
         optimized.add(gauge_prior(g, values, _ANCHOR_SIGMA))
     after_iteration: dict[int, float] = {}  # GTSAM's LM may report an iteration twice
@@ -122,7 +130,7 @@ def refine(
         else:
             optimizer = gtsam.LevenbergMarquardtOptimizer(optimized, values, params)
         if solver == "gn":
-            _iterate_through_increases(optimizer, params.getMaxIterations(), record)
+            _iterate_through_increases(optimizer, params.getMaxIterations(), tolerance, record)
         else:
             optimizer.optimize()
     except RuntimeError as error:
@@ -138,10 +146,11 @@ def refine(
     return RefineResult(result, final, iterations, trace, failure)
 
 
-def _iterate_through_increases(optimizer, iters: int,
+def _iterate_through_increases(optimizer, iters: int, tolerance: float,
                                record: Callable[[int, float], None]) -> None:
-    """g2o's Gauss-Newton loop over GTSAM's ``iterate()``: an error increase does not stop it.
-    ``record`` gets each iteration's number and chi2."""
+    """g2o's Gauss-Newton loop over GTSAM's ``iterate()``: an error increase does not stop it;
+    a change below ``tolerance`` (relative or absolute) does. ``record`` gets each
+    iteration's number and chi2."""
     previous = optimizer.error()
     for k in range(1, iters + 1):
         optimizer.iterate()
@@ -150,7 +159,7 @@ def _iterate_through_increases(optimizer, iters: int,
         if not math.isfinite(current):
             return
         decrease = abs(previous - current)
-        if decrease <= _TOLERANCE or decrease <= _TOLERANCE * previous:
+        if decrease <= tolerance or decrease <= tolerance * previous:
             return
         previous = current
 
