@@ -288,7 +288,8 @@ def robust_initialize(
     # start from (City10K, 10% grouped wrong closures: that relaxation and 30 LM steps
     # reached chi2 407 in 2 s, 100 Gauss-Newton steps from the seed's map 2742 in 30 s)
     start = (_relaxed(graph, g, factor_of_edge, kept,
-                      group.with_positions(rotations, positions), iterations=_ROUND_ITERS)
+                      group.with_positions(rotations, positions), iterations=_ROUND_ITERS,
+                      tolerance=_ROUND_TOLERANCE)
              if group.relaxed_start else None)
     settled = start is not None  # refined on the kept edges already, as far as a round is
     if not settled:
@@ -467,14 +468,15 @@ def noise_scale(errors: np.ndarray, information: np.ndarray) -> np.ndarray:
 
 def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
              warm: np.ndarray, near: gtsam.Values | None = None,
-             iterations: int = _RESTART_ITERS) -> gtsam.Values | None:
+             iterations: int = _RESTART_ITERS,
+             tolerance: float = _TOLERANCE) -> gtsam.Values | None:
     """The certified relaxation of the kept edges, refined by GTSAM on them (the clean
-    default on the edges judged right: ``iterations`` steps, by default ``_RESTART_ITERS``,
-    enough to tell its basin from the rounds' map; to convergence, MIT's weak odometry took LM
-    99 iterations, 0.54 s of a 1.35 s run, to end where the rounds had); None where they do
-    not span the graph, or where the relaxation's estimate turns no pose more than
-    ``_SAME_BASIN_RAD`` from ``near`` (the map it would be compared with: the same basin,
-    nothing to refine).
+    default on the edges judged right: ``iterations`` steps at most, stopped at a relative
+    change below ``tolerance``; by default ``_RESTART_ITERS``, enough to tell its basin from
+    the rounds' map; to convergence, MIT's weak odometry took LM 99 iterations, 0.54 s of a
+    1.35 s run, to end where the rounds had); None where they do not span the graph, or
+    where the relaxation's estimate turns no pose more than ``_SAME_BASIN_RAD`` from
+    ``near`` (the map it would be compared with: the same basin, nothing to refine).
 
     The relaxation starts from ``warm`` (poses, the group's rows: the map at hand) at its
     lowest rank: where that is certified, it is the relaxation's optimum, the one the
@@ -486,12 +488,13 @@ def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
         inliers.check_connected()
     except GraphError:  # the edges kept do not span the graph (odometry judged and rejected)
         return None
-    start = group.to_values(g, _certified_estimate(group, inliers, warm))
-    if near is not None:
-        turned = group.logmap(group.between(group.poses_of(g, near), group.poses_of(g, start)))
+    poses = _certified_estimate(group, inliers, warm)
+    if near is not None:  # compared as arrays: GTSAM values only for a map that goes on
+        turned = group.logmap(group.between(group.poses_of(g, near), poses))
         if np.linalg.norm(turned[:, group.rotation_axes], axis=1).max() < _SAME_BASIN_RAD:
             return None
-    return _solved(graph, g, factor_of_edge, kept, start, iterations).values
+    return _solved(graph, g, factor_of_edge, kept, group.to_values(g, poses), iterations,
+                   tolerance).values
 
 
 def _certified_estimate(group, g: PoseGraph, warm: np.ndarray) -> np.ndarray:
