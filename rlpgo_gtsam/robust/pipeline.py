@@ -634,13 +634,17 @@ def _innovations(edges: gtsam.NonlinearFactorGraph, g: PoseGraph, values: gtsam.
     pushed = np.asarray(a_kept.T @ noise[kept].reshape(-1, _SAMPLES))
     shift = np.column_stack([factor.solve(np.asfortranarray(pushed[:, k:k + _SOLVE_BLOCK]))
                              for k in range(0, _SAMPLES, _SOLVE_BLOCK)])
-    moved = np.asarray(a_edges @ shift).reshape(len(kept), dof, _SAMPLES)
-    residual = noise + np.where(kept[:, None, None], -moved, moved)
+    # the draws' residuals, in place: z_e - A_e P A^T z on kept edges, z_e + A_e P A^T z on
+    # the others
+    residual = np.asarray(a_edges @ shift).reshape(len(kept), dof, _SAMPLES)
+    residual[kept] *= -1.0
+    residual += noise
     chi2_sets, spread, turn = np.empty(len(sets)), np.empty(len(sets)), np.empty(len(sets))
     upper = np.linalg.cholesky(g.information).transpose(0, 2, 1)  # R^T R = information
-    for size_ in {len(which) for which in sets}:  # sets of one size at once
-        index = [n for n, which in enumerate(sets) if len(which) == size_]
-        members = np.array([sets[n] for n in index])
+    sizes = np.array([len(which) for which in sets])
+    for size_ in np.unique(sizes).tolist():  # sets of one size at once
+        index = np.flatnonzero(sizes == size_)
+        members = np.array([sets[n] for n in index.tolist()])
         drawn = residual[members].reshape(len(index), dof * size_, _SAMPLES)
         eigenvalues, vectors = np.linalg.eigh(drawn @ drawn.transpose(0, 2, 1) / _SAMPLES)
         whitened = np.einsum("sab,sa->sb", vectors, b[members].reshape(len(index), -1))
