@@ -490,7 +490,7 @@ def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
         inliers.check_connected()
     except GraphError:  # the edges kept do not span the graph (odometry judged and rejected)
         return None
-    poses = _certified_estimate(group, inliers, warm)
+    poses = _certified_estimate(inliers, warm)
     if near is not None:  # compared as arrays: GTSAM values only for a map that goes on
         turned = group.logmap(group.between(group.poses_of(g, near), poses))
         if np.linalg.norm(turned[:, group.rotation_axes], axis=1).max() < _SAME_BASIN_RAD:
@@ -499,11 +499,12 @@ def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
                    tolerance).values
 
 
-def _certified_estimate(group, g: PoseGraph, warm: np.ndarray) -> np.ndarray:
+def _certified_estimate(g: PoseGraph, warm: np.ndarray) -> np.ndarray:
     """The poses of the certified relaxation of ``g``: from ``warm`` at the group's lowest
     rank (at most ``_WARM_ITERATIONS`` trust-region iterations) where that is certified, else
     from the chordal estimate (``group.certified()``, the clean default's relaxation). A
     certified estimate is the relaxation's global optimum whatever the start."""
+    group = group_of(g)
     quick = group.certified(max_rank=group.lowest_rank, max_iterations=_WARM_ITERATIONS)
     estimate = quick.estimate(g, warm)
     if estimate.certificate is None or not estimate.certificate.certified:
@@ -842,12 +843,11 @@ def _solved(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
 
 def _settle(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, g: PoseGraph,
             iterations: int, tolerance: float):
-    """GTSAM Gauss-Newton (g2o's loop: on through an increase) from ``values``, or LM
-    where that does not lower the chi2; either stops at a relative change of the error below
-    ``tolerance``. From the maps
-    ``_verify`` hands it (a few closures away from their optimum) GN converges in a handful
-    of steps where LM's damping takes 15-20 (Intel: 4 against 20); LM remains the fallback
-    for a start that GN overshoots from.
+    """GTSAM Gauss-Newton (g2o's loop: on through an increase) from ``values``, or LM where
+    that does not lower the chi2; either stops at a change of the error below ``tolerance``
+    (relative or absolute). From the maps ``_verify`` hands it (a few closures away from
+    their optimum) GN converges in a handful of steps where LM's damping takes 15-20 (Intel:
+    4 against 20); LM remains the fallback for a start that GN overshoots from.
 
     ``graph`` is the judged graph with slots emptied (:func:`_without`): where it has one
     slot per edge of ``g``, it holds no prior, and ``refine`` need not walk its factors to
@@ -856,9 +856,8 @@ def _settle(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, g: PoseGrap
     refined = refine(graph, values, "gn", iterations, pose_graph=g, tolerance=tolerance,
                      has_prior=has_prior)
     if refined.failure is not None or not refined.chi2 <= refined.chi2_trace[0]:
-        params = solver_params("lm", iterations)
-        params.setRelativeErrorTol(tolerance)
-        refined = refine(graph, values, params, pose_graph=g, has_prior=has_prior)
+        refined = refine(graph, values, solver_params("lm", iterations, tolerance), pose_graph=g,
+                         has_prior=has_prior)
     if refined.failure is not None:
         raise SolverError(f"robust initialization: {refined.failure}")
     return refined
