@@ -54,7 +54,12 @@ import numpy as np
 
 from rlpgo_gtsam.errors import G2oFormatError, InputNotFoundError, OutputError
 from rlpgo_gtsam.files import write_text
-from rlpgo_gtsam.graph import disconnection, information_problem, information_problems
+from rlpgo_gtsam.graph import (
+    disconnection,
+    information_problem,
+    information_problems,
+    pose2_inserter,
+)
 from rlpgo_gtsam.se2 import chain, compose, inverse, wrap
 from rlpgo_gtsam.textscan import BOM, Text, blocks
 
@@ -631,7 +636,7 @@ def _build(
     values = _values_by_gtsam(table.vertex_text, keys, poses) if table.vertex_text else None
     if values is None:
         values = gtsam.Values()
-        insert = _pose2_inserter(values)
+        insert = pose2_inserter(values)
         for key, x, y, theta in zip(keys.tolist(), *poses.T.tolist(), strict=True):
             insert(key, pose2(x, y, theta))
     lines = table.edge_lines.tolist()
@@ -641,21 +646,6 @@ def _build(
         )
         lines.append(line)
     return graph, values, lines
-
-
-def _pose2_inserter(values: gtsam.Values):
-    """``values.insert`` for a key and a Pose2, the faster way where this GTSAM allows it.
-
-    ``Values.insert`` has some 46 overloads, which pybind11 tries in turn; naming the pose
-    argument (``pose2`` in GTSAM's wrapper) passes over the others unconverted: about 5 us
-    a pose instead of 8, more than all the rest of a vertex line costs.
-    """
-    try:
-        gtsam.Values().insert(0, pose2=gtsam.Pose2())
-    except TypeError:  # a wrapper that names it otherwise
-        return values.insert
-    insert = values.insert
-    return lambda key, pose: insert(key, pose2=pose)
 
 
 def _values_by_gtsam(text: list[bytes], keys: np.ndarray,

@@ -19,6 +19,7 @@ What the arrays keep of GTSAM's meaning:
 
 from __future__ import annotations
 
+import functools
 import itertools
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -150,13 +151,34 @@ class PoseGraph2D(PoseArrays):
     def to_values(self, poses: np.ndarray) -> gtsam.Values:
         """GTSAM values of the given (n, 3) poses under this graph's keys."""
         values = gtsam.Values()
-        for key, (x, y, theta) in zip(self.keys.tolist(), poses.tolist(), strict=True):
-            values.insert(key, gtsam.Pose2(x, y, theta))
+        insert, pose2 = pose2_inserter(values), gtsam.Pose2
+        for key, x, y, theta in zip(self.keys.tolist(), *poses.T.tolist(), strict=True):
+            insert(key, pose2(x, y, theta))
         return values
 
     def poses_of(self, values: gtsam.Values) -> np.ndarray:
         """(n, 3) x, y, theta of ``values`` in this graph's pose order."""
         return _poses(values, self.keys.tolist())
+
+
+def pose2_inserter(values: gtsam.Values) -> Callable[[int, gtsam.Pose2], None]:
+    """``values.insert`` for a key and a Pose2, the faster way where this GTSAM allows it.
+
+    ``Values.insert`` has some 46 overloads, which pybind11 tries in turn; naming the pose
+    argument (``pose2`` in GTSAM's wrapper) passes over the others unconverted: 5.1 us a
+    pose instead of 10.1 (5000 inserts, CPU time, GTSAM 4.3).
+    """
+    insert = values.insert
+    return (lambda key, pose: insert(key, pose2=pose)) if _insert_names_pose2() else insert
+
+
+@functools.cache
+def _insert_names_pose2() -> bool:
+    try:
+        gtsam.Values().insert(0, pose2=gtsam.Pose2())
+    except TypeError:  # a wrapper that names it otherwise
+        return False
+    return True
 
 
 def rotation_weights(pose_graph: PoseGraph2D) -> np.ndarray:

@@ -197,8 +197,9 @@ class PoseGraph3D(PoseArrays):
     def to_values(self, rotations: np.ndarray, translations: np.ndarray) -> gtsam.Values:
         """GTSAM values of the given poses ((n, 3, 3), (n, 3)) under this graph's keys."""
         values = gtsam.Values()
+        insert = values.insert  # pose3= passes over insert's other overloads (as in g2o3d)
         for key, r, t in zip(self.keys.tolist(), rotations, translations, strict=True):
-            values.insert(key, gtsam.Pose3(gtsam.Rot3(r), np.asarray(t, float)))
+            insert(key, pose3=gtsam.Pose3(gtsam.Rot3(r), np.asarray(t, float)))
         return values
 
     def poses_of(self, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
