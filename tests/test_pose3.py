@@ -266,11 +266,14 @@ def test_the_dense_path_of_small_graphs_agrees_with_the_sparse_one(monkeypatch, 
     """Below the dense sizes (Q of rows < dense_below, normal equations of fewer unknowns
     than translations3d's threshold) the relaxation, the chordal estimate and the
     translation step are solved densely: the same certificate and estimate as the sparse
-    path, to round-off."""
+    path, to round-off (both from the trust region: Newton's start is left out here, see
+    the next test)."""
     import dataclasses
 
     import rlpgo_gtsam.certified3d as certified3d
     import rlpgo_gtsam.translations3d as translations3d
+
+    monkeypatch.setattr(certified3d, "_NEWTON_BELOW", 0)
 
     if case == "tinyGrid3D":
         graph, values = gtsam.readG2o(str(DATA / "tinyGrid3D.g2o"), True)
@@ -297,6 +300,53 @@ def test_the_dense_path_of_small_graphs_agrees_with_the_sparse_one(monkeypatch, 
     assert a.suboptimality_bound <= a.tolerance * 3 * g.num_poses
     assert np.allclose(dense.poses, sparse.poses, atol=1e-9)
     assert dense.chi2 == pytest.approx(sparse.chi2, rel=1e-10)
+
+
+def test_skew_is_the_cross_product_and_vee_inverts_it():
+    w, v = np.random.default_rng(0).normal(size=(2, 7, 3))
+    assert np.allclose(se3.skew(w) @ v[:, :, None], np.cross(w, v)[:, :, None], atol=1e-15)
+    assert np.array_equal(se3.vee(se3.skew(w)), w)
+
+
+@pytest.mark.parametrize("case", ["tinyGrid3D", "generated", "exact"])
+def test_newtons_start_on_small_graphs_reaches_the_trust_regions_optimum(monkeypatch, case):
+    """Below ``_NEWTON_BELOW`` rows the staircase starts from Newton's point
+    (:func:`certified3d._newton`): the same certificate as the trust region alone, whose
+    rotations (run to a gradient 1e-6 times its default tolerance) agree to 1e-9; the
+    trust region then takes no iteration; an exact graph is recovered."""
+    import rlpgo_gtsam.certified3d as certified3d
+    from rlpgo_gtsam import staircase
+
+    rng = np.random.default_rng(3)
+    if case == "tinyGrid3D":
+        graph, values = gtsam.readG2o(str(DATA / "tinyGrid3D.g2o"), True)
+    else:
+        graph, values, truth, _ = _exact_graph(rng, n=40, closures=20,
+                                               noise=0.05 if case == "generated" else 0.0)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    assert 3 * g.num_poses < certified3d._NEWTON_BELOW
+    iterations = []
+    trust_region = staircase.trust_region
+
+    def counted(*args, **kwargs):
+        y, ended = trust_region(*args, **kwargs)
+        iterations.append(args[7].iterations)
+        return y, ended
+
+    monkeypatch.setattr(staircase, "trust_region", counted)
+    newton, a = synchronize3d(g)
+    assert iterations == [0]
+    monkeypatch.setattr(certified3d, "_NEWTON_BELOW", 0)
+    tight, b = synchronize3d(g, gradient_tolerance=1e-12)
+    assert iterations[1] > 0 or case == "exact"  # the chordal estimate is exact there
+    assert a.status == b.status == Status.CERTIFIED and a.rank == b.rank == 3
+    scale = abs(b.estimate_cost) + 1.0
+    assert abs(a.estimate_cost - b.estimate_cost) <= 1e-10 * scale
+    assert abs(a.lower_bound - b.lower_bound) <= 1e-10 * scale
+    assert abs(a.min_eigenvalue - b.min_eigenvalue) <= 1e-10 * scale
+    assert np.allclose(newton, tight, atol=1e-7)
+    if case == "exact":
+        assert np.allclose(newton, truth, atol=1e-9)
 
 
 @pytest.mark.parametrize("noise", [0.05, 0.5])
