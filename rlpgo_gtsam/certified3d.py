@@ -12,7 +12,8 @@ held) leaves ``f(X) = tr(X^T Q X)`` with ``X`` the 3n x r matrix of stacked bloc
 ``L(G^rho) + Q^tau``), applied through one sparse factorization of the anchored translation
 Laplacian ``L``, never formed; below ``_DENSE_Q_BELOW`` rows (graphs of fewer than 134 poses)
 ``Q`` is formed as a dense matrix instead, and its factors are dense (scipy's sparse set-up
-cost more than the whole solve there; S's eigenvalues are dense below ``_DENSE_BELOW``).
+cost more than the whole solve there; S's eigenvalues are dense below ``_DENSE_BELOW``); the
+chordal start is then solved through the same rotation terms' dense connection Laplacian.
 Rows of each block ``X_i`` are orthonormal: ``X_i^T`` is a
 point of the Stiefel manifold St(3, r), and SE-Sync's ``Y`` is ``X^T``.
 
@@ -137,8 +138,10 @@ def synchronize3d(pose_graph: PoseGraph3D, start_rotations: np.ndarray | None = 
     deadline = check_start(started, initial_rank, max_rank, 3, time_limit_s)
     problem = _Problem(pose_graph)
     eta = problem.tolerance(tolerance)
-    rotations = chordal_rotations(pose_graph) if start_rotations is None else \
-        _checked_rotations(start_rotations, problem.n)
+    if start_rotations is None:
+        rotations = chordal_rotations(pose_graph, problem.connection)
+    else:
+        rotations = _checked_rotations(start_rotations, problem.n)
     x = np.zeros((3 * problem.n, initial_rank))
     x[:, :3] = np.transpose(rotations, (0, 2, 1)).reshape(-1, 3)
     grad_tol = gradient_tolerance * math.sqrt(problem.n) * problem.scale
@@ -211,6 +214,13 @@ def _dense(data: np.ndarray, index: tuple[np.ndarray, np.ndarray],
     return flat.reshape(shape)
 
 
+def _block_sums(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
+    """(n, 3, 3) the sums of (k, 3, 3) ``blocks`` by their ``index`` (k,)."""
+    flat = np.bincount((9 * index[:, None] + np.arange(9)).ravel(), weights=blocks.ravel(),
+                       minlength=9 * n)
+    return flat.reshape(n, 3, 3)
+
+
 class _Problem(Relaxation):
     """Q = D - B^T L^-1 B applied as an operator on (3n, r) arrays.
 
@@ -233,18 +243,23 @@ class _Problem(Relaxation):
         i, j = g.edges[:, 0], g.edges[:, 1]
         eye = np.broadcast_to(np.eye(3), (len(i), 3, 3))
         t = g.measured_translations
+        anchored = tau[:, None, None] * t[:, :, None] * t[:, None, :]  # tau t~ t~^T at (i, i)
         parts = [
-            _blocks(i, i, kappa[:, None, None] * eye + tau[:, None, None] * t[:, :, None]
-                    * t[:, None, :]),
+            _blocks(i, i, kappa[:, None, None] * eye),
             _blocks(j, j, kappa[:, None, None] * eye),
             _blocks(i, j, -kappa[:, None, None] * g.measured_rotations),
             _blocks(j, i, -kappa[:, None, None] * np.transpose(g.measured_rotations, (0, 2, 1))),
         ]
-        data, rows, cols = (np.concatenate(p) for p in zip(*parts, strict=True))
         self.n = n
         self.dense = 3 * n < max(_DENSE_Q_BELOW, _STIEFEL.dense_below)
+        if not self.dense:  # a dense D gets them after its connection Laplacian is kept
+            parts.append(_blocks(i, i, anchored))
+        data, rows, cols = (np.concatenate(p) for p in zip(*parts, strict=True))
         self._layout: tuple[sp.csc_matrix, np.ndarray, np.ndarray] | None = None
         self._order: np.ndarray | None = None  # the first sparse factor's elimination order
+        # a dense problem's connection Laplacian of the rotation terms (D without the tau
+        # t~ t~^T blocks): the chordal estimate's matrix (chordal_rotations' connection)
+        self.connection: np.ndarray | None = None
         keep = np.delete(np.arange(n), g.anchor)
         cols3 = (3 * i[:, None] + np.arange(3)).ravel()
         matrices = [
@@ -256,8 +271,12 @@ class _Problem(Relaxation):
                np.concatenate([cols3, cols3]))), (n, 3 * n)),
         ]
         if self.dense:
-            d, lap, coupling = (_dense(*entries, shape) for entries, shape in matrices)
-            self.scale = float(np.mean(np.diagonal(d)))
+            # D = the connection Laplacian + the blocks tau t~ t~^T, added into Q directly
+            self.connection, lap, coupling = (_dense(*entries, shape)
+                                              for entries, shape in matrices)
+            anchored = _block_sums(i, anchored, n)
+            self.scale = float(np.trace(self.connection) + np.trace(
+                anchored, axis1=1, axis2=2).sum()) / (3 * n)
             try:  # Q = D - W^T W, W = C^-1 B and C C^T = L
                 lower = np.linalg.cholesky(lap[np.ix_(keep, keep)])
             except np.linalg.LinAlgError:
@@ -266,7 +285,9 @@ class _Problem(Relaxation):
                 w = np.linalg.solve(lower, coupling[keep])
             else:
                 w = solve_triangular(lower, coupling[keep], lower=True, check_finite=False)
-            self.q = d - w.T @ w
+            self.q = w.T @ w
+            np.subtract(self.connection, self.q, out=self.q)
+            self.q.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :] += anchored
         else:
             d, lap, coupling = (sp.coo_matrix(entries, shape=shape).tocsr()
                                 for entries, shape in matrices)

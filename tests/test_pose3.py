@@ -236,6 +236,29 @@ def test_chordal_recovers_an_exact_graph():
     assert np.allclose(chordal_rotations(g), rotations, atol=1e-10)
 
 
+def test_the_dense_chordal_through_the_connection_laplacian_is_the_pairwise_one():
+    """The certified relaxation's small graphs hand their connection Laplacian to the chordal
+    estimate: the same rotations as the pairwise normal equations, held poses kept; a
+    matrix whose factor fails (here all zeros) hands over to the pairwise solve."""
+    import rlpgo_gtsam.certified3d as certified3d
+
+    graph, values, _, _ = _exact_graph(np.random.default_rng(4), n=12, closures=4, noise=0.3)
+    graph.add(gtsam.PriorFactorPose3(3, values.atPose3(3), gtsam.noiseModel.Constrained.All(6)))
+    graph.add(gtsam.PriorFactorPose3(7, values.atPose3(7), gtsam.noiseModel.Constrained.All(6)))
+    cases = [(graph, values)] + [gtsam.readG2o(str(DATA / f"{name}.g2o"), True)
+                                 for name in ("tinyGrid3D", "smallGrid3D")]
+    for graph, values in cases:
+        g = PoseGraph3D.from_gtsam(graph, values)
+        connection = certified3d._Problem(g).connection
+        assert connection is not None
+        pairwise = chordal_rotations(g)
+        dense = chordal_rotations(g, connection)
+        assert np.allclose(dense, pairwise, rtol=0, atol=1e-12)
+        held, held_r, _ = g.held
+        assert np.array_equal(dense[held], held_r)
+        assert np.array_equal(chordal_rotations(g, np.zeros_like(connection)), pairwise)
+
+
 def test_certified_recovers_an_exact_graph_and_refuses_a_wrong_estimate():
     graph, values, rotations, translations = _exact_graph(np.random.default_rng(7), n=60,
                                                           closures=25)
