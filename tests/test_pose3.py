@@ -236,6 +236,31 @@ def test_chordal_recovers_an_exact_graph():
     assert np.allclose(chordal_rotations(g), rotations, atol=1e-10)
 
 
+def test_rounding_at_rank_3_keeps_the_blocks_as_the_svd_route_would():
+    """At rank 3 with every block a rotation the rounding returns ``X_i^T``; the rank-3 SVD
+    route (taken here with a zero column) gives the same rotations once the anchor is turned
+    back; a block with a negative determinant sends rank 3 to the SVD route as well."""
+    import rlpgo_gtsam.certified3d as certified3d
+
+    graph, values = gtsam.readG2o(str(DATA / "smallGrid3D.g2o"), True)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    rotations, certificate = synchronize3d(g)
+    assert certificate.rank == 3
+    x = certified3d._stack(rotations)
+
+    def anchored(r):
+        return r[g.anchor].T @ r
+
+    kept = certified3d._round(x)
+    assert np.array_equal(kept, rotations)
+    svd = certified3d._round(np.hstack([x, np.zeros((len(x), 1))]))
+    assert np.allclose(anchored(kept), anchored(svd), rtol=0, atol=1e-14)
+    x[3:6] = np.diag([1.0, 1.0, -1.0]) @ x[3:6]  # block 1 reflected
+    mixed = certified3d._round(x)
+    assert np.allclose(np.linalg.det(mixed), 1.0)
+    assert np.allclose(anchored(mixed)[2:], anchored(svd)[2:], rtol=0, atol=1e-12)
+
+
 def test_the_dense_chordal_through_the_connection_laplacian_is_the_pairwise_one():
     """The certified relaxation's small graphs hand their connection Laplacian to the chordal
     estimate: the same rotations as the pairwise normal equations, held poses kept; a
