@@ -569,6 +569,29 @@ def test_the_newton_retraction_is_the_svd_polar_factor():
         assert np.allclose(blocks @ blocks.transpose(0, 2, 1), np.eye(3), atol=1e-12)
 
 
+def test_the_closed_form_trial_point_is_the_svd_polar_factor():
+    """From ``_CLOSED_FROM`` to ``_NEWTON_FROM`` poses the trust region's rank-3 trial point
+    ``X + V`` is retracted in closed form (``Exp(atan|w| / |w| w) X_i``): the SVD's polar
+    factor to 1e-13 along tangent steps from 1e-6 to 5, orthonormal rows; a zero step keeps
+    X; other sizes and ranks take the retraction."""
+    import rlpgo_gtsam.certified3d as certified3d
+
+    rng = np.random.default_rng(6)
+    stiefel = certified3d._STIEFEL
+    for n in (certified3d._CLOSED_FROM, certified3d._NEWTON_FROM - 1):
+        x = certified3d._stack(_rotations(rng, n))
+        for size in (1e-6, 0.3, 5.0):
+            step = stiefel.project(x, size * rng.normal(size=x.shape))
+            moved = stiefel.move(x, step)
+            assert np.allclose(moved, certified3d._polar_svd(x + step), rtol=0, atol=1e-13)
+            blocks = moved.reshape(n, 3, 3)
+            assert np.allclose(blocks @ blocks.transpose(0, 2, 1), np.eye(3), atol=1e-13)
+        assert np.allclose(stiefel.move(x, np.zeros_like(x)), x, rtol=0, atol=1e-15)
+    x = certified3d._stack(_rotations(rng, certified3d._CLOSED_FROM - 1))
+    step = stiefel.project(x, rng.normal(size=x.shape))
+    assert np.array_equal(stiefel.move(x, step), stiefel.retract(x + step))
+
+
 def test_the_isotropic_translation_step_is_the_direct_solve():
     """Isotropic translation informations (a generated graph, held poses included): the
     translation step's CG with the scalar Laplacian gives the direct 3n solve's positions
