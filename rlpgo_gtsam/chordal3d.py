@@ -12,7 +12,6 @@ initializer's rotation step.
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg.lapack import dpotrf, dpotrs
 
 from rlpgo_gtsam.chordal import chordal_blocks
 from rlpgo_gtsam.graph3d import PoseGraph3D, rotation_weights
@@ -58,6 +57,8 @@ def _dense_chordal(connection: np.ndarray, held: np.ndarray,
     """(n, 3, 3) blocks ``X_k`` minimizing ``tr(X^T L X)`` with the held ones at ``R^T``:
     ``L_ff X_f = -L_fh X_h`` by a dense Cholesky factor; None where it fails or a pivot
     falls below :data:`~rlpgo_gtsam.translations3d.PIVOT_FLOOR` of its diagonal."""
+    from scipy.linalg.lapack import dpotrf, dpotrs  # lazily: --help loads no scipy
+
     n = connection.shape[0] // 3
     is_held = np.zeros(n, bool)
     is_held[held] = True
