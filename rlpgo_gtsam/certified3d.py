@@ -245,16 +245,16 @@ class _Problem(Relaxation):
         eye = np.broadcast_to(np.eye(3), (len(i), 3, 3))
         t = g.measured_translations
         anchored = tau[:, None, None] * t[:, :, None] * t[:, None, :]  # tau t~ t~^T at (i, i)
+        self.n = n
+        self.dense = 3 * n < max(_DENSE_Q_BELOW, _STIEFEL.dense_below)
+        # a dense D gets the tau blocks after its connection Laplacian is kept; a sparse D
+        # sums them with kappa I in this order (D's round-off as before)
         parts = [
-            _blocks(i, i, kappa[:, None, None] * eye),
+            _blocks(i, i, kappa[:, None, None] * eye + (0.0 if self.dense else anchored)),
             _blocks(j, j, kappa[:, None, None] * eye),
             _blocks(i, j, -kappa[:, None, None] * g.measured_rotations),
             _blocks(j, i, -kappa[:, None, None] * np.transpose(g.measured_rotations, (0, 2, 1))),
         ]
-        self.n = n
-        self.dense = 3 * n < max(_DENSE_Q_BELOW, _STIEFEL.dense_below)
-        if not self.dense:  # a dense D gets them after its connection Laplacian is kept
-            parts.append(_blocks(i, i, anchored))
         data, rows, cols = (np.concatenate(p) for p in zip(*parts, strict=True))
         self._layout: tuple[sp.csc_matrix, np.ndarray, np.ndarray] | None = None
         self._order: np.ndarray | None = None  # the first sparse factor's elimination order
