@@ -660,7 +660,7 @@ def _newton(problem: _Problem, x: np.ndarray, grad_tol: float, anchor: int,
         damped = h.copy() if mu else h
         if mu:
             damped[diagonal, diagonal] += mu
-        lower, info = dpotrf(damped, lower=1, clean=0, overwrite_a=1)
+        lower, info = dpotrf(damped, lower=1, clean=0)  # h is kept for a damped retry
         fresh = False
         if info == 0:
             w, _ = dpotrs(lower, -g, lower=1)

@@ -397,6 +397,29 @@ def test_newtons_start_on_small_graphs_reaches_the_trust_regions_optimum(monkeyp
         assert np.allclose(newton, truth, atol=1e-9)
 
 
+def test_newtons_damping_takes_a_start_where_the_hessian_is_indefinite():
+    """smallGrid3D's chordal estimate has an indefinite Newton Hessian (S has eigenvalues
+    down to -3.4 there): the damped steps still reach the gradient tolerance, at the trust
+    region's cost."""
+    import math
+
+    import rlpgo_gtsam.certified3d as certified3d
+    from rlpgo_gtsam import staircase
+
+    graph, values = gtsam.readG2o(str(DATA / "smallGrid3D.g2o"), True)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    problem = certified3d._Problem(g)
+    x = certified3d._stack(chordal_rotations(g))
+    tolerance = 1e-6 * math.sqrt(problem.n) * problem.scale
+    y = certified3d._newton(problem, x, tolerance, g.anchor, None)
+    stiefel = certified3d._STIEFEL
+    qy = problem.apply(y)
+    gradient = 2.0 * (qy - stiefel.times(stiefel.multipliers(y, qy), y))
+    assert np.linalg.norm(gradient) <= tolerance
+    reached, _ = staircase.trust_region(problem, stiefel, x, 300, tolerance)
+    assert problem.cost(y) == pytest.approx(problem.cost(reached), rel=1e-10)
+
+
 @pytest.mark.parametrize("noise", [0.05, 0.5])
 def test_a_dense_q_verified_by_arpack_agrees_with_the_sparse_path(monkeypatch, noise):
     """Between the dense eigenvalue size and ``_DENSE_Q_BELOW`` rows, Q is dense, its
