@@ -56,7 +56,7 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import cho_factor, cho_solve, solve_triangular
+from scipy.linalg import solve_triangular
 from scipy.linalg.lapack import dpotrf, dpotrs
 from scipy.sparse.linalg import splu
 
@@ -324,9 +324,15 @@ class _Problem(Relaxation):
             shifted = self.q.copy()
             index = np.arange(self.n)
             shifted.reshape(self.n, 3, self.n, 3)[index, :, index, :] += blocks
+            if 3 * self.n >= _DENSE_BELOW:
+                # factored in place: the transpose of the symmetric C-ordered copy is the
+                # same matrix in Fortran order (cho_factor copied it again: smallGrid3D's
+                # factor 2.85 -> 1.4 ms CPU)
+                lower, info = dpotrf(shifted.T, lower=1, clean=0, overwrite_a=1)
+                if info != 0:
+                    raise RuntimeError("not positive definite")
+                return _Cholesky(lower)
             try:
-                if 3 * self.n >= _DENSE_BELOW:
-                    return _Cholesky(cho_factor(shifted, lower=True, check_finite=False))
                 inverse = np.linalg.inv(np.linalg.cholesky(shifted))
             except np.linalg.LinAlgError:
                 raise RuntimeError("not positive definite") from None
@@ -387,11 +393,11 @@ class _Cholesky:
     solves; above, the inverse cost more than the whole trust region). It exists only where
     ``Q + M`` is positive definite: no pivot is negative."""
 
-    def __init__(self, factor: tuple[np.ndarray, bool]) -> None:
-        self.factor = factor
+    def __init__(self, lower: np.ndarray) -> None:
+        self.lower = lower
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        return cho_solve(self.factor, b, check_finite=False)
+        return dpotrs(self.lower, b, lower=1)[0]
 
 
 class _Reordered:

@@ -67,8 +67,11 @@ def _dense_chordal(connection: np.ndarray, held: np.ndarray,
     x = np.zeros((n, 3, 3))
     x[held] = np.transpose(held_r, (0, 2, 1))
     block = connection[np.ix_(free, free)]
-    lower, info = dpotrf(block, lower=1, clean=0)
-    if info != 0 or not np.all(np.diagonal(lower) ** 2 > PIVOT_FLOOR * np.diagonal(block)):
+    diagonal = np.diagonal(block).copy()
+    # factored in place: the transpose of the symmetric block is the same matrix in Fortran
+    # order (dpotrf copied it again: smallGrid3D's chordal estimate 4.4 -> 3.3 ms CPU)
+    lower, info = dpotrf(block.T, lower=1, clean=0, overwrite_a=1)
+    if info != 0 or not np.all(np.diagonal(lower) ** 2 > PIVOT_FLOOR * diagonal):
         return None
     solution, info = dpotrs(lower, -connection[np.ix_(free, fixed)] @ x[held].reshape(-1, 3),
                             lower=1)
