@@ -12,7 +12,8 @@ held) leaves ``f(X) = tr(X^T Q X)`` with ``X`` the 3n x r matrix of stacked bloc
 ``L(G^rho) + Q^tau``), applied through one sparse factorization of the anchored translation
 Laplacian ``L``, never formed; below ``_DENSE_Q_BELOW`` rows (graphs of fewer than 134 poses)
 ``Q`` is formed as a dense matrix instead, and its factors are dense (scipy's sparse set-up
-cost more than the whole solve there; S's eigenvalues are dense below ``_DENSE_BELOW``).
+cost more than the whole solve there; S's eigenvalues are dense below ``_DENSE_BELOW``); the
+chordal start is then solved through the same rotation terms' dense connection Laplacian.
 Rows of each block ``X_i`` are orthonormal: ``X_i^T`` is a
 point of the Stiefel manifold St(3, r), and SE-Sync's ``Y`` is ``X^T``.
 
@@ -24,12 +25,15 @@ projects each block onto the Stiefel manifold (polar factor), the tangent projec
 sym((Q X)_i X_i^T)``; ``S + eta I`` is positive definite iff the sparse matrix
 ``[[L, -B], [-B^T, D - Lambda + eta I]]`` has only positive pivots (Sylvester's law of
 inertia); the eigenvector of ``lambda_min(S)`` (ARPACK, shift-invert) escapes a saddle into
-rank r + 1. Rounding: the rank-3 truncated SVD ``X ~ U S V^T`` gives ``R_i = (U_i S)^T``;
+rank r + 1. Rounding (at rank 3 with every block a rotation: ``R_i = X_i^T``, the same
+after the anchor's turn): the rank-3 truncated SVD ``X ~ U S V^T`` gives ``R_i = (U_i S)^T``;
 if fewer than half of them have a positive determinant they are reflected by
 ``diag(1, 1, -1)``; each is projected onto SO(3); where the staircase ended above rank 3 they
 are polished by the trust region at rank 3 (:func:`~rlpgo_gtsam.staircase.polish`, as in 2D)
 and projected again; the whole is turned so that the anchor keeps its rotation. The
-staircase starts at rank 3: SE-Sync's default start (the chordal estimate padded with zeros
+staircase starts at rank 3 (below ``_NEWTON_BELOW`` rows, from the point Newton's method
+reaches from the chordal estimate: the trust region then stops at once, see
+:func:`_newton`): SE-Sync's default start (the chordal estimate padded with zeros
 at rank 5) stays in the same 3-dimensional subspace until an escape, so starting at 3 gives
 the same iterates with fewer columns. A rank whose trust region stalls below the
 certificate's resolution is verified where it stands, as in 2D.
@@ -52,7 +56,8 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import cho_factor, cho_solve, solve_triangular
+from scipy.linalg import solve_triangular
+from scipy.linalg.lapack import dpotrf, dpotrs
 from scipy.sparse.linalg import splu
 
 from rlpgo_gtsam.certified import Certificate, Status
@@ -60,7 +65,7 @@ from rlpgo_gtsam.chordal3d import chordal_rotations
 from rlpgo_gtsam.errors import GraphError, SolverError
 from rlpgo_gtsam.graph3d import PoseGraph3D, rotation_weights, translation_weights
 from rlpgo_gtsam.numerics import numeric_call
-from rlpgo_gtsam.se3 import project_to_so3
+from rlpgo_gtsam.se3 import exp_so3, project_to_so3, skew, vee
 from rlpgo_gtsam.staircase import (
     Manifold,
     Relaxation,
@@ -134,11 +139,15 @@ def synchronize3d(pose_graph: PoseGraph3D, start_rotations: np.ndarray | None = 
     deadline = check_start(started, initial_rank, max_rank, 3, time_limit_s)
     problem = _Problem(pose_graph)
     eta = problem.tolerance(tolerance)
-    rotations = chordal_rotations(pose_graph) if start_rotations is None else \
-        _checked_rotations(start_rotations, problem.n)
+    if start_rotations is None:
+        rotations = chordal_rotations(pose_graph, problem.connection)
+    else:
+        rotations = _checked_rotations(start_rotations, problem.n)
     x = np.zeros((3 * problem.n, initial_rank))
     x[:, :3] = np.transpose(rotations, (0, 2, 1)).reshape(-1, 3)
     grad_tol = gradient_tolerance * math.sqrt(problem.n) * problem.scale
+    if problem.dense and 3 * problem.n < _NEWTON_BELOW and initial_rank == 3:
+        x = _newton(problem, x, grad_tol, pose_graph.anchor, deadline)
     x, check, stop = climb(problem, _STIEFEL, x, eta, max_rank, max_iterations, grad_tol,
                            deadline, progress, started)
     rotations = _round(x)
@@ -206,6 +215,13 @@ def _dense(data: np.ndarray, index: tuple[np.ndarray, np.ndarray],
     return flat.reshape(shape)
 
 
+def _block_sums(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
+    """(n, 3, 3) the sums of (k, 3, 3) ``blocks`` by their ``index`` (k,)."""
+    flat = np.bincount((9 * index[:, None] + np.arange(9)).ravel(), weights=blocks.ravel(),
+                       minlength=9 * n)
+    return flat.reshape(n, 3, 3)
+
+
 class _Problem(Relaxation):
     """Q = D - B^T L^-1 B applied as an operator on (3n, r) arrays.
 
@@ -228,18 +244,23 @@ class _Problem(Relaxation):
         i, j = g.edges[:, 0], g.edges[:, 1]
         eye = np.broadcast_to(np.eye(3), (len(i), 3, 3))
         t = g.measured_translations
+        anchored = tau[:, None, None] * t[:, :, None] * t[:, None, :]  # tau t~ t~^T at (i, i)
+        self.n = n
+        self.dense = 3 * n < max(_DENSE_Q_BELOW, _STIEFEL.dense_below)
+        # a dense D gets the tau blocks after its connection Laplacian is kept; a sparse D
+        # sums them with kappa I in this order (D's round-off as before)
         parts = [
-            _blocks(i, i, kappa[:, None, None] * eye + tau[:, None, None] * t[:, :, None]
-                    * t[:, None, :]),
+            _blocks(i, i, kappa[:, None, None] * eye + (0.0 if self.dense else anchored)),
             _blocks(j, j, kappa[:, None, None] * eye),
             _blocks(i, j, -kappa[:, None, None] * g.measured_rotations),
             _blocks(j, i, -kappa[:, None, None] * np.transpose(g.measured_rotations, (0, 2, 1))),
         ]
         data, rows, cols = (np.concatenate(p) for p in zip(*parts, strict=True))
-        self.n = n
-        self.dense = 3 * n < max(_DENSE_Q_BELOW, _STIEFEL.dense_below)
         self._layout: tuple[sp.csc_matrix, np.ndarray, np.ndarray] | None = None
         self._order: np.ndarray | None = None  # the first sparse factor's elimination order
+        # a dense problem's connection Laplacian of the rotation terms (D without the tau
+        # t~ t~^T blocks): the chordal estimate's matrix (chordal_rotations' connection)
+        self.connection: np.ndarray | None = None
         keep = np.delete(np.arange(n), g.anchor)
         cols3 = (3 * i[:, None] + np.arange(3)).ravel()
         matrices = [
@@ -251,8 +272,12 @@ class _Problem(Relaxation):
                np.concatenate([cols3, cols3]))), (n, 3 * n)),
         ]
         if self.dense:
-            d, lap, coupling = (_dense(*entries, shape) for entries, shape in matrices)
-            self.scale = float(np.mean(np.diagonal(d)))
+            # D = the connection Laplacian + the blocks tau t~ t~^T, added into Q directly
+            self.connection, lap, coupling = (_dense(*entries, shape)
+                                              for entries, shape in matrices)
+            anchored = _block_sums(i, anchored, n)
+            self.scale = float(np.trace(self.connection) + np.trace(
+                anchored, axis1=1, axis2=2).sum()) / (3 * n)
             try:  # Q = D - W^T W, W = C^-1 B and C C^T = L
                 lower = np.linalg.cholesky(lap[np.ix_(keep, keep)])
             except np.linalg.LinAlgError:
@@ -261,7 +286,9 @@ class _Problem(Relaxation):
                 w = np.linalg.solve(lower, coupling[keep])
             else:
                 w = solve_triangular(lower, coupling[keep], lower=True, check_finite=False)
-            self.q = d - w.T @ w
+            self.q = w.T @ w
+            np.subtract(self.connection, self.q, out=self.q)
+            self.q.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :] += anchored
         else:
             d, lap, coupling = (sp.coo_matrix(entries, shape=shape).tocsr()
                                 for entries, shape in matrices)
@@ -297,9 +324,15 @@ class _Problem(Relaxation):
             shifted = self.q.copy()
             index = np.arange(self.n)
             shifted.reshape(self.n, 3, self.n, 3)[index, :, index, :] += blocks
+            if 3 * self.n >= _DENSE_BELOW:
+                # factored in place: the transpose of the symmetric C-ordered copy is the
+                # same matrix in Fortran order (cho_factor copied it again: smallGrid3D's
+                # factor 2.85 -> 1.4 ms CPU)
+                lower, info = dpotrf(shifted.T, lower=1, clean=0, overwrite_a=1)
+                if info != 0:
+                    raise RuntimeError("not positive definite")
+                return _Cholesky(lower)
             try:
-                if 3 * self.n >= _DENSE_BELOW:
-                    return _Cholesky(cho_factor(shifted, lower=True, check_finite=False))
                 inverse = np.linalg.inv(np.linalg.cholesky(shifted))
             except np.linalg.LinAlgError:
                 raise RuntimeError("not positive definite") from None
@@ -360,11 +393,11 @@ class _Cholesky:
     solves; above, the inverse cost more than the whole trust region). It exists only where
     ``Q + M`` is positive definite: no pivot is negative."""
 
-    def __init__(self, factor: tuple[np.ndarray, bool]) -> None:
-        self.factor = factor
+    def __init__(self, lower: np.ndarray) -> None:
+        self.lower = lower
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        return cho_solve(self.factor, b, check_finite=False)
+        return dpotrs(self.lower, b, lower=1)[0]
 
 
 class _Reordered:
@@ -403,6 +436,11 @@ _NEWTON_CHANGE, _NEWTON_ITERATIONS = 1e-9, 50
 # Poses from which the rank-3 retraction is Newton's: steps of 0.3 rad (CPU ms, SVD /
 # Newton) 125 poses 0.52 / 0.85, 300: 1.15 / 0.97, 600: 2.30 / 1.13, 1661: 6.3 / 1.5.
 _NEWTON_FROM = 250
+# Poses from which the trust region's rank-3 trial point X + V (V tangent) is retracted in
+# closed form (_Stiefel.move; below _NEWTON_FROM). Tangent steps of 0.3 (CPU ms, closed form
+# / SVD): 15 poses 0.137 / 0.077, 30: 0.163 / 0.121, 40: 0.142 / 0.153, 125: 0.227 / 0.491,
+# 249: 0.309 / 0.940; the same points to 1e-14 for steps from 1e-6 to 5.
+_CLOSED_FROM = 40
 
 
 def _fields(a: np.ndarray) -> np.ndarray:
@@ -488,6 +526,21 @@ class _Stiefel(Manifold):
             return _polar_newton(x)
         return _polar_svd(x)
 
+    def move(self, x: np.ndarray, step: np.ndarray) -> np.ndarray:
+        """At rank 3 from :data:`_CLOSED_FROM` to :data:`_NEWTON_FROM` poses, the polar
+        factor of ``X + V`` in closed form: a tangent ``V_i = W_i X_i`` (``W_i = [w_i]_x``)
+        makes ``X_i + V_i = (I + W_i) X_i``, whose polar factor is ``Exp(atan|w_i| / |w_i|
+        w_i) X_i``; else :meth:`retract` of ``X + V``."""
+        if x.shape[1] != 3 or not 3 * _CLOSED_FROM <= x.shape[0] < 3 * _NEWTON_FROM:
+            return self.retract(x + step)
+        xb = x.reshape(-1, 3, 3)
+        turn = step.reshape(-1, 3, 3) @ xb.transpose(0, 2, 1)  # W_i, up to round-off
+        w = 0.5 * vee(turn - turn.transpose(0, 2, 1))
+        theta = np.linalg.norm(w, axis=1)
+        scale = np.arctan(theta) / np.where(theta > 0, theta, 1.0)
+        scale[theta == 0] = 1.0
+        return (exp_so3(scale[:, None] * w) @ xb).reshape(-1, 3)
+
     def multipliers(self, x: np.ndarray, qx: np.ndarray) -> np.ndarray:
         r = x.shape[1]
         if x.shape[0] >= 3 * _FIELDS_FROM:
@@ -537,9 +590,11 @@ class _Stiefel(Manifold):
         return super().negative_pivots(factor)
 
     def dense(self, problem: _Problem, lam: np.ndarray) -> np.ndarray:
-        s = problem.apply(np.eye(3 * problem.n))
-        for k in range(problem.n):
-            s[3 * k:3 * k + 3, 3 * k:3 * k + 3] -= lam[k]
+        """S: a dense problem's Q less the blocks Lambda_i on its diagonal, in one indexed
+        subtraction (a loop over the poses took 54 us of tinyGrid3D's, this 15 us)."""
+        n = problem.n
+        s = problem.q.copy() if problem.dense else problem.apply(np.eye(3 * n))
+        s.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :] -= lam
         return s
 
 
@@ -547,10 +602,98 @@ _STIEFEL = _Stiefel(dense_below=_DENSE_BELOW, preconditioner_shift=_PRECONDITION
                     initial_radius=_INITIAL_RADIUS, cg_floor=_CG_FLOOR)
 
 
+# --- Newton's method at rank 3 on a dense problem ---------------------------------------
+
+# Rows of Q below which the trust region starts from _newton's point. The rank-3 trust region
+# from the chordal estimate against Newton's steps and then the trust region (which stops at
+# once), CPU ms: tinyGrid3D 2.37 / 1.09; generated graphs (tests' _exact_graph, noise 0.1) of
+# 20 poses 2.67 / 0.99, 30: 3.86 / 1.26, 45: 5.38 / 3.36; smallGrid3D (125 poses: damped
+# steps from its chordal estimate, a 372-row Hessian each) 14.4 / 27.
+_NEWTON_BELOW = _DENSE_BELOW
+# Newton's factorizations at most (damped retries included) before the staircase's trust
+# region takes over.
+_NEWTON_STEPS = 30
+# The damping added where a Newton step fails (H + mu I not positive definite, or no
+# descent): first this fraction of H's mean diagonal, then 10 times more per failure; a
+# successful step divides it by 10, and below _DAMPING x 1e-3 it is dropped (pure Newton).
+_DAMPING = 1e-3
+
+
+def _newton(problem: _Problem, x: np.ndarray, grad_tol: float, anchor: int,
+            deadline: float | None) -> np.ndarray:
+    """The rank-3 start ``x`` (3n, 3) moved by a damped Newton's method on ``f(X) = tr(X^T Q
+    X)`` for a dense problem, until the Riemannian gradient's norm is at most ``grad_tol``
+    (the trust region's own stop test: it then ends at its first iteration, and the
+    staircase verifies S there), for at most :data:`_NEWTON_STEPS` factorizations; the
+    trust region goes on from where it stopped.
+
+    Each block moves as ``X_i <- Exp(w_i) X_i``; the step solves ``(H + mu I) w = -g`` with
+    the exact gradient ``g_i = 2 vee(M_i - M_i^T)``, ``M_i = (Q X)_i X_i^T``, and Hessian
+    ``H = 2 K^T (I_3 x Q) K + 2 diag(Lambda_i - tr(Lambda_i) I)`` of ``w -> f(Exp(w) X)``
+    at 0 (``K`` maps ``w`` to the columns of ``[w_i]_x X_i``), the anchor's ``w`` held at 0
+    (the gauge: ``H`` is singular along a common rotation). A step is taken where it lowers
+    the cost; ``mu`` (Levenberg-Marquardt's rule, :data:`_DAMPING`) handles a start far from
+    the minimum, where ``H`` is indefinite (smallGrid3D's chordal estimate). Near the minimum
+    ``mu = 0``: quadratic convergence, 3 steps on tinyGrid3D (gradient 54 -> 2e-6 against a
+    tolerance of 2e-4), where the trust region took 6 iterations and 10 Hessian products."""
+    n = problem.n
+    q = problem.q
+    columns = q.reshape(3 * n, n, 3).transpose(1, 0, 2)  # (n, 3n, 3): Q's block columns
+    held = slice(3 * anchor, 3 * anchor + 3)
+    diagonal = np.arange(3 * n)
+    qx = q @ x
+    mu, fresh = 0.0, True
+    for _ in range(_NEWTON_STEPS):
+        if fresh:
+            xb, qb = x.reshape(n, 3, 3), qx.reshape(n, 3, 3)
+            m = qb @ xb.transpose(0, 2, 1)
+            lam = _sym(m)
+            if np.linalg.norm(qb - lam @ xb) <= 0.5 * grad_tol or \
+                    (deadline is not None and time.perf_counter() > deadline):
+                break
+            g = 2.0 * vee(m - m.transpose(0, 2, 1)).ravel()
+            g[held] = 0.0
+            # k[j][q, (c, b)] = -[X_j[:, c]]_x[q, b]: column c of [w_j]_x X_j is K_c w_j
+            k = -skew(xb.transpose(0, 2, 1).reshape(-1, 3)).reshape(n, 3, 3, 3)
+            t = (columns @ k.transpose(0, 2, 1, 3).reshape(n, 3, 9)).reshape(n, n, 3, 3, 3)
+            t = t.transpose(1, 3, 2, 0, 4).reshape(n, 9, 3 * n)  # [i, (c, p), (j, b)]: Q K_c
+            h = (k.transpose(0, 3, 1, 2).reshape(n, 3, 9) @ t).reshape(3 * n, 3 * n)
+            h.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :] += \
+                lam - np.trace(lam, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+            h *= 2.0
+            h[held], h[:, held], h[held, held] = 0.0, 0.0, np.eye(3)
+            floor = _DAMPING * float(np.mean(np.diagonal(h)))
+        damped = h.copy() if mu else h
+        if mu:
+            damped[diagonal, diagonal] += mu
+        lower, info = dpotrf(damped, lower=1, clean=0)  # h is kept for a damped retry
+        fresh = False
+        if info == 0:
+            w, _ = dpotrs(lower, -g, lower=1)
+            x_new = (exp_so3(w) @ xb).reshape(-1, 3)
+            qx_new = q @ x_new
+            fresh = -float(np.sum((x_new - x) * (qx_new + qx))) > 0  # exact decrease
+        if fresh:
+            x, qx = x_new, qx_new
+            mu = 0.0 if mu < 1e-2 * floor else 0.1 * mu
+        else:
+            mu = max(10.0 * mu, floor)
+    return x
+
+
 # --- rounding -------------------------------------------------------------------------------
 
 def _round(x: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) rotations: rank-3 SVD, reflection rule, projection onto SO(3)."""
+    """(n, 3, 3) rotations: rank-3 SVD, reflection rule, projection onto SO(3). At rank 3
+    with every block a rotation (the staircase's from an SO(3) start: its retractions keep
+    the sign of each determinant) the blocks' transposes are returned as they are: the SVD
+    route gives ``V^T X_i^T`` (one orthogonal ``V`` for all), the same rotations once the
+    anchor is turned back (to 2e-15 on tinyGrid3D, smallGrid3D and parking-garage; CPU ms
+    0.19 -> 0.03, 0.77 -> 0.07 and 7.8 -> 0.6)."""
+    if x.shape[1] == 3:
+        blocks = np.transpose(x.reshape(-1, 3, 3), (0, 2, 1))
+        if np.all(np.linalg.det(blocks) > 0):
+            return blocks.copy()
     u, s, _ = np.linalg.svd(x, full_matrices=False)
     blocks = np.transpose((u[:, :3] * s[:3]).reshape(-1, 3, 3), (0, 2, 1))  # R_i = (U_i S)^T
     if np.count_nonzero(np.linalg.det(blocks) > 0) < 0.5 * len(blocks):

@@ -14,6 +14,7 @@ import numpy as np
 
 __all__ = [
     "skew",
+    "vee",
     "quaternions_to_rotations",
     "rotations_to_quaternions",
     "exp_so3",
@@ -29,15 +30,29 @@ __all__ = [
 
 _SMALL = 1e-10  # below this angle GTSAM's Pose3 Logmap returns the translation as is
 _SERIES = 1e-4  # below this angle the trigonometric ratios use their Taylor series
+# where [w]_x holds w: (2, 1), (0, 2), (1, 0); fancy indexing in place of nine stacked
+# columns (skew of 9 vectors: 40 -> 10 us CPU, of 5000: 414 -> 56 us; the same entries)
+_VEE_ROWS, _VEE_COLS = np.array([2, 0, 1]), np.array([1, 2, 0])
+# rotations_to_quaternions' 4 x 4 products q_c q_d: the diagonal, and the pairs (x, y),
+# (x, z), (x, w), (y, z), (y, w), (z, w) set by index in place of nested stacks (CPU, 11
+# rotations: 181 -> 155 us, 5000: 1.19 -> 1.06 ms; the same numbers)
+_DIAGONAL = np.arange(4)
+_PAIR_ROWS, _PAIR_COLS = np.array([0, 0, 0, 1, 1, 2]), np.array([1, 2, 3, 2, 3, 3])
 
 
 def skew(w: np.ndarray) -> np.ndarray:
     """(k, 3, 3) skew-symmetric matrices ``[w]_x`` of (k, 3) vectors."""
     w = np.asarray(w, dtype=float).reshape(-1, 3)
-    zero = np.zeros(len(w))
-    return np.stack([np.stack([zero, -w[:, 2], w[:, 1]], -1),
-                     np.stack([w[:, 2], zero, -w[:, 0]], -1),
-                     np.stack([-w[:, 1], w[:, 0], zero], -1)], -2)
+    k = np.zeros((len(w), 3, 3))
+    k[:, _VEE_ROWS, _VEE_COLS] = w
+    k[:, _VEE_COLS, _VEE_ROWS] = -w
+    return k
+
+
+def vee(k: np.ndarray) -> np.ndarray:
+    """(k, 3) the vectors ``w`` of (k, 3, 3) matrices' entries ``(2, 1), (0, 2), (1, 0)``:
+    :func:`skew`'s inverse on skew-symmetric matrices."""
+    return k[:, _VEE_ROWS, _VEE_COLS]
 
 
 def quaternions_to_rotations(q: np.ndarray) -> np.ndarray:
@@ -67,9 +82,11 @@ def rotations_to_quaternions(rotations: np.ndarray) -> np.ndarray:
     # the off-diagonal sums and differences: 4 q_a q_b for each pair
     xy, xz, yz = r[:, 0, 1] + r[:, 1, 0], r[:, 0, 2] + r[:, 2, 0], r[:, 1, 2] + r[:, 2, 1]
     xw, yw, zw = r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]
-    products = np.stack([  # row c: 4 q_c q_(x, y, z, w)
-        np.stack([big * big, xy, xz, xw], -1), np.stack([xy, big * big, yz, yw], -1),
-        np.stack([xz, yz, big * big, zw], -1), np.stack([xw, yw, zw, big * big], -1)], 1)
+    products = np.empty((len(r), 4, 4))  # row c: 4 q_c q_(x, y, z, w)
+    products[:, _DIAGONAL, _DIAGONAL] = (big * big)[:, None]
+    pairs = np.stack([xy, xz, xw, yz, yw, zw], -1)
+    products[:, _PAIR_ROWS, _PAIR_COLS] = pairs
+    products[:, _PAIR_COLS, _PAIR_ROWS] = pairs
     q = products[np.arange(len(r)), pick] / (2.0 * np.where(big > 0, big, 1.0))[:, None]
     q /= np.linalg.norm(q, axis=1)[:, None]
     return np.where(q[:, 3:4] < 0, -q, q)

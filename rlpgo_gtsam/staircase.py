@@ -307,6 +307,12 @@ class Manifold:
         """``y`` moved back onto the manifold."""
         raise NotImplementedError
 
+    def move(self, y: np.ndarray, step: np.ndarray) -> np.ndarray:
+        """The trust region's trial point: ``y`` moved along the tangent vector ``step`` and
+        back onto the manifold; :meth:`retract` of ``y + step`` unless a manifold knows a
+        cheaper form of the same point."""
+        return self.retract(y + step)
+
     def multipliers(self, y: np.ndarray, qy: np.ndarray) -> np.ndarray:
         """``Lambda(Y)`` from ``Y`` and ``Q Y``."""
         raise NotImplementedError
@@ -591,7 +597,7 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
                                      m.cg_floor * grad_tol)
         step, h_step, on_boundary, length = shortened
         model_decrease = -(m.inner(grad, step) + 0.5 * m.inner(step, h_step))
-        y_new = m.retract(y + step)
+        y_new = m.move(y, step)
         qy_new = problem.apply(y_new)
         if m.exact_decrease:
             actual = -m.inner(y_new - y, qy_new + qy)  # f - f(y_new), free of cancellation

@@ -22,24 +22,31 @@ import scipy.linalg  # SciPy's own OpenBLAS: a hot call bounds it too
 pools = lambda: sorted(p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas")
 before = pools()
 inside = numeric_call(pools)()
-print(json.dumps([before, inside, pools()]))
+nested = numeric_call(lambda: [numeric_call(pools)(), pools()])()
+print(json.dumps([before, inside, pools(), nested]))
 """
 
 
-def _pools(**env: str) -> list[list[int]]:
+def _pools(everything: bool = False, **env: str) -> list:
     clean = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")
              and k != "RLPGO_THREADS"}
     done = subprocess.run([sys.executable, "-c", _THREADS], capture_output=True, text=True,
                           check=True, timeout=120, env={**clean, **env})
     import json
 
-    return json.loads(done.stdout)
+    return json.loads(done.stdout)[slice(None) if everything else slice(3)]
 
 
 def test_hot_calls_use_one_blas_thread_and_restore_the_pools():
     before, inside, after = _pools()
     assert len(inside) == len(before) >= 1 and all(n == 1 for n in inside)
     assert after == before
+
+
+def test_a_hot_call_inside_another_keeps_the_outer_ones_bound():
+    """The inner call skips threadpoolctl; its return does not restore the pools early."""
+    before, *_, (inner, after_inner) = _pools(everything=True)
+    assert inner == after_inner == [1] * len(before)
 
 
 def test_a_user_s_thread_setting_wins():
@@ -97,6 +104,6 @@ def test_a_command_started_with_one_thread_needs_no_limiting():
     import json
 
     pools, limit = done.stdout.splitlines()
-    before, inside, after = json.loads(pools)
+    before, inside, after, _ = json.loads(pools)
     assert before and all(n == 1 for n in before + inside + after)
     assert limit == "None False"

@@ -236,6 +236,54 @@ def test_chordal_recovers_an_exact_graph():
     assert np.allclose(chordal_rotations(g), rotations, atol=1e-10)
 
 
+def test_rounding_at_rank_3_keeps_the_blocks_as_the_svd_route_would():
+    """At rank 3 with every block a rotation the rounding returns ``X_i^T``; the rank-3 SVD
+    route (taken here with a zero column) gives the same rotations once the anchor is turned
+    back; a block with a negative determinant sends rank 3 to the SVD route as well."""
+    import rlpgo_gtsam.certified3d as certified3d
+
+    graph, values = gtsam.readG2o(str(DATA / "smallGrid3D.g2o"), True)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    rotations, certificate = synchronize3d(g)
+    assert certificate.rank == 3
+    x = certified3d._stack(rotations)
+
+    def anchored(r):
+        return r[g.anchor].T @ r
+
+    kept = certified3d._round(x)
+    assert np.array_equal(kept, rotations)
+    svd = certified3d._round(np.hstack([x, np.zeros((len(x), 1))]))
+    assert np.allclose(anchored(kept), anchored(svd), rtol=0, atol=1e-14)
+    x[3:6] = np.diag([1.0, 1.0, -1.0]) @ x[3:6]  # block 1 reflected
+    mixed = certified3d._round(x)
+    assert np.allclose(np.linalg.det(mixed), 1.0)
+    assert np.allclose(anchored(mixed)[2:], anchored(svd)[2:], rtol=0, atol=1e-12)
+
+
+def test_the_dense_chordal_through_the_connection_laplacian_is_the_pairwise_one():
+    """The certified relaxation's small graphs hand their connection Laplacian to the chordal
+    estimate: the same rotations as the pairwise normal equations, held poses kept; a
+    matrix whose factor fails (here all zeros) hands over to the pairwise solve."""
+    import rlpgo_gtsam.certified3d as certified3d
+
+    graph, values, _, _ = _exact_graph(np.random.default_rng(4), n=12, closures=4, noise=0.3)
+    graph.add(gtsam.PriorFactorPose3(3, values.atPose3(3), gtsam.noiseModel.Constrained.All(6)))
+    graph.add(gtsam.PriorFactorPose3(7, values.atPose3(7), gtsam.noiseModel.Constrained.All(6)))
+    cases = [(graph, values)] + [gtsam.readG2o(str(DATA / f"{name}.g2o"), True)
+                                 for name in ("tinyGrid3D", "smallGrid3D")]
+    for graph, values in cases:
+        g = PoseGraph3D.from_gtsam(graph, values)
+        connection = certified3d._Problem(g).connection
+        assert connection is not None
+        pairwise = chordal_rotations(g)
+        dense = chordal_rotations(g, connection)
+        assert np.allclose(dense, pairwise, rtol=0, atol=1e-12)
+        held, held_r, _ = g.held
+        assert np.array_equal(dense[held], held_r)
+        assert np.array_equal(chordal_rotations(g, np.zeros_like(connection)), pairwise)
+
+
 def test_certified_recovers_an_exact_graph_and_refuses_a_wrong_estimate():
     graph, values, rotations, translations = _exact_graph(np.random.default_rng(7), n=60,
                                                           closures=25)
@@ -266,11 +314,14 @@ def test_the_dense_path_of_small_graphs_agrees_with_the_sparse_one(monkeypatch, 
     """Below the dense sizes (Q of rows < dense_below, normal equations of fewer unknowns
     than translations3d's threshold) the relaxation, the chordal estimate and the
     translation step are solved densely: the same certificate and estimate as the sparse
-    path, to round-off."""
+    path, to round-off (both from the trust region: Newton's start is left out here, see
+    the next test)."""
     import dataclasses
 
     import rlpgo_gtsam.certified3d as certified3d
     import rlpgo_gtsam.translations3d as translations3d
+
+    monkeypatch.setattr(certified3d, "_NEWTON_BELOW", 0)
 
     if case == "tinyGrid3D":
         graph, values = gtsam.readG2o(str(DATA / "tinyGrid3D.g2o"), True)
@@ -297,6 +348,76 @@ def test_the_dense_path_of_small_graphs_agrees_with_the_sparse_one(monkeypatch, 
     assert a.suboptimality_bound <= a.tolerance * 3 * g.num_poses
     assert np.allclose(dense.poses, sparse.poses, atol=1e-9)
     assert dense.chi2 == pytest.approx(sparse.chi2, rel=1e-10)
+
+
+def test_skew_is_the_cross_product_and_vee_inverts_it():
+    w, v = np.random.default_rng(0).normal(size=(2, 7, 3))
+    assert np.allclose(se3.skew(w) @ v[:, :, None], np.cross(w, v)[:, :, None], atol=1e-15)
+    assert np.array_equal(se3.vee(se3.skew(w)), w)
+
+
+@pytest.mark.parametrize("case", ["tinyGrid3D", "generated", "exact"])
+def test_newtons_start_on_small_graphs_reaches_the_trust_regions_optimum(monkeypatch, case):
+    """Below ``_NEWTON_BELOW`` rows the staircase starts from Newton's point
+    (:func:`certified3d._newton`): the same certificate as the trust region alone, whose
+    rotations (run to a gradient 1e-6 times its default tolerance) agree to 1e-9; the
+    trust region then takes no iteration; an exact graph is recovered."""
+    import rlpgo_gtsam.certified3d as certified3d
+    from rlpgo_gtsam import staircase
+
+    rng = np.random.default_rng(3)
+    if case == "tinyGrid3D":
+        graph, values = gtsam.readG2o(str(DATA / "tinyGrid3D.g2o"), True)
+    else:
+        graph, values, truth, _ = _exact_graph(rng, n=40, closures=20,
+                                               noise=0.05 if case == "generated" else 0.0)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    assert 3 * g.num_poses < certified3d._NEWTON_BELOW
+    iterations = []
+    trust_region = staircase.trust_region
+
+    def counted(*args, **kwargs):
+        y, ended = trust_region(*args, **kwargs)
+        iterations.append(args[7].iterations)
+        return y, ended
+
+    monkeypatch.setattr(staircase, "trust_region", counted)
+    newton, a = synchronize3d(g)
+    assert iterations == [0]
+    monkeypatch.setattr(certified3d, "_NEWTON_BELOW", 0)
+    tight, b = synchronize3d(g, gradient_tolerance=1e-12)
+    assert iterations[1] > 0 or case == "exact"  # the chordal estimate is exact there
+    assert a.status == b.status == Status.CERTIFIED and a.rank == b.rank == 3
+    scale = abs(b.estimate_cost) + 1.0
+    assert abs(a.estimate_cost - b.estimate_cost) <= 1e-10 * scale
+    assert abs(a.lower_bound - b.lower_bound) <= 1e-10 * scale
+    assert abs(a.min_eigenvalue - b.min_eigenvalue) <= 1e-10 * scale
+    assert np.allclose(newton, tight, atol=1e-7)
+    if case == "exact":
+        assert np.allclose(newton, truth, atol=1e-9)
+
+
+def test_newtons_damping_takes_a_start_where_the_hessian_is_indefinite():
+    """smallGrid3D's chordal estimate has an indefinite Newton Hessian (S has eigenvalues
+    down to -3.4 there): the damped steps still reach the gradient tolerance, at the trust
+    region's cost."""
+    import math
+
+    import rlpgo_gtsam.certified3d as certified3d
+    from rlpgo_gtsam import staircase
+
+    graph, values = gtsam.readG2o(str(DATA / "smallGrid3D.g2o"), True)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    problem = certified3d._Problem(g)
+    x = certified3d._stack(chordal_rotations(g))
+    tolerance = 1e-6 * math.sqrt(problem.n) * problem.scale
+    y = certified3d._newton(problem, x, tolerance, g.anchor, None)
+    stiefel = certified3d._STIEFEL
+    qy = problem.apply(y)
+    gradient = 2.0 * (qy - stiefel.times(stiefel.multipliers(y, qy), y))
+    assert np.linalg.norm(gradient) <= tolerance
+    reached, _ = staircase.trust_region(problem, stiefel, x, 300, tolerance)
+    assert problem.cost(y) == pytest.approx(problem.cost(reached), rel=1e-10)
 
 
 @pytest.mark.parametrize("noise", [0.05, 0.5])
@@ -469,6 +590,29 @@ def test_the_newton_retraction_is_the_svd_polar_factor():
         assert np.allclose(polar, certified3d._polar_svd(moved), rtol=0, atol=1e-12)
         blocks = polar.reshape(n, 3, 3)
         assert np.allclose(blocks @ blocks.transpose(0, 2, 1), np.eye(3), atol=1e-12)
+
+
+def test_the_closed_form_trial_point_is_the_svd_polar_factor():
+    """From ``_CLOSED_FROM`` to ``_NEWTON_FROM`` poses the trust region's rank-3 trial point
+    ``X + V`` is retracted in closed form (``Exp(atan|w| / |w| w) X_i``): the SVD's polar
+    factor to 1e-13 along tangent steps from 1e-6 to 5, orthonormal rows; a zero step keeps
+    X; other sizes and ranks take the retraction."""
+    import rlpgo_gtsam.certified3d as certified3d
+
+    rng = np.random.default_rng(6)
+    stiefel = certified3d._STIEFEL
+    for n in (certified3d._CLOSED_FROM, certified3d._NEWTON_FROM - 1):
+        x = certified3d._stack(_rotations(rng, n))
+        for size in (1e-6, 0.3, 5.0):
+            step = stiefel.project(x, size * rng.normal(size=x.shape))
+            moved = stiefel.move(x, step)
+            assert np.allclose(moved, certified3d._polar_svd(x + step), rtol=0, atol=1e-13)
+            blocks = moved.reshape(n, 3, 3)
+            assert np.allclose(blocks @ blocks.transpose(0, 2, 1), np.eye(3), atol=1e-13)
+        assert np.allclose(stiefel.move(x, np.zeros_like(x)), x, rtol=0, atol=1e-15)
+    x = certified3d._stack(_rotations(rng, certified3d._CLOSED_FROM - 1))
+    step = stiefel.project(x, rng.normal(size=x.shape))
+    assert np.array_equal(stiefel.move(x, step), stiefel.retract(x + step))
 
 
 def test_the_isotropic_translation_step_is_the_direct_solve():
