@@ -75,6 +75,7 @@ from rlpgo_gtsam.staircase import (
     polish,
     verify,
 )
+from rlpgo_gtsam.translations3d import DenseCholesky
 
 __all__ = ["synchronize3d", "certify3d", "relaxation_cost3d"]
 
@@ -215,6 +216,12 @@ def _dense(data: np.ndarray, index: tuple[np.ndarray, np.ndarray],
     return flat.reshape(shape)
 
 
+def _add_diagonal_blocks(matrix: np.ndarray, n: int, blocks: np.ndarray) -> None:
+    """Add ``blocks`` ((n, 3, 3), or what broadcasts to it) to the 3x3 diagonal blocks of the
+    dense, C-ordered (3n, 3n) ``matrix``, in place."""
+    matrix.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :] += blocks
+
+
 def _block_sums(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
     """(n, 3, 3) the sums of (k, 3, 3) ``blocks`` by their ``index`` (k,)."""
     flat = np.bincount((9 * index[:, None] + np.arange(9)).ravel(), weights=blocks.ravel(),
@@ -288,7 +295,7 @@ class _Problem(Relaxation):
                 w = solve_triangular(lower, coupling[keep], lower=True, check_finite=False)
             self.q = w.T @ w
             np.subtract(self.connection, self.q, out=self.q)
-            self.q.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :] += anchored
+            _add_diagonal_blocks(self.q, n, anchored)
         else:
             d, lap, coupling = (sp.coo_matrix(entries, shape=shape).tocsr()
                                 for entries, shape in matrices)
@@ -322,8 +329,7 @@ class _Problem(Relaxation):
         LU's on a zero pivot); it only preconditions, as S is then verified densely."""
         if self.dense:
             shifted = self.q.copy()
-            index = np.arange(self.n)
-            shifted.reshape(self.n, 3, self.n, 3)[index, :, index, :] += blocks
+            _add_diagonal_blocks(shifted, self.n, blocks)
             if 3 * self.n >= _DENSE_BELOW:
                 # factored in place: the transpose of the symmetric C-ordered copy is the
                 # same matrix in Fortran order (cho_factor copied it again: smallGrid3D's
@@ -331,7 +337,7 @@ class _Problem(Relaxation):
                 lower, info = dpotrf(shifted.T, lower=1, clean=0, overwrite_a=1)
                 if info != 0:
                     raise RuntimeError("not positive definite")
-                return _Cholesky(lower)
+                return DenseCholesky(lower)
             try:
                 inverse = np.linalg.inv(np.linalg.cholesky(shifted))
             except np.linalg.LinAlgError:
@@ -385,19 +391,6 @@ class _Problem(Relaxation):
             return lu @ v if isinstance(lu, np.ndarray) else lu.solve(v)
         m = self.n - 1
         return lu.solve(np.vstack([np.zeros((m, v.shape[1])), v]))[m:]
-
-
-class _Cholesky:
-    """A dense problem's factor of ``Q + M`` from :data:`_DENSE_BELOW` rows: its Cholesky
-    factor (the explicit inverse below, where its products are cheaper than two triangular
-    solves; above, the inverse cost more than the whole trust region). It exists only where
-    ``Q + M`` is positive definite: no pivot is negative."""
-
-    def __init__(self, lower: np.ndarray) -> None:
-        self.lower = lower
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        return dpotrs(self.lower, b, lower=1)[0]
 
 
 class _Reordered:
@@ -583,9 +576,11 @@ class _Stiefel(Manifold):
         return factor.lu if isinstance(factor, _Reordered) else factor
 
     def negative_pivots(self, factor: Any) -> int | None:
-        """A dense factor (:class:`_Cholesky`, or the explicit inverse) is made only where
-        the matrix is positive definite."""
-        if isinstance(factor, (_Cholesky, np.ndarray)):
+        """A dense factor (a :class:`~rlpgo_gtsam.translations3d.DenseCholesky` from
+        :data:`_DENSE_BELOW` rows, where its two triangular solves cost less than products
+        with the explicit inverse; below, the inverse) is made only where the matrix is
+        positive definite."""
+        if isinstance(factor, (DenseCholesky, np.ndarray)):
             return 0
         return super().negative_pivots(factor)
 
@@ -594,7 +589,7 @@ class _Stiefel(Manifold):
         subtraction (a loop over the poses took 54 us of tinyGrid3D's, this 15 us)."""
         n = problem.n
         s = problem.q.copy() if problem.dense else problem.apply(np.eye(3 * n))
-        s.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :] -= lam
+        _add_diagonal_blocks(s, n, -lam)
         return s
 
 
@@ -658,8 +653,8 @@ def _newton(problem: _Problem, x: np.ndarray, grad_tol: float, anchor: int,
             t = (columns @ k.transpose(0, 2, 1, 3).reshape(n, 3, 9)).reshape(n, n, 3, 3, 3)
             t = t.transpose(1, 3, 2, 0, 4).reshape(n, 9, 3 * n)  # [i, (c, p), (j, b)]: Q K_c
             h = (k.transpose(0, 3, 1, 2).reshape(n, 3, 9) @ t).reshape(3 * n, 3 * n)
-            h.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :] += \
-                lam - np.trace(lam, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+            _add_diagonal_blocks(
+                h, n, lam - np.trace(lam, axis1=1, axis2=2)[:, None, None] * np.eye(3))
             h *= 2.0
             h[held], h[:, held], h[held, held] = 0.0, 0.0, np.eye(3)
             floor = _DAMPING * float(np.mean(np.diagonal(h)))

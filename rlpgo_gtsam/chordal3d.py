@@ -16,7 +16,7 @@ import numpy as np
 from rlpgo_gtsam.chordal import chordal_blocks
 from rlpgo_gtsam.graph3d import PoseGraph3D, rotation_weights
 from rlpgo_gtsam.se3 import project_to_so3
-from rlpgo_gtsam.translations3d import PIVOT_FLOOR, solve_block_pairwise
+from rlpgo_gtsam.translations3d import DenseCholesky, dense_cholesky, solve_block_pairwise
 
 __all__ = ["chordal_rotations"]
 
@@ -56,9 +56,8 @@ def _dense_chordal(connection: np.ndarray, held: np.ndarray,
                    held_r: np.ndarray) -> np.ndarray | None:
     """(n, 3, 3) blocks ``X_k`` minimizing ``tr(X^T L X)`` with the held ones at ``R^T``:
     ``L_ff X_f = -L_fh X_h`` by a dense Cholesky factor; None where it fails or a pivot
-    falls below :data:`~rlpgo_gtsam.translations3d.PIVOT_FLOOR` of its diagonal."""
-    from scipy.linalg.lapack import dpotrf, dpotrs  # lazily: --help loads no scipy
-
+    falls below :data:`~rlpgo_gtsam.translations3d.PIVOT_FLOOR` of its diagonal
+    (:func:`~rlpgo_gtsam.translations3d.dense_cholesky`)."""
     n = connection.shape[0] // 3
     is_held = np.zeros(n, bool)
     is_held[held] = True
@@ -66,16 +65,14 @@ def _dense_chordal(connection: np.ndarray, held: np.ndarray,
     free, fixed = rows[~is_held].ravel(), rows[held].ravel()
     x = np.zeros((n, 3, 3))
     x[held] = np.transpose(held_r, (0, 2, 1))
-    block = connection[np.ix_(free, free)]
-    diagonal = np.diagonal(block).copy()
     # factored in place: the transpose of the symmetric block is the same matrix in Fortran
     # order (dpotrf copied it again: smallGrid3D's chordal estimate 4.4 -> 3.3 ms CPU)
-    lower, info = dpotrf(block.T, lower=1, clean=0, overwrite_a=1)
-    if info != 0 or not np.all(np.diagonal(lower) ** 2 > PIVOT_FLOOR * diagonal):
+    lower = dense_cholesky(connection[np.ix_(free, free)].T, overwrite=True)
+    if lower is None:
         return None
-    solution, info = dpotrs(lower, -connection[np.ix_(free, fixed)] @ x[held].reshape(-1, 3),
-                            lower=1)
-    if info != 0 or not np.all(np.isfinite(solution)):
+    solution = DenseCholesky(lower).solve(-connection[np.ix_(free, fixed)]
+                                          @ x[held].reshape(-1, 3))
+    if not np.all(np.isfinite(solution)):
         return None
     x[~is_held] = solution.reshape(-1, 3, 3)
     return x

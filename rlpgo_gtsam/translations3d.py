@@ -23,8 +23,8 @@ from rlpgo_gtsam.graph3d import PoseGraph3D, edge_chi2
 from rlpgo_gtsam.linear import WEIGHT_FLOOR
 from rlpgo_gtsam.se3 import inverse_left_jacobians, log_so3
 
-__all__ = ["PIVOT_FLOOR", "solve_block_pairwise", "solve_translations", "poses_with_rotations",
-           "TranslationStep3D"]
+__all__ = ["PIVOT_FLOOR", "DenseCholesky", "dense_cholesky", "solve_block_pairwise",
+           "solve_translations", "poses_with_rotations", "TranslationStep3D"]
 
 PIVOT_FLOOR = 1e-10  # a pivot below this fraction of its diagonal: the system is indeterminate
 # Unknowns (d x free poses) below which the normal equations are solved densely (Cholesky):
@@ -116,7 +116,6 @@ def _least_squares(rows: np.ndarray, cols: np.ndarray, data: np.ndarray, shape: 
             that is not finite.
     """
     import scipy.sparse as sp
-    from scipy.linalg.lapack import dpotrf, dpotrs
     from scipy.sparse.linalg import splu
 
     solution = None
@@ -127,9 +126,9 @@ def _least_squares(rows: np.ndarray, cols: np.ndarray, data: np.ndarray, shape: 
         # LAPACK's own Cholesky and its solve (numpy's cholesky and two solves: tinyGrid3D's
         # translation step 1.03 -> 0.98 ms CPU). A failed factor is left to the sparse LU
         # below, which names the undetermined pose.
-        lower, info = dpotrf(normal, lower=1, clean=0)
-        if info == 0 and np.all(np.diagonal(lower) ** 2 > PIVOT_FLOOR * np.diagonal(normal)):
-            solution, _ = dpotrs(lower, a.T @ rhs, lower=1)
+        lower = dense_cholesky(normal)
+        if lower is not None:
+            solution = DenseCholesky(lower).solve(a.T @ rhs)
     if solution is None:
         a = sp.csr_matrix((data, (rows, cols)), shape=shape)
         normal = (a.T @ a).tocsc()
@@ -168,7 +167,6 @@ def _solve_isotropic(num_poses: int, edges: np.ndarray, a: np.ndarray, b: np.nda
     if 3 * (num_poses - len(np.unique(held))) < _DENSE_BELOW:
         return None  # the dense Cholesky is faster there
     import scipy.sparse as sp
-    from scipy.linalg import cho_factor
     from scipy.sparse.linalg import splu
 
     weights = np.transpose(a, (0, 2, 1)) @ a
@@ -199,13 +197,10 @@ def _solve_isotropic(num_poses: int, edges: np.ndarray, a: np.ndarray, b: np.nda
                                 weights=np.concatenate([w, w, -w, -w]),
                                 minlength=num_poses * num_poses
                                 ).reshape(num_poses, num_poses)[np.ix_(free, free)]
-        try:
-            factor = cho_factor(laplacian, lower=True, check_finite=False)
-        except np.linalg.LinAlgError:
+        lower = dense_cholesky(laplacian)
+        if lower is None:
             return None
-        if np.any(np.diagonal(factor[0]) ** 2 <= PIVOT_FLOOR * np.diagonal(laplacian)):
-            return None
-        lu = _DenseFactor(factor)
+        lu = DenseCholesky(lower)
     else:
         incidence = sp.coo_matrix(entries, shape=(m, num_poses)).tocsc()
         held_part = incidence @ x  # the held poses' differences
@@ -249,16 +244,33 @@ def _solve_isotropic(num_poses: int, edges: np.ndarray, a: np.ndarray, b: np.nda
     return x
 
 
-class _DenseFactor:
-    """A dense Cholesky factor (``scipy.linalg.cho_factor``'s) that solves as a SuperLU."""
+def dense_cholesky(matrix: np.ndarray, overwrite: bool = False) -> np.ndarray | None:
+    """The lower Cholesky factor of the symmetric ``matrix`` (LAPACK's dpotrf; the upper
+    triangle is left as it was), or None where the factorization fails or a pivot falls
+    below :data:`PIVOT_FLOOR` of its diagonal: the system is indeterminate (the callers then
+    hand over to a solve that names the pose). ``overwrite``: factored in ``matrix``'s own
+    memory, which must then be Fortran-ordered (the transpose of a C-ordered symmetric matrix
+    is the same matrix in that order)."""
+    from scipy.linalg.lapack import dpotrf  # lazily: --help loads no scipy
 
-    def __init__(self, factor: tuple[np.ndarray, bool]) -> None:
-        self.factor = factor
+    diagonal = np.diagonal(matrix).copy()
+    lower, info = dpotrf(matrix, lower=1, clean=0, overwrite_a=int(overwrite))
+    if info != 0 or not np.all(np.diagonal(lower) ** 2 > PIVOT_FLOOR * diagonal):
+        return None
+    return lower
+
+
+class DenseCholesky:
+    """A dense lower Cholesky factor (LAPACK's, :func:`dense_cholesky`) that solves as a
+    SuperLU does."""
+
+    def __init__(self, lower: np.ndarray) -> None:
+        self.lower = lower
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        from scipy.linalg import cho_solve
+        from scipy.linalg.lapack import dpotrs
 
-        return cho_solve(self.factor, b, check_finite=False)
+        return dpotrs(self.lower, b, lower=1)[0]
 
 
 class TranslationStep3D:

@@ -18,7 +18,7 @@ from rlpgo_gtsam.g2o3d import g2o3d_text, read_g2o3d, write_g2o3d
 from rlpgo_gtsam.graph import chi2
 from rlpgo_gtsam.graph3d import PoseGraph3D, edge_chi2
 from rlpgo_gtsam.initializers3d import INITIALIZERS_3D
-from rlpgo_gtsam.translations3d import poses_with_rotations
+from rlpgo_gtsam.translations3d import DenseCholesky, poses_with_rotations
 
 DATA = Path("/work/shared/datasets/3d")
 
@@ -435,7 +435,7 @@ def test_a_dense_q_verified_by_arpack_agrees_with_the_sparse_path(monkeypatch, n
     problem = certified3d._Problem(g)
     assert problem.dense
     factor = problem.factor(certified3d._STIEFEL.diagonal(g.num_poses, problem.scale))
-    assert isinstance(factor, certified3d._Cholesky)
+    assert isinstance(factor, DenseCholesky)
     assert certified3d._STIEFEL.negative_pivots(factor) == 0
     dense = INITIALIZERS_3D["certified"]().run(g)
     monkeypatch.setattr(certified3d, "_DENSE_Q_BELOW", 0)
