@@ -289,7 +289,7 @@ def robust_initialize(
     # rejected; on planar graphs the relaxation of the edges left is the map the rounds
     # start from (City10K, 10% grouped wrong closures: that relaxation and 30 LM steps
     # reached chi2 407 in 2 s, 100 Gauss-Newton steps from the seed's map 2742 in 30 s)
-    start = (_relaxed(graph, g, factor_of_edge, kept, None, iterations=_ROUND_ITERS,
+    start = (_relaxed(graph, g, factor_of_edge, kept, iterations=_ROUND_ITERS,
                       tolerance=_ROUND_TOLERANCE)
              if group.relaxed_start else None)
     settled = start is not None  # refined on the kept edges already, as far as a round is
@@ -303,8 +303,7 @@ def robust_initialize(
     # the map the rounds settled in grew from the seed's start; the certified relaxation of
     # the edges now kept may lie in a lower basin (City10K, 10% local wrong closures: the
     # decision exact, the rounds' map 1.83x the optimum after LM): then judge again from it
-    restart = _relaxed(graph, g, factor_of_edge, kept, group.poses_of(g, verified),
-                       near=verified)
+    restart = _relaxed(graph, g, factor_of_edge, kept, group.poses_of(g, verified))
     kept_graph = _without(graph, factor_of_edge[~kept].tolist())
     restarted = restart is not None and chi2(kept_graph, restart) < (
         1.0 - _RESTART_GAIN) * chi2(kept_graph, verified)
@@ -468,8 +467,7 @@ def noise_scale(errors: np.ndarray, information: np.ndarray) -> np.ndarray:
 
 
 def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
-             warm: np.ndarray | None, near: gtsam.Values | None = None,
-             iterations: int = _RESTART_ITERS,
+             near: np.ndarray | None = None, iterations: int = _RESTART_ITERS,
              tolerance: float = _TOLERANCE) -> gtsam.Values | None:
     """The certified relaxation of the kept edges, refined by GTSAM on them (the clean
     default on the edges judged right: ``iterations`` steps at most, stopped at a relative
@@ -479,9 +477,9 @@ def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
     where the relaxation's estimate turns no pose more than ``_SAME_BASIN_RAD`` from
     ``near`` (the map it would be compared with: the same basin, nothing to refine).
 
-    The relaxation starts from ``warm`` (poses, the group's rows: the map at hand) at its
+    The relaxation starts from ``near`` (poses, the group's rows: the map at hand) at its
     lowest rank: where that is certified, it is the relaxation's optimum, the one the
-    chordal start would reach too; otherwise, or where ``warm`` is None, it is solved from
+    chordal start would reach too; otherwise, or where ``near`` is None, it is solved from
     the chordal estimate, the full staircase (see :func:`_certified_estimate`)."""
     group = group_of(g)
     inliers = group.subgraph(g, kept)
@@ -489,9 +487,9 @@ def _relaxed(graph, g: PoseGraph, factor_of_edge: np.ndarray, kept: np.ndarray,
         inliers.check_connected()
     except GraphError:  # the edges kept do not span the graph (odometry judged and rejected)
         return None
-    poses = _certified_estimate(inliers, warm)
+    poses = _certified_estimate(inliers, near)
     if near is not None:  # compared as arrays: GTSAM values only for a map that goes on
-        turned = group.logmap(group.between(group.poses_of(g, near), poses))
+        turned = group.logmap(group.between(near, poses))
         if np.linalg.norm(turned[:, group.rotation_axes], axis=1).max() < _SAME_BASIN_RAD:
             return None
     return _solved(graph, g, factor_of_edge, kept, group.to_values(g, poses), iterations,
