@@ -56,8 +56,7 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import solve_triangular
-from scipy.linalg.lapack import dpotrf, dpotrs
+from scipy.linalg.lapack import dpotrf, dpotrs, dtrtrs
 from scipy.sparse.linalg import splu
 
 from rlpgo_gtsam.certified import Certificate, Status
@@ -65,10 +64,13 @@ from rlpgo_gtsam.chordal3d import chordal_rotations
 from rlpgo_gtsam.errors import GraphError, SolverError
 from rlpgo_gtsam.graph3d import PoseGraph3D, rotation_weights, translation_weights
 from rlpgo_gtsam.numerics import numeric_call
-from rlpgo_gtsam.se3 import exp_so3, project_to_so3, skew, vee
+from rlpgo_gtsam.se3 import exp_so3, project_to_so3, vee
 from rlpgo_gtsam.staircase import (
+    Check,
     Manifold,
+    Progress,
     Relaxation,
+    Run,
     certificate,
     check_start,
     climb,
@@ -89,6 +91,10 @@ _DENSE_BELOW = 150
 # found by ARPACK, shift-inverted through a dense Cholesky factor instead of a sparse LU).
 _DENSE_Q_BELOW = 400
 _REFLECT = np.diag([1.0, 1.0, -1.0])
+_EYE, _AXES = np.eye(3), np.arange(3)
+# an edge's translation terms: v = (-t~, -1, 1) on the places (X_i, t_i, t_j) of its 8
+_STEP = np.array([[-1.0, 1.0]])
+_TRANSLATION_AXES = np.array([0, 1, 2, 6, 7])
 # (Q + delta I)^-1 preconditions the Hessian; delta / mean(diag D). The planar 1e-3 took
 # 1.5x the inner iterations on parking-garage; 1e-7 stalls at round-off.
 _PRECONDITIONER_SHIFT = 1e-5
@@ -147,10 +153,14 @@ def synchronize3d(pose_graph: PoseGraph3D, start_rotations: np.ndarray | None = 
     x = np.zeros((3 * problem.n, initial_rank))
     x[:, :3] = np.transpose(rotations, (0, 2, 1)).reshape(-1, 3)
     grad_tol = gradient_tolerance * math.sqrt(problem.n) * problem.scale
+    check, stop = None, Status.RANK_LIMIT  # (the staircase's stop there, unused: certified)
     if problem.dense and 3 * problem.n < _NEWTON_BELOW and initial_rank == 3:
-        x = _newton(problem, x, grad_tol, pose_graph.anchor, deadline)
-    x, check, stop = climb(problem, _STIEFEL, x, eta, max_rank, max_iterations, grad_tol,
-                           deadline, progress, started)
+        x, converged = _newton(problem, x, grad_tol, pose_graph.anchor, deadline)
+        if converged:
+            check = _verified_at_once(problem, x, eta, progress, started)
+    if check is None:
+        x, check, stop = climb(problem, _STIEFEL, x, eta, max_rank, max_iterations, grad_tol,
+                               deadline, progress, started)
     rotations = _round(x)
     if x.shape[1] > 3:
         polished = polish(problem, _STIEFEL, _stack(rotations), eta, max_iterations, grad_tol,
@@ -184,6 +194,26 @@ def relaxation_cost3d(pose_graph: PoseGraph3D, rotations: np.ndarray) -> float:
     return problem.cost(_stack(_checked_rotations(rotations, problem.n)))
 
 
+def _verified_at_once(problem: _Problem, x: np.ndarray, eta: float,
+                      progress: Callable[[str], None] | None, started: float) -> Check | None:
+    """The staircase's check of a rank-3 ``x`` at which its trust region would stop at once
+    (Newton's point: the gradient test passed in the same arithmetic), where it certifies;
+    None where it does not (the staircase then runs from ``x``, its trust region stopping at
+    once, and escapes). The same check and progress line as the staircase's, without its
+    trust region's set-up."""
+    check = verify(problem, _STIEFEL, x, eta)
+    if not check.certified:
+        return None
+    if progress is not None:
+        qx = problem.apply(x)
+        run = Run()
+        run.iterations, run.cost = 0, _STIEFEL.inner(x, qx)
+        run.gradient = float(np.linalg.norm(
+            2.0 * (qx - _STIEFEL.times(_STIEFEL.multipliers(x, qx), x))))
+        Progress(progress, started).rank(3, run, check)
+    return check
+
+
 def _stack(rotations: np.ndarray) -> np.ndarray:
     """(3n, 3) the blocks ``X_i = R_i^T`` stacked."""
     return np.transpose(rotations, (0, 2, 1)).reshape(-1, 3)
@@ -208,25 +238,10 @@ def _blocks(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> tuple:
     return values.ravel(), r.ravel(), c.ravel()
 
 
-def _dense(data: np.ndarray, index: tuple[np.ndarray, np.ndarray],
-           shape: tuple[int, int]) -> np.ndarray:
-    """The dense matrix of COO entries (duplicates summed, as ``sp.coo_matrix``)."""
-    flat = np.bincount(index[0] * shape[1] + index[1], weights=data,
-                       minlength=shape[0] * shape[1])
-    return flat.reshape(shape)
-
-
 def _add_diagonal_blocks(matrix: np.ndarray, n: int, blocks: np.ndarray) -> None:
     """Add ``blocks`` ((n, 3, 3), or what broadcasts to it) to the 3x3 diagonal blocks of the
     dense, C-ordered (3n, 3n) ``matrix``, in place."""
     matrix.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :] += blocks
-
-
-def _block_sums(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
-    """(n, 3, 3) the sums of (k, 3, 3) ``blocks`` by their ``index`` (k,)."""
-    flat = np.bincount((9 * index[:, None] + np.arange(9)).ravel(), weights=blocks.ravel(),
-                       minlength=9 * n)
-    return flat.reshape(n, 3, 3)
 
 
 class _Problem(Relaxation):
@@ -248,26 +263,73 @@ class _Problem(Relaxation):
                 and np.all(np.isfinite(g.measured_rotations))
                 and np.all(np.isfinite(g.measured_translations))):
             raise GraphError("the relaxation needs finite measurements and information")
-        i, j = g.edges[:, 0], g.edges[:, 1]
-        eye = np.broadcast_to(np.eye(3), (len(i), 3, 3))
-        t = g.measured_translations
-        anchored = tau[:, None, None] * t[:, :, None] * t[:, None, :]  # tau t~ t~^T at (i, i)
         self.n = n
         self.dense = 3 * n < max(_DENSE_Q_BELOW, _STIEFEL.dense_below)
-        # a dense D gets the tau blocks after its connection Laplacian is kept; a sparse D
-        # sums them with kappa I in this order (D's round-off as before)
-        parts = [
-            _blocks(i, i, kappa[:, None, None] * eye + (0.0 if self.dense else anchored)),
-            _blocks(j, j, kappa[:, None, None] * eye),
-            _blocks(i, j, -kappa[:, None, None] * g.measured_rotations),
-            _blocks(j, i, -kappa[:, None, None] * np.transpose(g.measured_rotations, (0, 2, 1))),
-        ]
-        data, rows, cols = (np.concatenate(p) for p in zip(*parts, strict=True))
         self._layout: tuple[sp.csc_matrix, np.ndarray, np.ndarray] | None = None
         self._order: np.ndarray | None = None  # the first sparse factor's elimination order
         # a dense problem's connection Laplacian of the rotation terms (D without the tau
         # t~ t~^T blocks): the chordal estimate's matrix (chordal_rotations' connection)
         self.connection: np.ndarray | None = None
+        if self.dense:
+            self._set_up_dense(g, kappa, tau)
+        else:
+            self._set_up_sparse(g, kappa, tau)
+        if not self.scale > 0:
+            raise SolverError("every edge has zero information: nothing to synchronize")
+
+    def _set_up_dense(self, g: PoseGraph3D, kappa: np.ndarray, tau: np.ndarray) -> None:
+        """Q, the connection Laplacian and the scale as dense matrices, each edge's terms
+        scattered as one block: ``kappa [[I, -R~], [-R~^T, I]]`` on ``(X_i, X_j)`` into the
+        connection Laplacian, ``tau v v^T`` (``v = (-t~, -1, 1)``) on ``(X_i, t_i, t_j)`` into
+        the translation terms' matrix over ``(X, t)``, the anchor's translation last; that
+        matrix's blocks are the ``tau t~ t~^T`` sums on D's diagonal, ``-B^T`` and ``L``
+        (the anchor's row and column left out). ``Q = D - W^T W`` with ``W = C^-1 B``, ``C
+        C^T = L`` (LAPACK's Cholesky and triangular solve)."""
+        n, size = self.n, 3 * self.n
+        i, j = g.edges[:, 0], g.edges[:, 1]
+        m = len(i)
+        column = np.arange(n) - (np.arange(n) > g.anchor)  # t's columns, the anchor's last
+        column[g.anchor] = n - 1
+        rows = np.concatenate([3 * i[:, None] + _AXES, 3 * j[:, None] + _AXES,
+                               size + column[i][:, None], size + column[j][:, None]], axis=1)
+        rotation = np.empty((m, 6, 6))
+        rotation[:, :3, :3] = rotation[:, 3:, 3:] = _EYE
+        rotation[:, :3, 3:] = -g.measured_rotations
+        rotation[:, 3:, :3] = -np.transpose(g.measured_rotations, (0, 2, 1))
+        rotation *= kappa[:, None, None]
+        v = np.concatenate([-g.measured_translations, _STEP.repeat(m, axis=0)], axis=1)
+        translation = (tau[:, None, None] * v[:, :, None]) * v[:, None, :]
+        at = rows[:, :6]
+        self.connection = np.bincount((at[:, :, None] * size + at[:, None, :]).ravel(),
+                                      weights=rotation.ravel(),
+                                      minlength=size * size).reshape(size, size)
+        at = rows[:, _TRANSLATION_AXES]
+        terms = np.bincount((at[:, :, None] * (size + n) + at[:, None, :]).ravel(),
+                            weights=translation.ravel(),
+                            minlength=(size + n) ** 2).reshape(size + n, size + n)
+        lower, info = dpotrf(terms[size:-1, size:-1], lower=1, clean=1)
+        if info != 0:
+            raise SolverError("the measurements do not determine the translations")
+        w, _ = dtrtrs(lower, terms[size:-1, :size], lower=1)
+        self.q = w.T @ w
+        np.subtract(self.connection, self.q, out=self.q)
+        self.q += terms[:size, :size]
+        self.scale = float(np.trace(self.connection) + np.trace(terms[:size, :size])) / size
+
+    def _set_up_sparse(self, g: PoseGraph3D, kappa: np.ndarray, tau: np.ndarray) -> None:
+        """D, L, B (and its transpose) as sparse matrices, L's LU."""
+        n = self.n
+        i, j = g.edges[:, 0], g.edges[:, 1]
+        eye = np.broadcast_to(np.eye(3), (len(i), 3, 3))
+        t = g.measured_translations
+        anchored = tau[:, None, None] * t[:, :, None] * t[:, None, :]  # tau t~ t~^T at (i, i)
+        parts = [
+            _blocks(i, i, kappa[:, None, None] * eye + anchored),
+            _blocks(j, j, kappa[:, None, None] * eye),
+            _blocks(i, j, -kappa[:, None, None] * g.measured_rotations),
+            _blocks(j, i, -kappa[:, None, None] * np.transpose(g.measured_rotations, (0, 2, 1))),
+        ]
+        data, rows, cols = (np.concatenate(p) for p in zip(*parts, strict=True))
         keep = np.delete(np.arange(n), g.anchor)
         cols3 = (3 * i[:, None] + np.arange(3)).ravel()
         matrices = [
@@ -278,39 +340,18 @@ class _Problem(Relaxation):
               (np.concatenate([np.repeat(j, 3), np.repeat(i, 3)]),  # the coupling
                np.concatenate([cols3, cols3]))), (n, 3 * n)),
         ]
-        if self.dense:
-            # D = the connection Laplacian + the blocks tau t~ t~^T, added into Q directly
-            self.connection, lap, coupling = (_dense(*entries, shape)
-                                              for entries, shape in matrices)
-            anchored = _block_sums(i, anchored, n)
-            self.scale = float(np.trace(self.connection) + np.trace(
-                anchored, axis1=1, axis2=2).sum()) / (3 * n)
-            try:  # Q = D - W^T W, W = C^-1 B and C C^T = L
-                lower = np.linalg.cholesky(lap[np.ix_(keep, keep)])
-            except np.linalg.LinAlgError:
-                raise SolverError("the measurements do not determine the translations") from None
-            if 3 * n < _DENSE_BELOW:
-                w = np.linalg.solve(lower, coupling[keep])
-            else:
-                w = solve_triangular(lower, coupling[keep], lower=True, check_finite=False)
-            self.q = w.T @ w
-            np.subtract(self.connection, self.q, out=self.q)
-            _add_diagonal_blocks(self.q, n, anchored)
-        else:
-            d, lap, coupling = (sp.coo_matrix(entries, shape=shape).tocsr()
-                                for entries, shape in matrices)
-            self.d = d
-            self.lap = lap[keep][:, keep].tocsc()
-            self.b = coupling[keep].tocsr()
-            self.bt = self.b.T.tocsr()
-            try:
-                self.lap_lu = splu(self.lap, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                                   options={"SymmetricMode": True})
-            except RuntimeError:
-                raise SolverError("the measurements do not determine the translations") from None
-            self.scale = float(np.mean(self.d.diagonal()))
-        if not self.scale > 0:
-            raise SolverError("every edge has zero information: nothing to synchronize")
+        d, lap, coupling = (sp.coo_matrix(entries, shape=shape).tocsr()
+                            for entries, shape in matrices)
+        self.d = d
+        self.lap = lap[keep][:, keep].tocsc()
+        self.b = coupling[keep].tocsr()
+        self.bt = self.b.T.tocsr()
+        try:
+            self.lap_lu = splu(self.lap, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                               options={"SymmetricMode": True})
+        except RuntimeError:
+            raise SolverError("the measurements do not determine the translations") from None
+        self.scale = float(np.mean(self.d.diagonal()))
 
     def apply(self, x: np.ndarray) -> np.ndarray:
         """Q x for x (3n, r)."""
@@ -612,52 +653,62 @@ _NEWTON_STEPS = 30
 # descent): first this fraction of H's mean diagonal, then 10 times more per failure; a
 # successful step divides it by 10, and below _DAMPING x 1e-3 it is dropped (pure Newton).
 _DAMPING = 1e-3
+# The entries of -[v]_x: rows, columns, which component of v, and its sign.
+_SKEW_ROWS, _SKEW_COLS = np.array([0, 0, 1, 1, 2, 2]), np.array([1, 2, 0, 2, 0, 1])
+_SKEW_FROM, _SKEW_SIGNS = np.array([2, 1, 2, 0, 1, 0]), np.array([1.0, -1.0, -1.0, 1.0, 1.0, -1.0])
+_COLUMNS = np.arange(3)[:, None, None]  # c, over (c, pose, entry)
+_BLOCK_ROWS, _BLOCK_COLS = np.arange(3)[:, None], np.arange(3)  # a 3x3 block's (a, b)
 
 
 def _newton(problem: _Problem, x: np.ndarray, grad_tol: float, anchor: int,
-            deadline: float | None) -> np.ndarray:
+            deadline: float | None) -> tuple[np.ndarray, bool]:
     """The rank-3 start ``x`` (3n, 3) moved by a damped Newton's method on ``f(X) = tr(X^T Q
     X)`` for a dense problem, until the Riemannian gradient's norm is at most ``grad_tol``
-    (the trust region's own stop test: it then ends at its first iteration, and the
-    staircase verifies S there), for at most :data:`_NEWTON_STEPS` factorizations; the
-    trust region goes on from where it stopped.
+    (the trust region's own stop test, in the same arithmetic: it would end at its first
+    iteration there), for at most :data:`_NEWTON_STEPS` factorizations; and whether it got
+    there (else the trust region goes on from where it stopped).
 
     Each block moves as ``X_i <- Exp(w_i) X_i``; the step solves ``(H + mu I) w = -g`` with
-    the exact gradient ``g_i = 2 vee(M_i - M_i^T)``, ``M_i = (Q X)_i X_i^T``, and Hessian
-    ``H = 2 K^T (I_3 x Q) K + 2 diag(Lambda_i - tr(Lambda_i) I)`` of ``w -> f(Exp(w) X)``
-    at 0 (``K`` maps ``w`` to the columns of ``[w_i]_x X_i``), the anchor's ``w`` held at 0
-    (the gauge: ``H`` is singular along a common rotation). A step is taken where it lowers
-    the cost; ``mu`` (Levenberg-Marquardt's rule, :data:`_DAMPING`) handles a start far from
-    the minimum, where ``H`` is indefinite (smallGrid3D's chordal estimate). Near the minimum
+    the exact gradient and Hessian of ``w -> f(Exp(w) X)`` at 0: ``K_c`` (3n x 3n, block
+    diagonal, blocks ``-[X_i[:, c]]_x``) maps ``w`` to column c of the blocks ``[w_i]_x
+    X_i``, so ``g = 2 sum_c K_c^T (Q X)_c`` and ``H = 2 sum_c K_c^T Q K_c + 2 diag(Lambda_i -
+    tr(Lambda_i) I)``, three dense products each; the anchor's ``w`` held at 0 (the gauge:
+    ``H`` is singular along a common rotation). A step is taken where it lowers the cost;
+    ``mu`` (Levenberg-Marquardt's rule, :data:`_DAMPING`) handles a start far from the
+    minimum, where ``H`` is indefinite (smallGrid3D's chordal estimate). Near the minimum
     ``mu = 0``: quadratic convergence, 3 steps on tinyGrid3D (gradient 54 -> 2e-6 against a
     tolerance of 2e-4), where the trust region took 6 iterations and 10 Hessian products."""
     n = problem.n
+    size = 3 * n
     q = problem.q
-    columns = q.reshape(3 * n, n, 3).transpose(1, 0, 2)  # (n, 3n, 3): Q's block columns
     held = slice(3 * anchor, 3 * anchor + 3)
-    diagonal = np.arange(3 * n)
+    diagonal = np.arange(size)
+    # K's entries, K_c[3p + a, 3p + b] = sign x[3p + e, c] for the six (a, b, e, sign) of
+    # -[v]_x, by their flat places in K_0; K_1; K_2 and in x; H's diagonal blocks' places
+    p = 3 * np.arange(n)[:, None]
+    target = (_COLUMNS * size * size + (p + _SKEW_ROWS) * size + p + _SKEW_COLS).ravel()
+    source = (3 * (p + _SKEW_FROM) + _COLUMNS).ravel()
+    signs = np.tile(_SKEW_SIGNS, 3 * n)
+    on_diagonal = ((size + 1) * p[:, :, None] + size * _BLOCK_ROWS + _BLOCK_COLS).ravel()
+    blocks = np.zeros(3 * size * size)
     qx = q @ x
-    mu, fresh = 0.0, True
+    mu, fresh, converged = 0.0, True, False
     for _ in range(_NEWTON_STEPS):
         if fresh:
             xb, qb = x.reshape(n, 3, 3), qx.reshape(n, 3, 3)
-            m = qb @ xb.transpose(0, 2, 1)
-            lam = _sym(m)
-            if np.linalg.norm(qb - lam @ xb) <= 0.5 * grad_tol or \
-                    (deadline is not None and time.perf_counter() > deadline):
+            lam = _sym(qb @ xb.transpose(0, 2, 1))
+            converged = bool(np.linalg.norm(qb - lam @ xb) <= 0.5 * grad_tol)
+            if converged or (deadline is not None and time.perf_counter() > deadline):
                 break
-            g = 2.0 * vee(m - m.transpose(0, 2, 1)).ravel()
-            g[held] = 0.0
-            # k[j][q, (c, b)] = -[X_j[:, c]]_x[q, b]: column c of [w_j]_x X_j is K_c w_j
-            k = -skew(xb.transpose(0, 2, 1).reshape(-1, 3)).reshape(n, 3, 3, 3)
-            t = (columns @ k.transpose(0, 2, 1, 3).reshape(n, 3, 9)).reshape(n, n, 3, 3, 3)
-            t = t.transpose(1, 3, 2, 0, 4).reshape(n, 9, 3 * n)  # [i, (c, p), (j, b)]: Q K_c
-            h = (k.transpose(0, 3, 1, 2).reshape(n, 3, 9) @ t).reshape(3 * n, 3 * n)
-            _add_diagonal_blocks(
-                h, n, lam - np.trace(lam, axis1=1, axis2=2)[:, None, None] * np.eye(3))
+            blocks[target] = x.ravel()[source] * signs
+            k = blocks.reshape(3 * size, size)  # K_0; K_1; K_2 stacked
+            g = 2.0 * (k.T @ qx.T.ravel())
+            h = k.T @ (q @ blocks.reshape(3, size, size)).reshape(3 * size, size)
+            traces = lam[:, 0, 0] + lam[:, 1, 1] + lam[:, 2, 2]
+            h.ravel()[on_diagonal] += (lam - traces[:, None, None] * _EYE).ravel()
             h *= 2.0
-            h[held], h[:, held], h[held, held] = 0.0, 0.0, np.eye(3)
-            floor = _DAMPING * float(np.mean(np.diagonal(h)))
+            g[held], h[held], h[:, held], h[held, held] = 0.0, 0.0, 0.0, _EYE
+            floor = _DAMPING * float(np.trace(h)) / size
         damped = h.copy() if mu else h
         if mu:
             damped[diagonal, diagonal] += mu
@@ -673,7 +724,7 @@ def _newton(problem: _Problem, x: np.ndarray, grad_tol: float, anchor: int,
             mu = 0.0 if mu < 1e-2 * floor else 0.1 * mu
         else:
             mu = max(10.0 * mu, floor)
-    return x
+    return x, converged
 
 
 # --- rounding -------------------------------------------------------------------------------

@@ -37,6 +37,7 @@ _VEE_ROWS, _VEE_COLS = np.array([2, 0, 1]), np.array([1, 2, 0])
 # (x, z), (x, w), (y, z), (y, w), (z, w) set by index in place of nested stacks (CPU, 11
 # rotations: 181 -> 155 us, 5000: 1.19 -> 1.06 ms; the same numbers)
 _DIAGONAL = np.arange(4)
+_EYE = np.eye(3)
 _PAIR_ROWS, _PAIR_COLS = np.array([0, 0, 0, 1, 1, 2]), np.array([1, 2, 3, 2, 3, 3])
 
 
@@ -93,16 +94,21 @@ def rotations_to_quaternions(rotations: np.ndarray) -> np.ndarray:
 
 
 def exp_so3(w: np.ndarray) -> np.ndarray:
-    """(k, 3, 3) ``Exp(w)`` of (k, 3) rotation vectors (Rodrigues; series near 0)."""
+    """(k, 3, 3) ``Exp(w)`` of (k, 3) rotation vectors (Rodrigues; series near 0). The series
+    are evaluated only where an angle lies in (0, :data:`_SERIES`): a zero angle's ``[w]_x``
+    is 0, so any finite ratios give its ``I`` (the same numbers as series everywhere: the
+    Newton steps of 9 poses, the anchor's zero, 91 -> 45 us CPU)."""
     w = np.asarray(w, dtype=float).reshape(-1, 3)
-    theta = np.linalg.norm(w, axis=1)
+    theta = np.sqrt(np.add.reduce(w * w, axis=1))  # np.linalg.norm's own arithmetic
     small = theta < _SERIES
-    safe = np.where(small, 1.0, theta)
-    t2 = theta * theta
-    a = np.where(small, 1 - t2 / 6 + t2 * t2 / 120, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - t2 / 24 + t2 * t2 / 720, (1 - np.cos(safe)) / (safe * safe))
+    safe = theta + small  # 1 + theta where small: finite ratios, the series' place there
+    a, b = np.sin(safe) / safe, (1 - np.cos(safe)) / (safe * safe)
+    if np.any(theta[small]):
+        t2 = theta * theta
+        a = np.where(small, 1 - t2 / 6 + t2 * t2 / 120, a)
+        b = np.where(small, 0.5 - t2 / 24 + t2 * t2 / 720, b)
     k = skew(w)
-    return np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k)
+    return _EYE + a[:, None, None] * k + b[:, None, None] * (k @ k)
 
 
 def log_so3(rotations: np.ndarray) -> np.ndarray:

@@ -360,8 +360,10 @@ def test_skew_is_the_cross_product_and_vee_inverts_it():
 def test_newtons_start_on_small_graphs_reaches_the_trust_regions_optimum(monkeypatch, case):
     """Below ``_NEWTON_BELOW`` rows the staircase starts from Newton's point
     (:func:`certified3d._newton`): the same certificate as the trust region alone, whose
-    rotations (run to a gradient 1e-6 times its default tolerance) agree to 1e-9; the
-    trust region then takes no iteration; an exact graph is recovered."""
+    rotations (run to a gradient 1e-6 times its default tolerance) agree to 1e-9; S is
+    verified there without the trust region, which would take no iteration (the same
+    rotations and certificate to the bit as the staircase run from that point); an exact
+    graph is recovered."""
     import rlpgo_gtsam.certified3d as certified3d
     from rlpgo_gtsam import staircase
 
@@ -383,7 +385,14 @@ def test_newtons_start_on_small_graphs_reaches_the_trust_regions_optimum(monkeyp
 
     monkeypatch.setattr(staircase, "trust_region", counted)
     newton, a = synchronize3d(g)
+    assert iterations == []
+    with monkeypatch.context() as patch:  # the staircase from Newton's point
+        patch.setattr(certified3d, "_verified_at_once", lambda *args: None)
+        climbed, c = synchronize3d(g)
     assert iterations == [0]
+    assert np.array_equal(climbed, newton)
+    assert (c.status, c.lower_bound, c.estimate_cost, c.min_eigenvalue, c.rank) == \
+        (a.status, a.lower_bound, a.estimate_cost, a.min_eigenvalue, a.rank)
     monkeypatch.setattr(certified3d, "_NEWTON_BELOW", 0)
     tight, b = synchronize3d(g, gradient_tolerance=1e-12)
     assert iterations[1] > 0 or case == "exact"  # the chordal estimate is exact there
@@ -411,7 +420,8 @@ def test_newtons_damping_takes_a_start_where_the_hessian_is_indefinite():
     problem = certified3d._Problem(g)
     x = certified3d._stack(chordal_rotations(g))
     tolerance = 1e-6 * math.sqrt(problem.n) * problem.scale
-    y = certified3d._newton(problem, x, tolerance, g.anchor, None)
+    y, converged = certified3d._newton(problem, x, tolerance, g.anchor, None)
+    assert converged
     stiefel = certified3d._STIEFEL
     qy = problem.apply(y)
     gradient = 2.0 * (qy - stiefel.times(stiefel.multipliers(y, qy), y))
