@@ -49,6 +49,7 @@ GTSAM. The returned :class:`~rlpgo_gtsam.certified.Certificate` and its
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -660,6 +661,27 @@ _COLUMNS = np.arange(3)[:, None, None]  # c, over (c, pose, entry)
 _BLOCK_ROWS, _BLOCK_COLS = np.arange(3)[:, None], np.arange(3)  # a 3x3 block's (a, b)
 
 
+@functools.lru_cache(maxsize=64)
+def _newton_layout(n: int, anchor: int) -> tuple[np.ndarray, ...]:
+    """Where :func:`_newton`'s arrays go, for ``n`` poses with the anchor held: the flat
+    places in ``K_0; K_1; K_2`` ((9n, 3n - 3): the anchor has no column) of the entries
+    ``K_c[3p + a, 3q + b] = sign x[3p + e, c]`` (``q``: pose p among the free ones; the six
+    ``(a, b, e, sign)`` of ``-[v]_x``), those entries' places in ``x``, the places of the
+    free poses' diagonal blocks in H, and the free poses. Index patterns of a size alone,
+    made once per size (the robust path's subgraphs share theirs; 0.14 ms of tinyGrid3D's
+    run), read only."""
+    size, columns = 3 * n, 3 * (n - 1)
+    free = np.delete(np.arange(n), anchor)
+    p, q = 3 * free[:, None], 3 * np.arange(n - 1)[:, None]
+    target = _COLUMNS * size * columns + (p + _SKEW_ROWS) * columns + q + _SKEW_COLS
+    source = 3 * (p + _SKEW_FROM) + _COLUMNS
+    on_diagonal = (columns + 1) * q[:, :, None] + columns * _BLOCK_ROWS + _BLOCK_COLS
+    layout = (target.ravel(), source, on_diagonal.ravel(), free)  # source: (3, n - 1, 6)
+    for array in layout:
+        array.setflags(write=False)
+    return layout
+
+
 def _newton(problem: _Problem, x: np.ndarray, grad_tol: float, anchor: int,
             deadline: float | None) -> tuple[np.ndarray, bool]:
     """The rank-3 start ``x`` (3n, 3) moved by a damped Newton's method on ``f(X) = tr(X^T Q
@@ -668,29 +690,25 @@ def _newton(problem: _Problem, x: np.ndarray, grad_tol: float, anchor: int,
     iteration there), for at most :data:`_NEWTON_STEPS` factorizations; and whether it got
     there (else the trust region goes on from where it stopped).
 
-    Each block moves as ``X_i <- Exp(w_i) X_i``; the step solves ``(H + mu I) w = -g`` with
-    the exact gradient and Hessian of ``w -> f(Exp(w) X)`` at 0: ``K_c`` (3n x 3n, block
-    diagonal, blocks ``-[X_i[:, c]]_x``) maps ``w`` to column c of the blocks ``[w_i]_x
-    X_i``, so ``g = 2 sum_c K_c^T (Q X)_c`` and ``H = 2 sum_c K_c^T Q K_c + 2 diag(Lambda_i -
-    tr(Lambda_i) I)``, three dense products each; the anchor's ``w`` held at 0 (the gauge:
-    ``H`` is singular along a common rotation). A step is taken where it lowers the cost;
-    ``mu`` (Levenberg-Marquardt's rule, :data:`_DAMPING`) handles a start far from the
-    minimum, where ``H`` is indefinite (smallGrid3D's chordal estimate). Near the minimum
-    ``mu = 0``: quadratic convergence, 3 steps on tinyGrid3D (gradient 54 -> 2e-6 against a
-    tolerance of 2e-4), where the trust region took 6 iterations and 10 Hessian products."""
+    Each block moves as ``X_i <- Exp(w_i) X_i``, the anchor's ``w`` held at 0 (the gauge:
+    the Hessian is singular along a common rotation); the step solves ``(H + mu I) w = -g``
+    for the others with half the exact gradient and Hessian of ``w -> f(Exp(w) X)`` at 0
+    (the same step): ``K_c`` (3n x 3(n-1), a block for each free pose, ``-[X_i[:, c]]_x``)
+    maps ``w`` to column c of the blocks ``[w_i]_x X_i``, so ``g = sum_c K_c^T (Q X)_c``
+    and ``H = sum_c K_c^T Q K_c + diag(Lambda_i - tr(Lambda_i) I)``, three dense products
+    each (:func:`_newton_layout`). A step is taken where it lowers the cost; ``mu``
+    (Levenberg-Marquardt's rule, :data:`_DAMPING`) handles a start far from the minimum,
+    where ``H`` is indefinite (smallGrid3D's chordal estimate). Near the minimum ``mu =
+    0``: quadratic convergence, 3 steps on tinyGrid3D (gradient 54 -> 2e-6 against a
+    tolerance of 2e-4), where the trust region took 6 iterations and 10 Hessian
+    products."""
     n = problem.n
-    size = 3 * n
+    size, columns = 3 * n, 3 * (n - 1)
     q = problem.q
-    held = slice(3 * anchor, 3 * anchor + 3)
-    diagonal = np.arange(size)
-    # K's entries, K_c[3p + a, 3p + b] = sign x[3p + e, c] for the six (a, b, e, sign) of
-    # -[v]_x, by their flat places in K_0; K_1; K_2 and in x; H's diagonal blocks' places
-    p = 3 * np.arange(n)[:, None]
-    target = (_COLUMNS * size * size + (p + _SKEW_ROWS) * size + p + _SKEW_COLS).ravel()
-    source = (3 * (p + _SKEW_FROM) + _COLUMNS).ravel()
-    signs = np.tile(_SKEW_SIGNS, 3 * n)
-    on_diagonal = ((size + 1) * p[:, :, None] + size * _BLOCK_ROWS + _BLOCK_COLS).ravel()
-    blocks = np.zeros(3 * size * size)
+    target, source, on_diagonal, free = _newton_layout(n, anchor)
+    diagonal = np.arange(columns)
+    blocks = np.zeros(3 * size * columns)
+    w = np.zeros((n, 3))
     qx = q @ x
     mu, fresh, converged = 0.0, True, False
     for _ in range(_NEWTON_STEPS):
@@ -700,31 +718,35 @@ def _newton(problem: _Problem, x: np.ndarray, grad_tol: float, anchor: int,
             converged = bool(np.linalg.norm(qb - lam @ xb) <= 0.5 * grad_tol)
             if converged or (deadline is not None and time.perf_counter() > deadline):
                 break
-            blocks[target] = x.ravel()[source] * signs
-            k = blocks.reshape(3 * size, size)  # K_0; K_1; K_2 stacked
-            g = 2.0 * (k.T @ qx.T.ravel())
-            h = k.T @ (q @ blocks.reshape(3, size, size)).reshape(3 * size, size)
-            traces = lam[:, 0, 0] + lam[:, 1, 1] + lam[:, 2, 2]
-            h.ravel()[on_diagonal] += (lam - traces[:, None, None] * _EYE).ravel()
-            h *= 2.0
-            g[held], h[held], h[:, held], h[held, held] = 0.0, 0.0, 0.0, _EYE
-            floor = _DAMPING * float(np.trace(h)) / size
+            blocks[target] = (x.ravel()[source] * _SKEW_SIGNS).ravel()
+            k = blocks.reshape(3 * size, columns)  # K_0; K_1; K_2 stacked
+            g = k.T @ qx.T.ravel()
+            h = k.T @ (q @ blocks.reshape(3, size, columns)).reshape(3 * size, columns)
+            lam_free = lam[free]
+            traces = np.einsum("kii->k", lam_free)
+            h.ravel()[on_diagonal] += (lam_free - traces[:, None, None] * _EYE).ravel()
         damped = h.copy() if mu else h
         if mu:
             damped[diagonal, diagonal] += mu
         lower, info = dpotrf(damped, lower=1, clean=0)  # h is kept for a damped retry
         fresh = False
         if info == 0:
-            w, _ = dpotrs(lower, -g, lower=1)
+            w[free] = dpotrs(lower, -g, lower=1)[0].reshape(-1, 3)
             x_new = (exp_so3(w) @ xb).reshape(-1, 3)
             qx_new = q @ x_new
-            fresh = -float(np.sum((x_new - x) * (qx_new + qx))) > 0  # exact decrease
+            fresh = -float(((x_new - x) * (qx_new + qx)).sum()) > 0  # exact decrease
         if fresh:
             x, qx = x_new, qx_new
-            mu = 0.0 if mu < 1e-2 * floor else 0.1 * mu
+            if mu:
+                mu = 0.0 if mu < 1e-2 * _damping_floor(h) else 0.1 * mu
         else:
-            mu = max(10.0 * mu, floor)
+            mu = max(10.0 * mu, _damping_floor(h))
     return x, converged
+
+
+def _damping_floor(h: np.ndarray) -> float:
+    """Newton's first damping: :data:`_DAMPING` times the mean diagonal of ``h``."""
+    return _DAMPING * float(np.trace(h)) / len(h)
 
 
 # --- rounding -------------------------------------------------------------------------------
