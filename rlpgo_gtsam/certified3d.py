@@ -11,9 +11,10 @@ held) leaves ``f(X) = tr(X^T Q X)`` with ``X`` the 3n x r matrix of stacked bloc
 ``X_i = R_i^T`` (3 x r at rank r) and ``Q = D - B^T L^-1 B`` (SE-Sync's simplified
 ``L(G^rho) + Q^tau``), applied through one sparse factorization of the anchored translation
 Laplacian ``L``, never formed; below ``_DENSE_Q_BELOW`` rows (graphs of fewer than 134 poses)
-``Q`` is formed as a dense matrix instead, and its factors are dense (scipy's sparse set-up
-cost more than the whole solve there; S's eigenvalues are dense below ``_DENSE_BELOW``); the
-chordal start is then solved through the same rotation terms' dense connection Laplacian.
+``Q`` is formed as a dense matrix instead (each edge's terms scattered once as a block,
+:meth:`_Problem._set_up_dense`), and its factors are dense (scipy's sparse set-up cost more
+than the whole solve there; S's eigenvalues are dense below ``_DENSE_BELOW``); the chordal
+start is then solved through the same rotation terms' dense connection Laplacian.
 Rows of each block ``X_i`` are orthonormal: ``X_i^T`` is a
 point of the Stiefel manifold St(3, r), and SE-Sync's ``Y`` is ``X^T``.
 
@@ -32,8 +33,10 @@ if fewer than half of them have a positive determinant they are reflected by
 are polished by the trust region at rank 3 (:func:`~rlpgo_gtsam.staircase.polish`, as in 2D)
 and projected again; the whole is turned so that the anchor keeps its rotation. The
 staircase starts at rank 3 (below ``_NEWTON_BELOW`` rows, from the point Newton's method
-reaches from the chordal estimate: the trust region then stops at once, see
-:func:`_newton`): SE-Sync's default start (the chordal estimate padded with zeros
+reaches from the chordal estimate, :func:`_newton`, where the trust region would stop at
+once: S is verified there first, and where it certifies the staircase is not run, the same
+check without its set-up; else the staircase goes on from that point): SE-Sync's default
+start (the chordal estimate padded with zeros
 at rank 5) stays in the same 3-dimensional subspace until an escape, so starting at 3 gives
 the same iterates with fewer columns. A rank whose trust region stalls below the
 certificate's resolution is verified where it stands, as in 2D.
@@ -641,11 +644,13 @@ _STIEFEL = _Stiefel(dense_below=_DENSE_BELOW, preconditioner_shift=_PRECONDITION
 
 # --- Newton's method at rank 3 on a dense problem ---------------------------------------
 
-# Rows of Q below which the trust region starts from _newton's point. The rank-3 trust region
-# from the chordal estimate against Newton's steps and then the trust region (which stops at
-# once), CPU ms: tinyGrid3D 2.37 / 1.09; generated graphs (tests' _exact_graph, noise 0.1) of
-# 20 poses 2.67 / 0.99, 30: 3.86 / 1.26, 45: 5.38 / 3.36; smallGrid3D (125 poses: damped
-# steps from its chordal estimate, a 372-row Hessian each) 14.4 / 27.
+# Rows of Q below which the trust region starts from _newton's point (S verified there first,
+# see synchronize3d). The rank-3 trust region from the chordal estimate against Newton's
+# steps and then the trust region (which stops at once), CPU ms, when this was set:
+# tinyGrid3D 2.37 / 1.09; generated graphs (tests' _exact_graph, noise 0.1) of 20 poses
+# 2.67 / 0.99, 30: 3.86 / 1.26, 45: 5.38 / 3.36; smallGrid3D (125 poses: damped steps from
+# its chordal estimate, a 372-row Hessian each) 14.4 / 27. Newton's dense Hessian costs
+# (3n)^3 a step: its products, not the per-call overhead, rule above this size.
 _NEWTON_BELOW = _DENSE_BELOW
 # Newton's factorizations at most (damped retries included) before the staircase's trust
 # region takes over.

@@ -197,6 +197,9 @@ def project_to_so3(matrices: np.ndarray) -> np.ndarray:
     """(k, 3, 3) the nearest rotations (Frobenius norm) to (k, 3, 3) matrices: ``U D V^T``
     from the SVD, with ``D = diag(1, 1, det(U V^T))`` fixing the sign."""
     u, _, vt = np.linalg.svd(np.asarray(matrices, dtype=float).reshape(-1, 3, 3))
-    sign = np.sign(np.linalg.det(u @ vt))
+    rotations = u @ vt
+    sign = np.sign(np.linalg.det(rotations))
+    if np.all(sign > 0):
+        return rotations  # no sign to fix: the product below, unchanged
     u[:, :, 2] *= np.where(sign == 0, 1.0, sign)[:, None]
     return u @ vt

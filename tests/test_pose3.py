@@ -430,6 +430,84 @@ def test_newtons_damping_takes_a_start_where_the_hessian_is_indefinite():
     assert problem.cost(y) == pytest.approx(problem.cost(reached), rel=1e-10)
 
 
+def test_the_small_graph_path_recovers_an_exact_graph_and_refuses_a_wrong_estimate(
+        monkeypatch):
+    """A small graph (below ``_NEWTON_BELOW`` rows) is certified at Newton's point without
+    the staircase's trust region: the ground truth recovered, rotations and positions; a
+    wrong estimate of it refused by the certificate."""
+    import rlpgo_gtsam.certified3d as certified3d
+    from rlpgo_gtsam import staircase
+
+    graph, values, rotations, translations = _exact_graph(np.random.default_rng(11), n=12,
+                                                          closures=6)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    assert 3 * g.num_poses < certified3d._NEWTON_BELOW
+    calls = []
+    trust_region = staircase.trust_region
+    monkeypatch.setattr(staircase, "trust_region",
+                        lambda *args, **kwargs: calls.append(1) or trust_region(*args,
+                                                                                **kwargs))
+    result = INITIALIZERS_3D["certified"]().run(g)
+    assert calls == []
+    certificate = result.certificate
+    assert certificate.status == Status.CERTIFIED and certificate.rank == 3
+    assert certificate.describe().startswith("certified optimal")
+    assert np.allclose(result.poses[:, :, :3], rotations, atol=1e-8)
+    assert np.allclose(result.poses[:, :, 3], translations, atol=1e-8)
+    assert result.chi2 < 1e-12
+    wrong = certify3d(g, rotations @ _rotations(np.random.default_rng(12), g.num_poses, 0.3))
+    assert wrong.status == Status.NOT_OPTIMAL and not wrong.certified
+    assert wrong.min_eigenvalue < -wrong.tolerance and wrong.suboptimality_bound > 0
+
+
+def test_the_small_graph_path_hands_a_relaxation_that_is_not_exact_to_the_staircase(
+        monkeypatch):
+    """Where S is not positive semidefinite at Newton's point (a small graph with 0.8 rad of
+    rotation noise), the staircase runs from that point and escapes: the same rotations and
+    certificate, to the bit, as the staircase from Newton's point, not certified."""
+    import rlpgo_gtsam.certified3d as certified3d
+    from rlpgo_gtsam.synthetic import generate3d
+
+    sample = generate3d(20, 0.8, 0.1, 1.0, 0.5, np.random.default_rng(2),
+                        noisy_measurements=True)
+    g = PoseGraph3D.from_gtsam(sample.graph, sample.initial)
+    assert 3 * g.num_poses < certified3d._NEWTON_BELOW
+    rotations, certificate = synchronize3d(g)
+    assert certificate.rank > 3 and not certificate.certified
+    assert certificate.describe().startswith("NOT certified")
+    monkeypatch.setattr(certified3d, "_verified_at_once", lambda *args: None)
+    climbed, staircase_certificate = synchronize3d(g)
+    assert np.array_equal(rotations, climbed)
+    for field in ("status", "lower_bound", "estimate_cost", "min_eigenvalue", "rank"):
+        assert getattr(certificate, field) == getattr(staircase_certificate, field)
+
+
+def test_the_dense_pairwise_solve_is_the_sparse_one(monkeypatch):
+    """Below ``_DENSE_BELOW`` unknowns :func:`solve_block_pairwise` scatters each residual's
+    block into dense normal equations: the same minimizer as the sparse LU's, to round-off,
+    with held unknowns in any order, several right-hand sides and weights (one at zero,
+    left out)."""
+    import rlpgo_gtsam.translations3d as translations3d
+
+    rng = np.random.default_rng(13)
+    n, m = 15, 40
+    edges = np.array([rng.choice(n, 2, replace=False) for _ in range(m)])
+    edges[: n - 1] = np.c_[np.arange(n - 1), np.arange(1, n)]  # a chain: connected
+    a_i, a_j = rng.normal(size=(2, m, 3, 3))
+    b = rng.normal(size=(m, 3, 4))
+    held = np.array([9, 2, 5])
+    held_values = rng.normal(size=(3, 3, 4))
+    weights = rng.uniform(0.5, 2.0, size=m)
+    weights[20] = 0.0
+    dense = translations3d.solve_block_pairwise(n, edges, a_i, a_j, b, held, held_values,
+                                                weights)
+    monkeypatch.setattr(translations3d, "_DENSE_BELOW", 0)
+    sparse = translations3d.solve_block_pairwise(n, edges, a_i, a_j, b, held, held_values,
+                                                 weights)
+    assert np.array_equal(dense[held], held_values)
+    assert np.allclose(dense, sparse, rtol=0, atol=1e-10 * np.abs(sparse).max())
+
+
 @pytest.mark.parametrize("noise", [0.05, 0.5])
 def test_a_dense_q_verified_by_arpack_agrees_with_the_sparse_path(monkeypatch, noise):
     """Between the dense eigenvalue size and ``_DENSE_Q_BELOW`` rows, Q is dense, its
