@@ -84,14 +84,15 @@ def solve_block_pairwise(num_poses: int, edges: np.ndarray, a_i: np.ndarray, a_j
     x[held] = np.asarray(held_values, float).reshape(len(held), d, k)
     free = np.ones(num_poses, bool)
     free[held] = False
-    column = np.full(num_poses, -1, np.int64)
-    column[free] = np.arange(int(free.sum()))
-    if free.any() and d * int(free.sum()) < _DENSE_BELOW:
+    unknowns = d * int(free.sum())
+    if 0 < unknowns < _DENSE_BELOW:
         solution = _dense_pairwise(edges, a_i, a_j, b, x, free)
         if solution is not None:
             x[free] = solution
             return x[..., 0] if single else x
-    if free.any():  # sparse, or a dense factor that failed: the LU names the pose
+    if unknowns:  # sparse, or a dense factor that failed: the LU names the pose
+        column = np.full(num_poses, -1, np.int64)
+        column[free] = np.arange(unknowns // d)
         i, j = edges[:, 0], edges[:, 1]
         rhs = b - a_i @ x[i] - a_j @ x[j]  # held unknowns moved to the right-hand side
         rows, cols, data = [], [], []
@@ -322,9 +323,10 @@ class TranslationStep3D:
         Lambda_tR e_R)``) at (n, 3, 3) ``rotations``: (m, 3, 3) blocks ``A_e``, (m, 3) ``b_e``."""
         g = self.pose_graph
         i, j = g.edges[:, 0], g.edges[:, 1]
-        error_r = log_so3(self.measured_t @ np.transpose(rotations[i], (0, 2, 1)) @ rotations[j])
+        turned_i = np.transpose(rotations[i], (0, 2, 1))  # R_i^T
+        error_r = log_so3(self.measured_t @ turned_i @ rotations[j])
         v_inv = inverse_left_jacobians(error_r)
-        a_j = self.w @ v_inv @ self.measured_t @ np.transpose(rotations[i], (0, 2, 1))
+        a_j = self.w @ v_inv @ self.measured_t @ turned_i
         b = np.einsum("eab,eb->ea", self.w,
                       np.einsum("eab,eb->ea", v_inv @ self.measured_t, g.measured_translations)
                       - np.einsum("eab,eb->ea", self.shift, error_r))
