@@ -263,9 +263,9 @@ class _Problem(Relaxation):
         if n < 2:
             raise GraphError(f"a pose graph for the relaxation needs 2 poses or more, got {n}")
         kappa, tau = rotation_weights(g), translation_weights(g)
-        if not (np.all(np.isfinite(kappa)) and np.all(np.isfinite(tau))
-                and np.all(np.isfinite(g.measured_rotations))
-                and np.all(np.isfinite(g.measured_translations))):
+        if not (np.isfinite(kappa).all() and np.isfinite(tau).all()
+                and np.isfinite(g.measured_rotations).all()
+                and np.isfinite(g.measured_translations).all()):
             raise GraphError("the relaxation needs finite measurements and information")
         self.n = n
         self.dense = 3 * n < max(_DENSE_Q_BELOW, _STIEFEL.dense_below)
@@ -765,7 +765,7 @@ def _round(x: np.ndarray) -> np.ndarray:
     0.19 -> 0.03, 0.77 -> 0.07 and 7.8 -> 0.6)."""
     if x.shape[1] == 3:
         blocks = np.transpose(x.reshape(-1, 3, 3), (0, 2, 1))
-        if np.all(np.linalg.det(blocks) > 0):
+        if (np.linalg.det(blocks) > 0).all():
             return blocks.copy()
     u, s, _ = np.linalg.svd(x, full_matrices=False)
     blocks = np.transpose((u[:, :3] * s[:3]).reshape(-1, 3, 3), (0, 2, 1))  # R_i = (U_i S)^T

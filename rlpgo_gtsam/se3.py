@@ -110,7 +110,7 @@ def exp_so3(w: np.ndarray) -> np.ndarray:
     small = theta < _SERIES
     safe = theta + small  # 1 + theta where small: finite ratios, the series' place there
     a, b = np.sin(safe) / safe, (1 - np.cos(safe)) / (safe * safe)
-    if np.any(theta[small]):
+    if theta[small].any():
         t2 = theta * theta
         a = np.where(small, 1 - t2 / 6 + t2 * t2 / 120, a)
         b = np.where(small, 0.5 - t2 / 24 + t2 * t2 / 720, b)
@@ -199,7 +199,7 @@ def project_to_so3(matrices: np.ndarray) -> np.ndarray:
     u, _, vt = np.linalg.svd(np.asarray(matrices, dtype=float).reshape(-1, 3, 3))
     rotations = u @ vt
     sign = np.sign(np.linalg.det(rotations))
-    if np.all(sign > 0):
+    if (sign > 0).all():
         return rotations  # no sign to fix: the product below, unchanged
     u[:, :, 2] *= np.where(sign == 0, 1.0, sign)[:, None]
     return u @ vt

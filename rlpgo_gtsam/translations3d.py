@@ -140,7 +140,7 @@ def _dense_pairwise(edges: np.ndarray, a_i: np.ndarray, a_j: np.ndarray, b: np.n
     if lower is None:
         return None
     solution = DenseCholesky(lower).solve(rhs)
-    if not np.all(np.isfinite(solution)):
+    if not np.isfinite(solution).all():
         raise SolverError("linear solve failed: the solution is not finite")
     return solution.reshape(-1, d, k)
 
@@ -283,7 +283,7 @@ def dense_cholesky(matrix: np.ndarray, overwrite: bool = False) -> np.ndarray | 
 
     diagonal = np.diagonal(matrix).copy()
     lower, info = dpotrf(matrix, lower=1, clean=0, overwrite_a=int(overwrite))
-    if info != 0 or not np.all(np.diagonal(lower) ** 2 > PIVOT_FLOOR * diagonal):
+    if info != 0 or not (np.diagonal(lower) ** 2 > PIVOT_FLOOR * diagonal).all():
         return None
     return lower
 
