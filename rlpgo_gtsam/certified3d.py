@@ -11,9 +11,10 @@ held) leaves ``f(X) = tr(X^T Q X)`` with ``X`` the 3n x r matrix of stacked bloc
 ``X_i = R_i^T`` (3 x r at rank r) and ``Q = D - B^T L^-1 B`` (SE-Sync's simplified
 ``L(G^rho) + Q^tau``), applied through one sparse factorization of the anchored translation
 Laplacian ``L``, never formed; below ``_DENSE_Q_BELOW`` rows (graphs of fewer than 134 poses)
-``Q`` is formed as a dense matrix instead, and its factors are dense (scipy's sparse set-up
-cost more than the whole solve there; S's eigenvalues are dense below ``_DENSE_BELOW``); the
-chordal start is then solved through the same rotation terms' dense connection Laplacian.
+``Q`` is formed as a dense matrix instead (each edge's terms scattered once as a block,
+:meth:`_Problem._set_up_dense`), and its factors are dense (scipy's sparse set-up cost more
+than the whole solve there; S's eigenvalues are dense below ``_DENSE_BELOW``); the chordal
+start is then solved through the same rotation terms' dense connection Laplacian.
 Rows of each block ``X_i`` are orthonormal: ``X_i^T`` is a
 point of the Stiefel manifold St(3, r), and SE-Sync's ``Y`` is ``X^T``.
 
@@ -32,8 +33,10 @@ if fewer than half of them have a positive determinant they are reflected by
 are polished by the trust region at rank 3 (:func:`~rlpgo_gtsam.staircase.polish`, as in 2D)
 and projected again; the whole is turned so that the anchor keeps its rotation. The
 staircase starts at rank 3 (below ``_NEWTON_BELOW`` rows, from the point Newton's method
-reaches from the chordal estimate: the trust region then stops at once, see
-:func:`_newton`): SE-Sync's default start (the chordal estimate padded with zeros
+reaches from the chordal estimate, :func:`_newton`, where the trust region would stop at
+once: S is verified there first, and where it certifies the staircase is not run, the same
+check without its set-up; else the staircase goes on from that point): SE-Sync's default
+start (the chordal estimate padded with zeros
 at rank 5) stays in the same 3-dimensional subspace until an escape, so starting at 3 gives
 the same iterates with fewer columns. A rank whose trust region stalls below the
 certificate's resolution is verified where it stands, as in 2D.
@@ -49,6 +52,7 @@ GTSAM. The returned :class:`~rlpgo_gtsam.certified.Certificate` and its
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -56,8 +60,7 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import solve_triangular
-from scipy.linalg.lapack import dpotrf, dpotrs
+from scipy.linalg.lapack import dpotrf, dpotrs, dtrtrs
 from scipy.sparse.linalg import splu
 
 from rlpgo_gtsam.certified import Certificate, Status
@@ -65,10 +68,13 @@ from rlpgo_gtsam.chordal3d import chordal_rotations
 from rlpgo_gtsam.errors import GraphError, SolverError
 from rlpgo_gtsam.graph3d import PoseGraph3D, rotation_weights, translation_weights
 from rlpgo_gtsam.numerics import numeric_call
-from rlpgo_gtsam.se3 import exp_so3, project_to_so3, skew, vee
+from rlpgo_gtsam.se3 import exp_so3, project_to_so3, vee
 from rlpgo_gtsam.staircase import (
+    Check,
     Manifold,
+    Progress,
     Relaxation,
+    Run,
     certificate,
     check_start,
     climb,
@@ -89,6 +95,10 @@ _DENSE_BELOW = 150
 # found by ARPACK, shift-inverted through a dense Cholesky factor instead of a sparse LU).
 _DENSE_Q_BELOW = 400
 _REFLECT = np.diag([1.0, 1.0, -1.0])
+_EYE, _AXES = np.eye(3), np.arange(3)
+# an edge's translation terms: v = (-t~, -1, 1) on the places (X_i, t_i, t_j) of its 8
+_STEP = np.array([[-1.0, 1.0]])
+_TRANSLATION_AXES = np.array([0, 1, 2, 6, 7])
 # (Q + delta I)^-1 preconditions the Hessian; delta / mean(diag D). The planar 1e-3 took
 # 1.5x the inner iterations on parking-garage; 1e-7 stalls at round-off.
 _PRECONDITIONER_SHIFT = 1e-5
@@ -147,10 +157,14 @@ def synchronize3d(pose_graph: PoseGraph3D, start_rotations: np.ndarray | None = 
     x = np.zeros((3 * problem.n, initial_rank))
     x[:, :3] = np.transpose(rotations, (0, 2, 1)).reshape(-1, 3)
     grad_tol = gradient_tolerance * math.sqrt(problem.n) * problem.scale
+    check, stop = None, Status.RANK_LIMIT  # (the staircase's stop there, unused: certified)
     if problem.dense and 3 * problem.n < _NEWTON_BELOW and initial_rank == 3:
-        x = _newton(problem, x, grad_tol, pose_graph.anchor, deadline)
-    x, check, stop = climb(problem, _STIEFEL, x, eta, max_rank, max_iterations, grad_tol,
-                           deadline, progress, started)
+        x, converged = _newton(problem, x, grad_tol, pose_graph.anchor, deadline)
+        if converged:
+            check = _verified_at_once(problem, x, eta, progress, started)
+    if check is None:
+        x, check, stop = climb(problem, _STIEFEL, x, eta, max_rank, max_iterations, grad_tol,
+                               deadline, progress, started)
     rotations = _round(x)
     if x.shape[1] > 3:
         polished = polish(problem, _STIEFEL, _stack(rotations), eta, max_iterations, grad_tol,
@@ -184,6 +198,26 @@ def relaxation_cost3d(pose_graph: PoseGraph3D, rotations: np.ndarray) -> float:
     return problem.cost(_stack(_checked_rotations(rotations, problem.n)))
 
 
+def _verified_at_once(problem: _Problem, x: np.ndarray, eta: float,
+                      progress: Callable[[str], None] | None, started: float) -> Check | None:
+    """The staircase's check of a rank-3 ``x`` at which its trust region would stop at once
+    (Newton's point: the gradient test passed in the same arithmetic), where it certifies;
+    None where it does not (the staircase then runs from ``x``, its trust region stopping at
+    once, and escapes). The same check and progress line as the staircase's, without its
+    trust region's set-up."""
+    check = verify(problem, _STIEFEL, x, eta)
+    if not check.certified:
+        return None
+    if progress is not None:
+        qx = problem.apply(x)
+        run = Run()
+        run.iterations, run.cost = 0, _STIEFEL.inner(x, qx)
+        run.gradient = float(np.linalg.norm(
+            2.0 * (qx - _STIEFEL.times(_STIEFEL.multipliers(x, qx), x))))
+        Progress(progress, started).rank(3, run, check)
+    return check
+
+
 def _stack(rotations: np.ndarray) -> np.ndarray:
     """(3n, 3) the blocks ``X_i = R_i^T`` stacked."""
     return np.transpose(rotations, (0, 2, 1)).reshape(-1, 3)
@@ -208,25 +242,10 @@ def _blocks(rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> tuple:
     return values.ravel(), r.ravel(), c.ravel()
 
 
-def _dense(data: np.ndarray, index: tuple[np.ndarray, np.ndarray],
-           shape: tuple[int, int]) -> np.ndarray:
-    """The dense matrix of COO entries (duplicates summed, as ``sp.coo_matrix``)."""
-    flat = np.bincount(index[0] * shape[1] + index[1], weights=data,
-                       minlength=shape[0] * shape[1])
-    return flat.reshape(shape)
-
-
 def _add_diagonal_blocks(matrix: np.ndarray, n: int, blocks: np.ndarray) -> None:
     """Add ``blocks`` ((n, 3, 3), or what broadcasts to it) to the 3x3 diagonal blocks of the
     dense, C-ordered (3n, 3n) ``matrix``, in place."""
     matrix.reshape(n, 3, n, 3)[np.arange(n), :, np.arange(n), :] += blocks
-
-
-def _block_sums(index: np.ndarray, blocks: np.ndarray, n: int) -> np.ndarray:
-    """(n, 3, 3) the sums of (k, 3, 3) ``blocks`` by their ``index`` (k,)."""
-    flat = np.bincount((9 * index[:, None] + np.arange(9)).ravel(), weights=blocks.ravel(),
-                       minlength=9 * n)
-    return flat.reshape(n, 3, 3)
 
 
 class _Problem(Relaxation):
@@ -244,30 +263,77 @@ class _Problem(Relaxation):
         if n < 2:
             raise GraphError(f"a pose graph for the relaxation needs 2 poses or more, got {n}")
         kappa, tau = rotation_weights(g), translation_weights(g)
-        if not (np.all(np.isfinite(kappa)) and np.all(np.isfinite(tau))
-                and np.all(np.isfinite(g.measured_rotations))
-                and np.all(np.isfinite(g.measured_translations))):
+        if not (np.isfinite(kappa).all() and np.isfinite(tau).all()
+                and np.isfinite(g.measured_rotations).all()
+                and np.isfinite(g.measured_translations).all()):
             raise GraphError("the relaxation needs finite measurements and information")
-        i, j = g.edges[:, 0], g.edges[:, 1]
-        eye = np.broadcast_to(np.eye(3), (len(i), 3, 3))
-        t = g.measured_translations
-        anchored = tau[:, None, None] * t[:, :, None] * t[:, None, :]  # tau t~ t~^T at (i, i)
         self.n = n
         self.dense = 3 * n < max(_DENSE_Q_BELOW, _STIEFEL.dense_below)
-        # a dense D gets the tau blocks after its connection Laplacian is kept; a sparse D
-        # sums them with kappa I in this order (D's round-off as before)
-        parts = [
-            _blocks(i, i, kappa[:, None, None] * eye + (0.0 if self.dense else anchored)),
-            _blocks(j, j, kappa[:, None, None] * eye),
-            _blocks(i, j, -kappa[:, None, None] * g.measured_rotations),
-            _blocks(j, i, -kappa[:, None, None] * np.transpose(g.measured_rotations, (0, 2, 1))),
-        ]
-        data, rows, cols = (np.concatenate(p) for p in zip(*parts, strict=True))
         self._layout: tuple[sp.csc_matrix, np.ndarray, np.ndarray] | None = None
         self._order: np.ndarray | None = None  # the first sparse factor's elimination order
         # a dense problem's connection Laplacian of the rotation terms (D without the tau
         # t~ t~^T blocks): the chordal estimate's matrix (chordal_rotations' connection)
         self.connection: np.ndarray | None = None
+        if self.dense:
+            self._set_up_dense(g, kappa, tau)
+        else:
+            self._set_up_sparse(g, kappa, tau)
+        if not self.scale > 0:
+            raise SolverError("every edge has zero information: nothing to synchronize")
+
+    def _set_up_dense(self, g: PoseGraph3D, kappa: np.ndarray, tau: np.ndarray) -> None:
+        """Q, the connection Laplacian and the scale as dense matrices, each edge's terms
+        scattered as one block: ``kappa [[I, -R~], [-R~^T, I]]`` on ``(X_i, X_j)`` into the
+        connection Laplacian, ``tau v v^T`` (``v = (-t~, -1, 1)``) on ``(X_i, t_i, t_j)`` into
+        the translation terms' matrix over ``(X, t)``, the anchor's translation last; that
+        matrix's blocks are the ``tau t~ t~^T`` sums on D's diagonal, ``-B^T`` and ``L``
+        (the anchor's row and column left out). ``Q = D - W^T W`` with ``W = C^-1 B``, ``C
+        C^T = L`` (LAPACK's Cholesky and triangular solve)."""
+        n, size = self.n, 3 * self.n
+        i, j = g.edges[:, 0], g.edges[:, 1]
+        m = len(i)
+        column = np.arange(n) - (np.arange(n) > g.anchor)  # t's columns, the anchor's last
+        column[g.anchor] = n - 1
+        rows = np.concatenate([3 * i[:, None] + _AXES, 3 * j[:, None] + _AXES,
+                               size + column[i][:, None], size + column[j][:, None]], axis=1)
+        rotation = np.empty((m, 6, 6))
+        rotation[:, :3, :3] = rotation[:, 3:, 3:] = _EYE
+        rotation[:, :3, 3:] = -g.measured_rotations
+        rotation[:, 3:, :3] = -np.transpose(g.measured_rotations, (0, 2, 1))
+        rotation *= kappa[:, None, None]
+        v = np.concatenate([-g.measured_translations, _STEP.repeat(m, axis=0)], axis=1)
+        translation = (tau[:, None, None] * v[:, :, None]) * v[:, None, :]
+        at = rows[:, :6]
+        self.connection = np.bincount((at[:, :, None] * size + at[:, None, :]).ravel(),
+                                      weights=rotation.ravel(),
+                                      minlength=size * size).reshape(size, size)
+        at = rows[:, _TRANSLATION_AXES]
+        terms = np.bincount((at[:, :, None] * (size + n) + at[:, None, :]).ravel(),
+                            weights=translation.ravel(),
+                            minlength=(size + n) ** 2).reshape(size + n, size + n)
+        lower, info = dpotrf(terms[size:-1, size:-1], lower=1, clean=1)
+        if info != 0:
+            raise SolverError("the measurements do not determine the translations")
+        w, _ = dtrtrs(lower, terms[size:-1, :size], lower=1)
+        self.q = w.T @ w
+        np.subtract(self.connection, self.q, out=self.q)
+        self.q += terms[:size, :size]
+        self.scale = float(np.trace(self.connection) + np.trace(terms[:size, :size])) / size
+
+    def _set_up_sparse(self, g: PoseGraph3D, kappa: np.ndarray, tau: np.ndarray) -> None:
+        """D, L, B (and its transpose) as sparse matrices, L's LU."""
+        n = self.n
+        i, j = g.edges[:, 0], g.edges[:, 1]
+        eye = np.broadcast_to(np.eye(3), (len(i), 3, 3))
+        t = g.measured_translations
+        anchored = tau[:, None, None] * t[:, :, None] * t[:, None, :]  # tau t~ t~^T at (i, i)
+        parts = [
+            _blocks(i, i, kappa[:, None, None] * eye + anchored),
+            _blocks(j, j, kappa[:, None, None] * eye),
+            _blocks(i, j, -kappa[:, None, None] * g.measured_rotations),
+            _blocks(j, i, -kappa[:, None, None] * np.transpose(g.measured_rotations, (0, 2, 1))),
+        ]
+        data, rows, cols = (np.concatenate(p) for p in zip(*parts, strict=True))
         keep = np.delete(np.arange(n), g.anchor)
         cols3 = (3 * i[:, None] + np.arange(3)).ravel()
         matrices = [
@@ -278,39 +344,18 @@ class _Problem(Relaxation):
               (np.concatenate([np.repeat(j, 3), np.repeat(i, 3)]),  # the coupling
                np.concatenate([cols3, cols3]))), (n, 3 * n)),
         ]
-        if self.dense:
-            # D = the connection Laplacian + the blocks tau t~ t~^T, added into Q directly
-            self.connection, lap, coupling = (_dense(*entries, shape)
-                                              for entries, shape in matrices)
-            anchored = _block_sums(i, anchored, n)
-            self.scale = float(np.trace(self.connection) + np.trace(
-                anchored, axis1=1, axis2=2).sum()) / (3 * n)
-            try:  # Q = D - W^T W, W = C^-1 B and C C^T = L
-                lower = np.linalg.cholesky(lap[np.ix_(keep, keep)])
-            except np.linalg.LinAlgError:
-                raise SolverError("the measurements do not determine the translations") from None
-            if 3 * n < _DENSE_BELOW:
-                w = np.linalg.solve(lower, coupling[keep])
-            else:
-                w = solve_triangular(lower, coupling[keep], lower=True, check_finite=False)
-            self.q = w.T @ w
-            np.subtract(self.connection, self.q, out=self.q)
-            _add_diagonal_blocks(self.q, n, anchored)
-        else:
-            d, lap, coupling = (sp.coo_matrix(entries, shape=shape).tocsr()
-                                for entries, shape in matrices)
-            self.d = d
-            self.lap = lap[keep][:, keep].tocsc()
-            self.b = coupling[keep].tocsr()
-            self.bt = self.b.T.tocsr()
-            try:
-                self.lap_lu = splu(self.lap, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                                   options={"SymmetricMode": True})
-            except RuntimeError:
-                raise SolverError("the measurements do not determine the translations") from None
-            self.scale = float(np.mean(self.d.diagonal()))
-        if not self.scale > 0:
-            raise SolverError("every edge has zero information: nothing to synchronize")
+        d, lap, coupling = (sp.coo_matrix(entries, shape=shape).tocsr()
+                            for entries, shape in matrices)
+        self.d = d
+        self.lap = lap[keep][:, keep].tocsc()
+        self.b = coupling[keep].tocsr()
+        self.bt = self.b.T.tocsr()
+        try:
+            self.lap_lu = splu(self.lap, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                               options={"SymmetricMode": True})
+        except RuntimeError:
+            raise SolverError("the measurements do not determine the translations") from None
+        self.scale = float(np.mean(self.d.diagonal()))
 
     def apply(self, x: np.ndarray) -> np.ndarray:
         """Q x for x (3n, r)."""
@@ -599,11 +644,13 @@ _STIEFEL = _Stiefel(dense_below=_DENSE_BELOW, preconditioner_shift=_PRECONDITION
 
 # --- Newton's method at rank 3 on a dense problem ---------------------------------------
 
-# Rows of Q below which the trust region starts from _newton's point. The rank-3 trust region
-# from the chordal estimate against Newton's steps and then the trust region (which stops at
-# once), CPU ms: tinyGrid3D 2.37 / 1.09; generated graphs (tests' _exact_graph, noise 0.1) of
-# 20 poses 2.67 / 0.99, 30: 3.86 / 1.26, 45: 5.38 / 3.36; smallGrid3D (125 poses: damped
-# steps from its chordal estimate, a 372-row Hessian each) 14.4 / 27.
+# Rows of Q below which the trust region starts from _newton's point (S verified there first,
+# see synchronize3d). The rank-3 trust region from the chordal estimate against Newton's
+# steps and then the trust region (which stops at once), CPU ms, when this was set:
+# tinyGrid3D 2.37 / 1.09; generated graphs (tests' _exact_graph, noise 0.1) of 20 poses
+# 2.67 / 0.99, 30: 3.86 / 1.26, 45: 5.38 / 3.36; smallGrid3D (125 poses: damped steps from
+# its chordal estimate, a 372-row Hessian each) 14.4 / 27. Newton's dense Hessian costs
+# (3n)^3 a step: its products, not the per-call overhead, rule above this size.
 _NEWTON_BELOW = _DENSE_BELOW
 # Newton's factorizations at most (damped retries included) before the staircase's trust
 # region takes over.
@@ -612,68 +659,99 @@ _NEWTON_STEPS = 30
 # descent): first this fraction of H's mean diagonal, then 10 times more per failure; a
 # successful step divides it by 10, and below _DAMPING x 1e-3 it is dropped (pure Newton).
 _DAMPING = 1e-3
+# The entries of -[v]_x: rows, columns, which component of v, and its sign.
+_SKEW_ROWS, _SKEW_COLS = np.array([0, 0, 1, 1, 2, 2]), np.array([1, 2, 0, 2, 0, 1])
+_SKEW_FROM, _SKEW_SIGNS = np.array([2, 1, 2, 0, 1, 0]), np.array([1.0, -1.0, -1.0, 1.0, 1.0, -1.0])
+_COLUMNS = np.arange(3)[:, None, None]  # c, over (c, pose, entry)
+_BLOCK_ROWS, _BLOCK_COLS = np.arange(3)[:, None], np.arange(3)  # a 3x3 block's (a, b)
+
+
+@functools.lru_cache(maxsize=64)
+def _newton_layout(n: int, anchor: int) -> tuple[np.ndarray, ...]:
+    """Where :func:`_newton`'s arrays go, for ``n`` poses with the anchor held: the flat
+    places in ``K_0; K_1; K_2`` ((9n, 3n - 3): the anchor has no column) of the entries
+    ``K_c[3p + a, 3q + b] = sign x[3p + e, c]`` (``q``: pose p among the free ones; the six
+    ``(a, b, e, sign)`` of ``-[v]_x``), those entries' places in ``x``, the places of the
+    free poses' diagonal blocks in H, and the free poses. Index patterns of a size alone,
+    made once per size (the robust path's subgraphs share theirs; 0.14 ms of tinyGrid3D's
+    run), read only."""
+    size, columns = 3 * n, 3 * (n - 1)
+    free = np.delete(np.arange(n), anchor)
+    p, q = 3 * free[:, None], 3 * np.arange(n - 1)[:, None]
+    target = _COLUMNS * size * columns + (p + _SKEW_ROWS) * columns + q + _SKEW_COLS
+    source = 3 * (p + _SKEW_FROM) + _COLUMNS
+    on_diagonal = (columns + 1) * q[:, :, None] + columns * _BLOCK_ROWS + _BLOCK_COLS
+    layout = (target.ravel(), source, on_diagonal.ravel(), free)  # source: (3, n - 1, 6)
+    for array in layout:
+        array.setflags(write=False)
+    return layout
 
 
 def _newton(problem: _Problem, x: np.ndarray, grad_tol: float, anchor: int,
-            deadline: float | None) -> np.ndarray:
+            deadline: float | None) -> tuple[np.ndarray, bool]:
     """The rank-3 start ``x`` (3n, 3) moved by a damped Newton's method on ``f(X) = tr(X^T Q
     X)`` for a dense problem, until the Riemannian gradient's norm is at most ``grad_tol``
-    (the trust region's own stop test: it then ends at its first iteration, and the
-    staircase verifies S there), for at most :data:`_NEWTON_STEPS` factorizations; the
-    trust region goes on from where it stopped.
+    (the trust region's own stop test, in the same arithmetic: it would end at its first
+    iteration there), for at most :data:`_NEWTON_STEPS` factorizations; and whether it got
+    there (else the trust region goes on from where it stopped).
 
-    Each block moves as ``X_i <- Exp(w_i) X_i``; the step solves ``(H + mu I) w = -g`` with
-    the exact gradient ``g_i = 2 vee(M_i - M_i^T)``, ``M_i = (Q X)_i X_i^T``, and Hessian
-    ``H = 2 K^T (I_3 x Q) K + 2 diag(Lambda_i - tr(Lambda_i) I)`` of ``w -> f(Exp(w) X)``
-    at 0 (``K`` maps ``w`` to the columns of ``[w_i]_x X_i``), the anchor's ``w`` held at 0
-    (the gauge: ``H`` is singular along a common rotation). A step is taken where it lowers
-    the cost; ``mu`` (Levenberg-Marquardt's rule, :data:`_DAMPING`) handles a start far from
-    the minimum, where ``H`` is indefinite (smallGrid3D's chordal estimate). Near the minimum
-    ``mu = 0``: quadratic convergence, 3 steps on tinyGrid3D (gradient 54 -> 2e-6 against a
-    tolerance of 2e-4), where the trust region took 6 iterations and 10 Hessian products."""
+    Each block moves as ``X_i <- Exp(w_i) X_i``, the anchor's ``w`` held at 0 (the gauge:
+    the Hessian is singular along a common rotation); the step solves ``(H + mu I) w = -g``
+    for the others with half the exact gradient and Hessian of ``w -> f(Exp(w) X)`` at 0
+    (the same step): ``K_c`` (3n x 3(n-1), a block for each free pose, ``-[X_i[:, c]]_x``)
+    maps ``w`` to column c of the blocks ``[w_i]_x X_i``, so ``g = sum_c K_c^T (Q X)_c``
+    and ``H = sum_c K_c^T Q K_c + diag(Lambda_i - tr(Lambda_i) I)``, three dense products
+    each (:func:`_newton_layout`). A step is taken where it lowers the cost; ``mu``
+    (Levenberg-Marquardt's rule, :data:`_DAMPING`) handles a start far from the minimum,
+    where ``H`` is indefinite (smallGrid3D's chordal estimate). Near the minimum ``mu =
+    0``: quadratic convergence, 3 steps on tinyGrid3D (gradient 54 -> 2e-6 against a
+    tolerance of 2e-4), where the trust region took 6 iterations and 10 Hessian
+    products."""
     n = problem.n
+    size, columns = 3 * n, 3 * (n - 1)
     q = problem.q
-    columns = q.reshape(3 * n, n, 3).transpose(1, 0, 2)  # (n, 3n, 3): Q's block columns
-    held = slice(3 * anchor, 3 * anchor + 3)
-    diagonal = np.arange(3 * n)
+    target, source, on_diagonal, free = _newton_layout(n, anchor)
+    diagonal = np.arange(columns)
+    blocks = np.zeros(3 * size * columns)
+    w = np.zeros((n, 3))
     qx = q @ x
-    mu, fresh = 0.0, True
+    mu, fresh, converged = 0.0, True, False
     for _ in range(_NEWTON_STEPS):
         if fresh:
             xb, qb = x.reshape(n, 3, 3), qx.reshape(n, 3, 3)
-            m = qb @ xb.transpose(0, 2, 1)
-            lam = _sym(m)
-            if np.linalg.norm(qb - lam @ xb) <= 0.5 * grad_tol or \
-                    (deadline is not None and time.perf_counter() > deadline):
+            lam = _sym(qb @ xb.transpose(0, 2, 1))
+            converged = bool(np.linalg.norm(qb - lam @ xb) <= 0.5 * grad_tol)
+            if converged or (deadline is not None and time.perf_counter() > deadline):
                 break
-            g = 2.0 * vee(m - m.transpose(0, 2, 1)).ravel()
-            g[held] = 0.0
-            # k[j][q, (c, b)] = -[X_j[:, c]]_x[q, b]: column c of [w_j]_x X_j is K_c w_j
-            k = -skew(xb.transpose(0, 2, 1).reshape(-1, 3)).reshape(n, 3, 3, 3)
-            t = (columns @ k.transpose(0, 2, 1, 3).reshape(n, 3, 9)).reshape(n, n, 3, 3, 3)
-            t = t.transpose(1, 3, 2, 0, 4).reshape(n, 9, 3 * n)  # [i, (c, p), (j, b)]: Q K_c
-            h = (k.transpose(0, 3, 1, 2).reshape(n, 3, 9) @ t).reshape(3 * n, 3 * n)
-            _add_diagonal_blocks(
-                h, n, lam - np.trace(lam, axis1=1, axis2=2)[:, None, None] * np.eye(3))
-            h *= 2.0
-            h[held], h[:, held], h[held, held] = 0.0, 0.0, np.eye(3)
-            floor = _DAMPING * float(np.mean(np.diagonal(h)))
+            blocks[target] = (x.ravel()[source] * _SKEW_SIGNS).ravel()
+            k = blocks.reshape(3 * size, columns)  # K_0; K_1; K_2 stacked
+            g = k.T @ qx.T.ravel()
+            h = k.T @ (q @ blocks.reshape(3, size, columns)).reshape(3 * size, columns)
+            lam_free = lam[free]
+            traces = np.einsum("kii->k", lam_free)
+            h.ravel()[on_diagonal] += (lam_free - traces[:, None, None] * _EYE).ravel()
         damped = h.copy() if mu else h
         if mu:
             damped[diagonal, diagonal] += mu
         lower, info = dpotrf(damped, lower=1, clean=0)  # h is kept for a damped retry
         fresh = False
         if info == 0:
-            w, _ = dpotrs(lower, -g, lower=1)
+            w[free] = dpotrs(lower, -g, lower=1)[0].reshape(-1, 3)
             x_new = (exp_so3(w) @ xb).reshape(-1, 3)
             qx_new = q @ x_new
-            fresh = -float(np.sum((x_new - x) * (qx_new + qx))) > 0  # exact decrease
+            fresh = -float(((x_new - x) * (qx_new + qx)).sum()) > 0  # exact decrease
         if fresh:
             x, qx = x_new, qx_new
-            mu = 0.0 if mu < 1e-2 * floor else 0.1 * mu
+            if mu:
+                mu = 0.0 if mu < 1e-2 * _damping_floor(h) else 0.1 * mu
         else:
-            mu = max(10.0 * mu, floor)
-    return x
+            mu = max(10.0 * mu, _damping_floor(h))
+    return x, converged
+
+
+def _damping_floor(h: np.ndarray) -> float:
+    """Newton's first damping: :data:`_DAMPING` times the mean diagonal of ``h``."""
+    return _DAMPING * float(np.trace(h)) / len(h)
 
 
 # --- rounding -------------------------------------------------------------------------------
@@ -687,7 +765,7 @@ def _round(x: np.ndarray) -> np.ndarray:
     0.19 -> 0.03, 0.77 -> 0.07 and 7.8 -> 0.6)."""
     if x.shape[1] == 3:
         blocks = np.transpose(x.reshape(-1, 3, 3), (0, 2, 1))
-        if np.all(np.linalg.det(blocks) > 0):
+        if (np.linalg.det(blocks) > 0).all():
             return blocks.copy()
     u, s, _ = np.linalg.svd(x, full_matrices=False)
     blocks = np.transpose((u[:, :3] * s[:3]).reshape(-1, 3, 3), (0, 2, 1))  # R_i = (U_i S)^T

@@ -72,7 +72,7 @@ def _dense_chordal(connection: np.ndarray, held: np.ndarray,
         return None
     solution = DenseCholesky(lower).solve(-connection[np.ix_(free, fixed)]
                                           @ x[held].reshape(-1, 3))
-    if not np.all(np.isfinite(solution)):
+    if not np.isfinite(solution).all():
         return None
     x[~is_held] = solution.reshape(-1, 3, 3)
     return x

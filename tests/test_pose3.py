@@ -360,8 +360,10 @@ def test_skew_is_the_cross_product_and_vee_inverts_it():
 def test_newtons_start_on_small_graphs_reaches_the_trust_regions_optimum(monkeypatch, case):
     """Below ``_NEWTON_BELOW`` rows the staircase starts from Newton's point
     (:func:`certified3d._newton`): the same certificate as the trust region alone, whose
-    rotations (run to a gradient 1e-6 times its default tolerance) agree to 1e-9; the
-    trust region then takes no iteration; an exact graph is recovered."""
+    rotations (run to a gradient 1e-6 times its default tolerance) agree to 1e-9; S is
+    verified there without the trust region, which would take no iteration (the same
+    rotations and certificate to the bit as the staircase run from that point); an exact
+    graph is recovered."""
     import rlpgo_gtsam.certified3d as certified3d
     from rlpgo_gtsam import staircase
 
@@ -383,7 +385,14 @@ def test_newtons_start_on_small_graphs_reaches_the_trust_regions_optimum(monkeyp
 
     monkeypatch.setattr(staircase, "trust_region", counted)
     newton, a = synchronize3d(g)
+    assert iterations == []
+    with monkeypatch.context() as patch:  # the staircase from Newton's point
+        patch.setattr(certified3d, "_verified_at_once", lambda *args: None)
+        climbed, c = synchronize3d(g)
     assert iterations == [0]
+    assert np.array_equal(climbed, newton)
+    assert (c.status, c.lower_bound, c.estimate_cost, c.min_eigenvalue, c.rank) == \
+        (a.status, a.lower_bound, a.estimate_cost, a.min_eigenvalue, a.rank)
     monkeypatch.setattr(certified3d, "_NEWTON_BELOW", 0)
     tight, b = synchronize3d(g, gradient_tolerance=1e-12)
     assert iterations[1] > 0 or case == "exact"  # the chordal estimate is exact there
@@ -411,13 +420,92 @@ def test_newtons_damping_takes_a_start_where_the_hessian_is_indefinite():
     problem = certified3d._Problem(g)
     x = certified3d._stack(chordal_rotations(g))
     tolerance = 1e-6 * math.sqrt(problem.n) * problem.scale
-    y = certified3d._newton(problem, x, tolerance, g.anchor, None)
+    y, converged = certified3d._newton(problem, x, tolerance, g.anchor, None)
+    assert converged
     stiefel = certified3d._STIEFEL
     qy = problem.apply(y)
     gradient = 2.0 * (qy - stiefel.times(stiefel.multipliers(y, qy), y))
     assert np.linalg.norm(gradient) <= tolerance
     reached, _ = staircase.trust_region(problem, stiefel, x, 300, tolerance)
     assert problem.cost(y) == pytest.approx(problem.cost(reached), rel=1e-10)
+
+
+def test_the_small_graph_path_recovers_an_exact_graph_and_refuses_a_wrong_estimate(
+        monkeypatch):
+    """A small graph (below ``_NEWTON_BELOW`` rows) is certified at Newton's point without
+    the staircase's trust region: the ground truth recovered, rotations and positions; a
+    wrong estimate of it refused by the certificate."""
+    import rlpgo_gtsam.certified3d as certified3d
+    from rlpgo_gtsam import staircase
+
+    graph, values, rotations, translations = _exact_graph(np.random.default_rng(11), n=12,
+                                                          closures=6)
+    g = PoseGraph3D.from_gtsam(graph, values)
+    assert 3 * g.num_poses < certified3d._NEWTON_BELOW
+    calls = []
+    trust_region = staircase.trust_region
+    monkeypatch.setattr(staircase, "trust_region",
+                        lambda *args, **kwargs: calls.append(1) or trust_region(*args,
+                                                                                **kwargs))
+    result = INITIALIZERS_3D["certified"]().run(g)
+    assert calls == []
+    certificate = result.certificate
+    assert certificate.status == Status.CERTIFIED and certificate.rank == 3
+    assert certificate.describe().startswith("certified optimal")
+    assert np.allclose(result.poses[:, :, :3], rotations, atol=1e-8)
+    assert np.allclose(result.poses[:, :, 3], translations, atol=1e-8)
+    assert result.chi2 < 1e-12
+    wrong = certify3d(g, rotations @ _rotations(np.random.default_rng(12), g.num_poses, 0.3))
+    assert wrong.status == Status.NOT_OPTIMAL and not wrong.certified
+    assert wrong.min_eigenvalue < -wrong.tolerance and wrong.suboptimality_bound > 0
+
+
+def test_the_small_graph_path_hands_a_relaxation_that_is_not_exact_to_the_staircase(
+        monkeypatch):
+    """Where S is not positive semidefinite at Newton's point (a small graph with 0.8 rad of
+    rotation noise), the staircase runs from that point and escapes: the same rotations and
+    certificate, to the bit, as the staircase from Newton's point, not certified."""
+    import rlpgo_gtsam.certified3d as certified3d
+    from rlpgo_gtsam.synthetic import generate3d
+
+    sample = generate3d(20, 0.8, 0.1, 1.0, 0.5, np.random.default_rng(2),
+                        noisy_measurements=True)
+    g = PoseGraph3D.from_gtsam(sample.graph, sample.initial)
+    assert 3 * g.num_poses < certified3d._NEWTON_BELOW
+    rotations, certificate = synchronize3d(g)
+    assert certificate.rank > 3 and not certificate.certified
+    assert certificate.describe().startswith("NOT certified")
+    monkeypatch.setattr(certified3d, "_verified_at_once", lambda *args: None)
+    climbed, staircase_certificate = synchronize3d(g)
+    assert np.array_equal(rotations, climbed)
+    for field in ("status", "lower_bound", "estimate_cost", "min_eigenvalue", "rank"):
+        assert getattr(certificate, field) == getattr(staircase_certificate, field)
+
+
+def test_the_dense_pairwise_solve_is_the_sparse_one(monkeypatch):
+    """Below ``_DENSE_BELOW`` unknowns :func:`solve_block_pairwise` scatters each residual's
+    block into dense normal equations: the same minimizer as the sparse LU's, to round-off,
+    with held unknowns in any order, several right-hand sides and weights (one at zero,
+    left out)."""
+    import rlpgo_gtsam.translations3d as translations3d
+
+    rng = np.random.default_rng(13)
+    n, m = 15, 40
+    edges = np.array([rng.choice(n, 2, replace=False) for _ in range(m)])
+    edges[: n - 1] = np.c_[np.arange(n - 1), np.arange(1, n)]  # a chain: connected
+    a_i, a_j = rng.normal(size=(2, m, 3, 3))
+    b = rng.normal(size=(m, 3, 4))
+    held = np.array([9, 2, 5])
+    held_values = rng.normal(size=(3, 3, 4))
+    weights = rng.uniform(0.5, 2.0, size=m)
+    weights[20] = 0.0
+    dense = translations3d.solve_block_pairwise(n, edges, a_i, a_j, b, held, held_values,
+                                                weights)
+    monkeypatch.setattr(translations3d, "_DENSE_BELOW", 0)
+    sparse = translations3d.solve_block_pairwise(n, edges, a_i, a_j, b, held, held_values,
+                                                 weights)
+    assert np.array_equal(dense[held], held_values)
+    assert np.allclose(dense, sparse, rtol=0, atol=1e-10 * np.abs(sparse).max())
 
 
 @pytest.mark.parametrize("noise", [0.05, 0.5])
