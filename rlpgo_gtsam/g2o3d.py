@@ -53,6 +53,7 @@ from rlpgo_gtsam.g2o import (
     plain_keys,
     read_either,
     read_g2o,
+    read_g2o_extracted,
     read_g2o_lines,
     scan_blocks,
     short_token,
@@ -61,7 +62,7 @@ from rlpgo_gtsam.g2o import (
     writable_factors,
     write_g2o,
 )
-from rlpgo_gtsam.graph import disconnection
+from rlpgo_gtsam.graph import PoseGraph2D, disconnection
 from rlpgo_gtsam.graph3d import (
     INDEFINITE,
     LIFTED,
@@ -78,6 +79,7 @@ from rlpgo_gtsam.textscan import Text
 
 __all__ = ["read_g2o3d", "read_g2o3d_lines", "write_g2o3d", "g2o3d_text", "g2o3d_text_lines",
            "G2O_TO_GTSAM", "TAGS_2D", "g2o_dimension", "read_pose_graph", "read_pose_graph_lines",
+           "read_pose_graph_extracted",
            "write_pose_graph", "pose_graph_text"]
 
 VERTEX = "VERTEX_SE3:QUAT"
@@ -758,6 +760,22 @@ def read_pose_graph_lines(
         G2oFormatError: as the reader of the file's dimension.
     """
     return read_g2o3d_lines(path) if g2o_dimension(path) == 3 else read_g2o_lines(path)
+
+
+def read_pose_graph_extracted(
+    path: str | os.PathLike[str],
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int], PoseGraph2D | None]:
+    """:func:`read_pose_graph_lines`, and for a planar file the graph's extraction as its
+    reader made it (:func:`~rlpgo_gtsam.g2o.read_g2o_extracted`); None for a 3D file, or
+    where the extraction would refuse the graph: extract it then
+    (:func:`~rlpgo_gtsam.graph3d.extract_pose_graph`).
+
+    Raises:
+        G2oFormatError: as the reader of the file's dimension.
+    """
+    if g2o_dimension(path) == 3:
+        return (*read_g2o3d_lines(path), None)
+    return read_g2o_extracted(path)
 
 
 def pose_graph_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:

@@ -18,7 +18,6 @@ from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text
 from rlpgo_gtsam.g2o3d import g2o_dimension, pose_graph_text
 from rlpgo_gtsam.graph import chi2
-from rlpgo_gtsam.graph3d import extract_pose_graph
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
 from rlpgo_gtsam.initializers3d import COMPARISON_3D, INITIALIZERS_3D, check_method_3d
 from rlpgo_gtsam.ranking import (
@@ -222,11 +221,11 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
 
     run = RunFiles([input_path])
     run.check(output, outliers_out, json_path)  # fail before the work, not after
-    read = read_input(input_path, lines=True)
+    read = read_input(input_path)
     graph, values, lines, notes = read.graph, read.values, read.lines, read.notes
     _print_notes(notes)
     began = time.perf_counter()
-    pose_graph = extract_pose_graph(graph, values)
+    pose_graph = read.pose_graph()
     if pose_graph.dimension == 3:  # the robust path takes what it can: its error otherwise
         try:
             result = robust_initialize(graph, values, trust_odometry=trust_odometry)
@@ -360,7 +359,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
     graph, values = read.graph, read.values
     _print_notes(read.notes)
     began = time.perf_counter()
-    pose_graph = extract_pose_graph(graph, values)
+    pose_graph = read.pose_graph()
     solver = None if refine == "none" else refine
     options = line_progress_options(_print_progress)
     options["rl"] = {"model": model, "cycles": cycles, "episodes": episodes, "seed": seed,
