@@ -68,6 +68,7 @@ from rlpgo_gtsam.graph3d import (
     LIFTED,
     MAX_CONDITION_3D,
     ROUNDING_3D,
+    AnyPoseGraph,
     graph_dimension,
     information_problem_6,
     information_problems_6,
@@ -778,10 +779,14 @@ def read_pose_graph_extracted(
     return read_g2o_extracted(path)
 
 
-def pose_graph_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
+def pose_graph_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                    pose_graph: AnyPoseGraph | None = None) -> str:
     """The g2o text of a planar or a 3D graph (:func:`~rlpgo_gtsam.graph3d.graph_dimension`):
-    :func:`~rlpgo_gtsam.g2o.g2o_text` or :func:`g2o3d_text`."""
-    return g2o3d_text(graph, values) if graph_dimension(graph) == 3 else g2o_text(graph, values)
+    :func:`~rlpgo_gtsam.g2o.g2o_text` (given ``pose_graph``, the graph's extraction, from its
+    arrays) or :func:`g2o3d_text`."""
+    if graph_dimension(graph) == 3:
+        return g2o3d_text(graph, values)
+    return g2o_text(graph, values, pose_graph if isinstance(pose_graph, PoseGraph2D) else None)
 
 
 def write_pose_graph(path: str | os.PathLike[str], graph: gtsam.NonlinearFactorGraph,

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from rlpgo_gtsam import g2o
+from rlpgo_gtsam.errors import OutputError
 from rlpgo_gtsam.graph import PoseGraph2D
 from rlpgo_gtsam.synthetic import generate
 from tests.conftest import DATASETS
@@ -210,3 +211,41 @@ def test_the_reader_extracts_shuffled_ids_and_wrapped_angles_as_extraction_does(
     _assert_same_read(path)
     graph, values, _, made = g2o.read_g2o_extracted(path)
     assert made.anchor == int(np.searchsorted(made.keys, ids[40])) and len(made.fixed) == 3
+
+
+@pytest.mark.parametrize("name", ["MIT.g2o", "M3500.g2o"])
+def test_text_from_the_extraction_is_the_walks_text(name):
+    """Given the graph's extraction, the writer takes measurements, informations and FIXed
+    ids from its arrays: the same text as the walk over the factors (the file's own values
+    and a refined guess); an extraction of another graph is not used."""
+    path = DATASETS / name
+    if not path.exists():
+        pytest.skip(f"{path} not found (set RLPGO_DATASETS)")
+    graph, values, _, made = g2o.read_g2o_extracted(path)
+    moved = gtsam.Values()
+    for key in values.keys():
+        pose = values.atPose2(key)
+        moved.insert(key, gtsam.Pose2(pose.x() + 0.1, pose.y() - 1e-7, pose.theta() + 3.0))
+    for guess in (values, moved):
+        assert g2o._text_of_extraction(graph, guess, made) == g2o.g2o_text(graph, guess)
+    assert g2o._text_of_extraction(gtsam.NonlinearFactorGraph(graph), values, made) is None
+
+
+def test_text_from_the_extraction_with_fix_and_a_soft_prior(tmp_path):
+    sample = generate(120, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(9),
+                      noisy_measurements=True)
+    graph, values = sample.graph, sample.initial
+    for key in (7, 3, 7):
+        graph.add(gtsam.PriorFactorPose2(key, values.atPose2(key),
+                                         gtsam.noiseModel.Constrained.All(3)))
+    made = PoseGraph2D.from_gtsam(graph, values)
+    written = g2o.g2o_text(graph, values, made)
+    assert g2o._text_of_extraction(graph, values, made) == written == g2o.g2o_text(graph, values)
+    assert written.endswith("FIX 7 3 7\n")
+    # a soft prior: a g2o file cannot hold it, with the extraction or without
+    graph.add(gtsam.PriorFactorPose2(5, values.atPose2(5), gtsam.noiseModel.Isotropic.Sigma(3, 1)))
+    made = PoseGraph2D.from_gtsam(graph, values)
+    assert g2o._text_of_extraction(graph, values, made) is None
+    for extraction in (None, made):
+        with pytest.raises(OutputError, match="prior"):
+            g2o.g2o_text(graph, values, extraction)

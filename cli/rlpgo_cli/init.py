@@ -240,7 +240,8 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
         click.echo(f"ambiguous: {len(kept)} loop closures kept conflict with {len(other)} "
                    "others that agree among themselves and are nearly as well supported; the "
                    f"map's fit decided (kept factors {_few(kept)}; the others {_few(other)})")
-    files = [(output, pose_graph_text(graph, result.values).encode())]  # every edge, new vertices
+    # every edge, new vertices
+    files = [(output, pose_graph_text(graph, result.values, pose_graph).encode())]
     if outliers_out is not None:
         listed = edge_list_text(graph, result.rejected, lines, g2o_name=input_path.name,
                                 title="edges that rlpgo-init --robust judged wrong",
@@ -396,7 +397,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
                                                _ranking(results)))
         elif chosen.init.certificate is not None:
             click.echo(f"certificate: {chosen.init.certificate.describe()}")
-    files = [(output, pose_graph_text(graph, chosen.refined).encode())]
+    files = [(output, pose_graph_text(graph, chosen.refined, pose_graph).encode())]
     seconds = time.perf_counter() - began
     input_chi2 = chi2(graph, values)
     if json_path is not None:
