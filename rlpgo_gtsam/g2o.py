@@ -148,7 +148,8 @@ def read_g2o_lines(
     Raises:
         G2oFormatError: as :func:`read_g2o`.
     """
-    graph, values, lines, _ = read_g2o_extracted(path)
+    path = Path(path)
+    graph, values, lines, _ = _build(path, _read_table(path, fast=True))
     return graph, values, lines
 
 
@@ -164,7 +165,7 @@ def read_g2o_extracted(
         G2oFormatError: as :func:`read_g2o`.
     """
     path = Path(path)
-    return _build(path, _read_table(path, fast=True))
+    return _build(path, _read_table(path, fast=True), extract=True)
 
 
 def _read_table(path: Path, fast: bool) -> _Table:
@@ -621,10 +622,10 @@ def _parse_edge(path: Path, line: int, fields: list[str], parsed: _Parsed) -> No
 
 
 def _build(
-    path: Path, table: _Table
+    path: Path, table: _Table, extract: bool = False
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int], PoseGraph2D | None]:
-    """The checks across lines, then the GTSAM graph, values and factor lines, and the
-    graph's extraction (:func:`_extraction`)."""
+    """The checks across lines, then the GTSAM graph, values and factor lines, and
+    (``extract``) the graph's extraction (:func:`_extraction`; else None)."""
     if not len(table.vertex_keys) and not len(table.edge_keys):
         raise G2oFormatError(path, None, "holds no VERTEX_SE2 or EDGE_SE2 line")
     if not len(table.edge_keys):
@@ -667,6 +668,8 @@ def _build(
             gtsam.PriorFactorPose2(key, values.atPose2(key), gtsam.noiseModel.Constrained.All(3))
         )
         lines.append(line)
+    if not extract:
+        return graph, values, lines, None
     return graph, values, lines, _extraction(table, graph, values, keys, measured, models)
 
 

@@ -41,7 +41,7 @@ def _rows(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[list
 
 
 def _careful_read(path: Path):
-    return g2o._build(path, g2o._read_table(path, fast=False))
+    return g2o._build(path, g2o._read_table(path, fast=False), extract=True)
 
 
 def _assert_same_extraction(made: PoseGraph2D, graph: gtsam.NonlinearFactorGraph,
