@@ -53,6 +53,7 @@ from rlpgo_gtsam.g2o import (
     plain_keys,
     read_either,
     read_g2o,
+    read_g2o_extracted,
     read_g2o_lines,
     scan_blocks,
     short_token,
@@ -61,12 +62,13 @@ from rlpgo_gtsam.g2o import (
     writable_factors,
     write_g2o,
 )
-from rlpgo_gtsam.graph import disconnection
+from rlpgo_gtsam.graph import PoseGraph2D, disconnection
 from rlpgo_gtsam.graph3d import (
     INDEFINITE,
     LIFTED,
     MAX_CONDITION_3D,
     ROUNDING_3D,
+    AnyPoseGraph,
     graph_dimension,
     information_problem_6,
     information_problems_6,
@@ -78,6 +80,7 @@ from rlpgo_gtsam.textscan import Text
 
 __all__ = ["read_g2o3d", "read_g2o3d_lines", "write_g2o3d", "g2o3d_text", "g2o3d_text_lines",
            "G2O_TO_GTSAM", "TAGS_2D", "g2o_dimension", "read_pose_graph", "read_pose_graph_lines",
+           "read_pose_graph_extracted",
            "write_pose_graph", "pose_graph_text"]
 
 VERTEX = "VERTEX_SE3:QUAT"
@@ -760,10 +763,30 @@ def read_pose_graph_lines(
     return read_g2o3d_lines(path) if g2o_dimension(path) == 3 else read_g2o_lines(path)
 
 
-def pose_graph_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> str:
+def read_pose_graph_extracted(
+    path: str | os.PathLike[str],
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int], PoseGraph2D | None]:
+    """:func:`read_pose_graph_lines`, and for a planar file the graph's extraction as its
+    reader made it (:func:`~rlpgo_gtsam.g2o.read_g2o_extracted`); None for a 3D file, or
+    where the extraction would refuse the graph: extract it then
+    (:func:`~rlpgo_gtsam.graph3d.extract_pose_graph`).
+
+    Raises:
+        G2oFormatError: as the reader of the file's dimension.
+    """
+    if g2o_dimension(path) == 3:
+        return (*read_g2o3d_lines(path), None)
+    return read_g2o_extracted(path)
+
+
+def pose_graph_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                    pose_graph: AnyPoseGraph | None = None) -> str:
     """The g2o text of a planar or a 3D graph (:func:`~rlpgo_gtsam.graph3d.graph_dimension`):
-    :func:`~rlpgo_gtsam.g2o.g2o_text` or :func:`g2o3d_text`."""
-    return g2o3d_text(graph, values) if graph_dimension(graph) == 3 else g2o_text(graph, values)
+    :func:`~rlpgo_gtsam.g2o.g2o_text` (given ``pose_graph``, the graph's extraction, from its
+    arrays) or :func:`g2o3d_text`."""
+    if graph_dimension(graph) == 3:
+        return g2o3d_text(graph, values)
+    return g2o_text(graph, values, pose_graph if isinstance(pose_graph, PoseGraph2D) else None)
 
 
 def write_pose_graph(path: str | os.PathLike[str], graph: gtsam.NonlinearFactorGraph,

@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 
 from rlpgo_gtsam import g2o
+from rlpgo_gtsam.errors import OutputError
+from rlpgo_gtsam.graph import PoseGraph2D
 from rlpgo_gtsam.synthetic import generate
 from tests.conftest import DATASETS
 
@@ -39,14 +41,29 @@ def _rows(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[list
 
 
 def _careful_read(path: Path):
-    return g2o._build(path, g2o._read_table(path, fast=False))
+    return g2o._build(path, g2o._read_table(path, fast=False), extract=True)
+
+
+def _assert_same_extraction(made: PoseGraph2D, graph: gtsam.NonlinearFactorGraph,
+                            values: gtsam.Values) -> None:
+    """The reader's extraction is extraction's own, every array bit for bit (dtype, shape)."""
+    walked = PoseGraph2D.from_gtsam(graph, values)
+    assert made.graph is graph
+    for name in ("keys", "poses", "edges", "measured", "information", "fixed", "fixed_poses",
+                 "anchor_pose"):
+        mine, theirs = getattr(made, name), getattr(walked, name)
+        assert (mine.dtype, mine.shape) == (theirs.dtype, theirs.shape), name
+        assert mine.tobytes() == theirs.tobytes(), name
+    assert made.anchor == walked.anchor and type(made.anchor) is type(walked.anchor)
 
 
 def _assert_same_read(path: Path) -> None:
-    graph, values, lines = g2o.read_g2o_lines(path)
-    graph2, values2, lines2 = _careful_read(path)
+    graph, values, lines, made = g2o.read_g2o_extracted(path)
+    graph2, values2, lines2, made2 = _careful_read(path)
     assert lines == lines2
     assert _rows(graph, values) == _rows(graph2, values2)
+    _assert_same_extraction(made, graph, values)
+    _assert_same_extraction(made2, graph2, values2)
 
 
 def _fast_scan_accepts(path: Path) -> bool:
@@ -89,8 +106,8 @@ def test_edge_only_file_chains_the_same_both_ways(tmp_path):
     _assert_same_read(path)
 
 
-@pytest.mark.parametrize("name", ["Intel.g2o", "MIT.g2o"])  # a distinct information per edge
-def test_datasets_read_and_write_the_same_both_ways(name):
+@pytest.mark.parametrize("name", ["Intel.g2o", "MIT.g2o", "M3500.g2o"])  # MIT, Intel: a
+def test_datasets_read_and_write_the_same_both_ways(name):  # distinct information per edge
     path = DATASETS / name
     if not path.exists():
         pytest.skip(f"{path} not found (set RLPGO_DATASETS)")
@@ -169,3 +186,66 @@ def test_values_built_by_gtsam_are_the_values_inserted_one_by_one(tmp_path):
     assert list(values.keys()) == keys.tolist()
     for key, (x, y, theta) in zip(keys.tolist(), poses.tolist(), strict=True):
         assert values.atPose2(key).matrix().tobytes() == gtsam.Pose2(x, y, theta).matrix().tobytes()
+
+
+def test_the_reader_extracts_shuffled_ids_and_wrapped_angles_as_extraction_does(tmp_path):
+    """Ids in shuffled order with gaps, FIX lines naming several poses (the first is the
+    anchor), measured angles beyond pi: the reader's extraction is the walk's, bit for bit."""
+    sample = generate(150, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(7),
+                      noisy_measurements=True)
+    rng = np.random.default_rng(8)
+    ids = (rng.permutation(150) * 10 + 7).tolist()
+    vertices, edges = [], []
+    for line in g2o.g2o_text(sample.graph, sample.initial).splitlines():
+        tag, *fields = line.split()
+        if tag == "VERTEX_SE2":
+            vertices.append(" ".join([tag, str(ids[int(fields[0])]), *fields[1:]]))
+        else:
+            angle = float(fields[4]) + 2 * np.pi * int(rng.integers(-3, 4))
+            edges.append(" ".join([tag, str(ids[int(fields[0])]), str(ids[int(fields[1])]),
+                                   *fields[2:4], repr(angle), *fields[5:]]))
+    rng.shuffle(vertices)
+    path = tmp_path / "shuffled.g2o"
+    path.write_text("\n".join([*vertices, *edges, f"FIX {ids[40]} {ids[3]}", f"FIX {ids[9]}"])
+                    + "\n")
+    _assert_same_read(path)
+    graph, values, _, made = g2o.read_g2o_extracted(path)
+    assert made.anchor == int(np.searchsorted(made.keys, ids[40])) and len(made.fixed) == 3
+
+
+@pytest.mark.parametrize("name", ["MIT.g2o", "M3500.g2o"])
+def test_text_from_the_extraction_is_the_walks_text(name):
+    """Given the graph's extraction, the writer takes measurements, informations and FIXed
+    ids from its arrays: the same text as the walk over the factors (the file's own values
+    and a refined guess); an extraction of another graph is not used."""
+    path = DATASETS / name
+    if not path.exists():
+        pytest.skip(f"{path} not found (set RLPGO_DATASETS)")
+    graph, values, _, made = g2o.read_g2o_extracted(path)
+    moved = gtsam.Values()
+    for key in values.keys():
+        pose = values.atPose2(key)
+        moved.insert(key, gtsam.Pose2(pose.x() + 0.1, pose.y() - 1e-7, pose.theta() + 3.0))
+    for guess in (values, moved):
+        assert g2o._text_of_extraction(graph, guess, made) == g2o.g2o_text(graph, guess)
+    assert g2o._text_of_extraction(gtsam.NonlinearFactorGraph(graph), values, made) is None
+
+
+def test_text_from_the_extraction_with_fix_and_a_soft_prior(tmp_path):
+    sample = generate(120, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(9),
+                      noisy_measurements=True)
+    graph, values = sample.graph, sample.initial
+    for key in (7, 3, 7):
+        graph.add(gtsam.PriorFactorPose2(key, values.atPose2(key),
+                                         gtsam.noiseModel.Constrained.All(3)))
+    made = PoseGraph2D.from_gtsam(graph, values)
+    written = g2o.g2o_text(graph, values, made)
+    assert g2o._text_of_extraction(graph, values, made) == written == g2o.g2o_text(graph, values)
+    assert written.endswith("FIX 7 3 7\n")
+    # a soft prior: a g2o file cannot hold it, with the extraction or without
+    graph.add(gtsam.PriorFactorPose2(5, values.atPose2(5), gtsam.noiseModel.Isotropic.Sigma(3, 1)))
+    made = PoseGraph2D.from_gtsam(graph, values)
+    assert g2o._text_of_extraction(graph, values, made) is None
+    for extraction in (None, made):
+        with pytest.raises(OutputError, match="prior"):
+            g2o.g2o_text(graph, values, extraction)

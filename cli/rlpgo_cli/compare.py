@@ -211,13 +211,14 @@ def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, e
     for one in read:
         for note in one.notes:
             click.echo(f"note: {note}")
-    inputs = [(path.name, one.graph, one.values) for path, one in zip(files, read, strict=True)]
+    inputs = [(path.name, one.graph, one.values, one.read_extraction)
+              for path, one in zip(files, read, strict=True)]
     truth = None if truth_path is None else read_g2o(truth_path)[1]
     if not inputs:
         demo = generate(rng=np.random.default_rng(seed), **DEMO)
         settings = " ".join(f"{key}={value}" for key, value in DEMO.items())
         inputs = [(f"generated lawn mower ({settings} seed={seed}; rlpgo-generate's model)",
-                   demo.graph, demo.initial)]
+                   demo.graph, demo.initial, None)]
         per_file = [method_list if given else _methods(DEFAULT_METHODS, "odometry")]
         truth = demo.ground_truth
     if truth is not None:  # its keys checked before any run
@@ -229,8 +230,8 @@ def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, e
     options["rl"] = {"model": model, "episodes": episodes, "cycles": cycles}
     records, failed = [], False
     pngs: list[tuple[Path, bytes]] = []
-    for index, (name, graph, values) in enumerate(inputs):
-        pose_graph = extract_pose_graph(graph, values)
+    for index, (name, graph, values, extraction) in enumerate(inputs):
+        pose_graph = extraction if extraction is not None else extract_pose_graph(graph, values)
         click.echo(f"\n{name}: {pose_graph.num_poses} poses, {pose_graph.num_edges} edges, "
                    f"{solver.upper()}{iters}")
         width = method_width(per_file[index])

@@ -18,7 +18,6 @@ from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text
 from rlpgo_gtsam.g2o3d import g2o_dimension, pose_graph_text
 from rlpgo_gtsam.graph import chi2
-from rlpgo_gtsam.graph3d import extract_pose_graph
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
 from rlpgo_gtsam.initializers3d import COMPARISON_3D, INITIALIZERS_3D, check_method_3d
 from rlpgo_gtsam.ranking import (
@@ -222,11 +221,11 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
 
     run = RunFiles([input_path])
     run.check(output, outliers_out, json_path)  # fail before the work, not after
-    read = read_input(input_path, lines=True)
+    read = read_input(input_path)
     graph, values, lines, notes = read.graph, read.values, read.lines, read.notes
     _print_notes(notes)
     began = time.perf_counter()
-    pose_graph = extract_pose_graph(graph, values)
+    pose_graph = read.pose_graph()
     if pose_graph.dimension == 3:  # the robust path takes what it can: its error otherwise
         try:
             result = robust_initialize(graph, values, trust_odometry=trust_odometry)
@@ -241,7 +240,8 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
         click.echo(f"ambiguous: {len(kept)} loop closures kept conflict with {len(other)} "
                    "others that agree among themselves and are nearly as well supported; the "
                    f"map's fit decided (kept factors {_few(kept)}; the others {_few(other)})")
-    files = [(output, pose_graph_text(graph, result.values).encode())]  # every edge, new vertices
+    # every edge, new vertices
+    files = [(output, pose_graph_text(graph, result.values, pose_graph).encode())]
     if outliers_out is not None:
         listed = edge_list_text(graph, result.rejected, lines, g2o_name=input_path.name,
                                 title="edges that rlpgo-init --robust judged wrong",
@@ -360,7 +360,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
     graph, values = read.graph, read.values
     _print_notes(read.notes)
     began = time.perf_counter()
-    pose_graph = extract_pose_graph(graph, values)
+    pose_graph = read.pose_graph()
     solver = None if refine == "none" else refine
     options = line_progress_options(_print_progress)
     options["rl"] = {"model": model, "cycles": cycles, "episodes": episodes, "seed": seed,
@@ -397,7 +397,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
                                                _ranking(results)))
         elif chosen.init.certificate is not None:
             click.echo(f"certificate: {chosen.init.certificate.describe()}")
-    files = [(output, pose_graph_text(graph, chosen.refined).encode())]
+    files = [(output, pose_graph_text(graph, chosen.refined, pose_graph).encode())]
     seconds = time.perf_counter() - began
     input_chi2 = chi2(graph, values)
     if json_path is not None:

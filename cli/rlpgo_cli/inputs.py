@@ -9,7 +9,8 @@ from pathlib import Path
 import gtsam
 
 from rlpgo_gtsam.errors import InformationWarning
-from rlpgo_gtsam.g2o3d import read_pose_graph, read_pose_graph_lines
+from rlpgo_gtsam.g2o3d import read_pose_graph_extracted
+from rlpgo_gtsam.graph3d import AnyPoseGraph, extract_pose_graph
 
 
 @dataclass
@@ -26,19 +27,25 @@ class InputGraph:
     graph: gtsam.NonlinearFactorGraph
     values: gtsam.Values
     notes: list[str] = field(default_factory=list)
-    lines: list[int] = field(default_factory=list)  # each factor's file line, on request
+    lines: list[int] = field(default_factory=list)  # each factor's file line
+    read_extraction: AnyPoseGraph | None = None  # the planar reader's, where it made one
+
+    def pose_graph(self) -> AnyPoseGraph:
+        """The graph's one extraction: the planar reader's (the same arrays, without a
+        second walk over the factors), else :func:`~rlpgo_gtsam.graph3d.extract_pose_graph`
+        (which raises what it refuses)."""
+        if self.read_extraction is not None:
+            return self.read_extraction
+        return extract_pose_graph(self.graph, self.values)
 
 
-def read_input(path: Path, lines: bool = False) -> InputGraph:
-    """Read a planar or a 3D g2o file (:func:`~rlpgo_gtsam.g2o3d.read_pose_graph`), with the
-    reader's information warnings as notes; any other warning is passed on. ``lines``: with
-    each factor's file line (:func:`~rlpgo_gtsam.g2o3d.read_pose_graph_lines`)."""
+def read_input(path: Path) -> InputGraph:
+    """Read a planar or a 3D g2o file
+    (:func:`~rlpgo_gtsam.g2o3d.read_pose_graph_extracted`), with each factor's file line
+    and the reader's information warnings as notes; any other warning is passed on."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", InformationWarning)
-        if lines:
-            graph, values, factor_lines = read_pose_graph_lines(path)
-        else:
-            (graph, values), factor_lines = read_pose_graph(path), []
+        graph, values, factor_lines, extraction = read_pose_graph_extracted(path)
     notes = []
     for warning in caught:
         if issubclass(warning.category, InformationWarning):
@@ -46,4 +53,4 @@ def read_input(path: Path, lines: bool = False) -> InputGraph:
         else:
             warnings.warn_explicit(warning.message, warning.category, warning.filename,
                                    warning.lineno)
-    return InputGraph(graph, values, notes, factor_lines)
+    return InputGraph(graph, values, notes, factor_lines, extraction)
