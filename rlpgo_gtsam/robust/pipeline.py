@@ -136,7 +136,7 @@ _ROUND_ITERS = 10  # solver iterations per round at most ...
 # solves): the last iterations before 1e-10 changed it by 1e-8 to 1e-11 (MIT, 10% groups)
 _ROUND_TOLERANCE = 1e-7
 _TIGHT = 2.0  # admitted in one round: closures whose innovation spread is at most this, ...
-_LOOSER = 2.0  # ... or this many times the tightest's, ...
+# ... or Group.admit_tier times the tightest's, ...
 _ADMIT_CHANCE = 1e-3  # ... or that a wrong closure would pass less often than this
 # the all-edges step is skipped where Group.skip_conflicts of the tested pairs conflict, but
 # not where this share does: then the cycles contradict the stated noise rather than a
@@ -684,9 +684,9 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
     not admitted again.
 
     Admissions go in tiers where the map is loose: in one round, the closures whose
-    innovation spread is at most ``_TIGHT`` or ``_LOOSER`` times the tightest's (a closure
-    the map checks loosely may pass though wrong; the closures admitted before it tighten
-    the map), and every closure a wrong one would pass less often than ``_ADMIT_CHANCE``:
+    innovation spread is at most ``_TIGHT`` or ``group.admit_tier`` times the tightest's (a
+    closure the map checks loosely may pass though wrong; the closures admitted before it
+    tighten the map), and every closure a wrong one would pass less often than ``_ADMIT_CHANCE``:
     the volume of its acceptance ellipsoid over that of the relative poses a wrong closure
     spreads over (:meth:`~rlpgo_gtsam.robust.groups.Group.agreement_chance`, the consistency
     step's measure, over the map's extent), unless a map here refuted it (those come back by
@@ -770,7 +770,7 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
             chance = np.full(len(kept), np.inf)
             chance[index] = group.agreement_chance(
                 bar, spread[:len(index)] ** (group.dof / 2) * measurement_volume[index], side)
-            admit &= (loose <= max(_TIGHT, _LOOSER * loose[admit].min())) | (
+            admit &= (loose <= max(_TIGHT, group.admit_tier * loose[admit].min())) | (
                 (chance < _ADMIT_CHANCE) & ~was_refuted)
             kept = kept | admit
             admitted |= admit
