@@ -100,7 +100,7 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError, SolverError, one_line
-from rlpgo_gtsam.graph import chi2, odometry_edges
+from rlpgo_gtsam.graph import chi2, component_labels, odometry_edges
 from rlpgo_gtsam.graph3d import extract_pose_graph
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.robust.consistency import pairwise_consistency
@@ -552,22 +552,16 @@ def _clusters(g: PoseGraph, among: np.ndarray) -> list[np.ndarray]:
     keep = high - low > 1
     order = np.argsort(low[keep], kind="stable")
     index, low, diagonal = index[keep][order], low[keep][order], (high - low)[keep][order]
-    parent = np.arange(len(index))
-
-    def root(a: int) -> int:
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = int(parent[a])
-        return a
-
-    for a in range(len(index)):  # the next closures by low end, a bounded window
-        for b in range(a + 1, min(a + 1 + 8 * _RUN_MAX, len(index))):
-            if low[b] - low[a] > _RUN_REACH:
-                break
-            if abs(int(diagonal[b]) - int(diagonal[a])) <= _RUN_REACH:
-                parent[root(b)] = root(a)
-    roots = np.array([root(a) for a in range(len(index))], dtype=np.int64)
-    by_root = np.argsort(roots, kind="stable")  # each component's members in low-end order
+    # each closure linked to the next ones by low end (a bounded window of 8 x _RUN_MAX),
+    # as arrays: a loop over City10K's 10,000 closures took 0.25 s a round
+    pairs = [np.column_stack([np.arange(len(index) - k), np.arange(k, len(index))])
+             for k in range(1, min(8 * _RUN_MAX, len(index) - 1) + 1)]
+    pairs = np.concatenate(pairs) if pairs else np.empty((0, 2), np.int64)
+    a, b = pairs.T
+    near = (low[b] - low[a] <= _RUN_REACH) & (np.abs(diagonal[b] - diagonal[a]) <= _RUN_REACH)
+    roots = component_labels(len(index), pairs[near])
+    linked = np.flatnonzero(np.bincount(roots, minlength=len(index))[roots] >= 2)
+    by_root = linked[np.argsort(roots[linked], kind="stable")]  # members in low-end order
     pieces = []
     for members in np.split(by_root, np.flatnonzero(np.diff(roots[by_root])) + 1):
         for k in range(0, len(members), _RUN_MAX):
