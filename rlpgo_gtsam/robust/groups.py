@@ -76,7 +76,7 @@ class Group:
             spread is at most this many times the tightest's (and those a wrong closure would
             rarely pass; see ``pipeline._verify``). Planar 10: where 2 admitted one or two
             true closures a round on MIT (20% local: 16 rounds), 10 took 12, with the same
-            rejections and chi2 on 72 rows (MIT, Intel, FR079, M3500, gen; four policies;
+            rejections and chi2 on 60 rows (MIT, Intel, FR079, M3500, gen; four policies;
             5-20%), while 100 let wrong closures in (MIT random 20%: precision 0.94); 3D
             keeps 2 (not measured with more).
     """
