@@ -360,3 +360,36 @@ def test_a_cluster_of_wrong_closures_that_holds_its_stretch_is_solved_without():
     assert set(result.rejected) <= set(wrong)
     assert len(set(wrong) - set(result.rejected)) <= 1
     assert refine(clean, result.values, "lm", 100).chi2 == pytest.approx(lowest, rel=1e-6)
+
+
+def test_clusters_link_nearby_closures_of_several_diagonals():
+    """The verify step's clusters (judged without their members by a solve): closures whose
+    low ends and diagonals differ by at most two poses form one, in pieces of at most five in
+    low-end order; a lone closure or a run on one diagonal is no cluster."""
+    from rlpgo_gtsam.robust.pipeline import _clusters
+
+    n = 60
+    closures = [(3, 10), (4, 12), (5, 11),  # three diagonals, linked: one cluster
+                (20, 27),  # alone
+                (14, 24), (15, 25),  # one diagonal: a run, not a cluster
+                (40, 45), (41, 47), (42, 46), (43, 48), (44, 47), (45, 50), (46, 52)]
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    noise = gtsam.noiseModel.Isotropic.Sigma(3, 0.1)
+    for i in range(n):
+        values.insert(i, gtsam.Pose2(float(i), 0.0, 0.0))
+    for i, j in [(i, i + 1) for i in range(n - 1)] + closures:
+        graph.add(gtsam.BetweenFactorPose2(i, j, gtsam.Pose2(float(j - i), 0.0, 0.0), noise))
+    g = PoseGraph2D.from_gtsam(graph, values)
+    edge = {tuple(sorted(map(int, pair))): e for e, pair in enumerate(g.edges)}
+    among = np.zeros(g.num_edges, bool)
+    among[[edge[c] for c in closures]] = True
+
+    pieces = sorted(sorted(piece.tolist()) for piece in _clusters(g, among))
+
+    expected = [[(3, 10), (4, 12), (5, 11)],
+                [(40, 45), (41, 47), (42, 46), (43, 48), (44, 47)],  # the first five ...
+                [(45, 50), (46, 52)]]  # ... and the rest of a chain of seven
+    assert pieces == sorted(sorted(edge[c] for c in piece) for piece in expected)
+    # a closure left out of ``among`` is in no piece: the long chain loses its middle link
+    among[edge[(43, 48)]] = False
+    assert all(edge[(43, 48)] not in piece.tolist() for piece in _clusters(g, among))
