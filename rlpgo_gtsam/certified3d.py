@@ -212,8 +212,7 @@ def _verified_at_once(problem: _Problem, x: np.ndarray, eta: float,
         qx = problem.apply(x)
         run = Run()
         run.iterations, run.cost = 0, _STIEFEL.inner(x, qx)
-        run.gradient = float(np.linalg.norm(
-            2.0 * (qx - _STIEFEL.times(_STIEFEL.multipliers(x, qx), x))))
+        run.gradient = float(np.linalg.norm(_STIEFEL.gradient(x, qx)))
         Progress(progress, started).rank(3, run, check)
     return check
 

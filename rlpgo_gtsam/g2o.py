@@ -388,17 +388,25 @@ def _scan_edges(text: Text, lines: np.ndarray, odd: list[tuple[int, list[str]]],
     return True
 
 
+def distinct_rows(array: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of ``array`` (one row per leading index), told apart by their
+    bytes: where each first appears (in the order they first appear) and, for each row,
+    its index among them. One matrix for every row, the usual file's, is found without a
+    sort."""
+    flat = np.ascontiguousarray(array).reshape(len(array), -1)
+    rows = flat.view(np.dtype((np.void, flat.shape[1] * flat.itemsize))).ravel()
+    if len(rows) and (rows == rows[0]).all():
+        return np.zeros(1, np.int64), np.zeros(len(rows), np.int64)
+    _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    return first[order], np.argsort(order)[inverse.ravel()]
+
+
 def _scan_information(upper: np.ndarray, scan: _Scan) -> np.ndarray | None:
     """The index in ``scan.information`` of each row's information matrix (six g2o fields a
     row): each distinct matrix is checked once, the new ones in one batch; None if one of
     them is unusable."""
-    rows = np.ascontiguousarray(upper).view(np.dtype((np.void, upper.itemsize * 6))).ravel()
-    if (rows == rows[0]).all():  # the usual file: one matrix for every edge
-        first, inverse = np.zeros(1, np.int64), np.zeros(len(rows), np.int64)
-    else:  # distinct by their bytes, as the careful reader tells them apart
-        _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
-        order = np.argsort(first)  # in the order they first appear
-        first, inverse = first[order], np.argsort(order)[inverse.ravel()]
+    first, inverse = distinct_rows(upper)  # by their bytes, as the careful reader
     matrices = _informations(upper[first])
     keys = [matrix.tobytes() for matrix in matrices]
     new = [k for k, key in enumerate(keys) if key not in scan.matrix_index]
@@ -887,13 +895,11 @@ def _text_of_extraction(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     if poses.shape != (len(keys), 3) or not np.isfinite(poses).all():
         return None
     # the informations passed extraction's check, the writer's (information_problems)
-    rows = np.ascontiguousarray(g.information).reshape(g.num_edges, -1)
-    _, first, inverse = np.unique(rows.view(np.dtype((np.void, rows.shape[1] * 8))).ravel(),
-                                  return_index=True, return_inverse=True)
+    first, inverse = distinct_rows(g.information)
     texts = upper_triangle_texts(g.information[first], 3)
-    edge_keys = g.keys[g.edges].tolist()
-    text = _lines_text(keys, poses, [i for i, _ in edge_keys], [j for _, j in edge_keys],
-                       g.measured, [texts[k] for k in inverse.ravel().tolist()])
+    text = _lines_text(keys, poses, g.keys[g.edges[:, 0]].tolist(),
+                       g.keys[g.edges[:, 1]].tolist(), g.measured,
+                       [texts[k] for k in inverse.tolist()])
     return "".join([text, *(fix + "\n" for fix, _ in fix_lines(g.keys[g.fixed].tolist()))])
 
 
@@ -1026,9 +1032,7 @@ def information_texts(models: list, size: int,
     matrices = np.array([model.information() for model in distinct.values()])
     if matrices.shape != (len(distinct), size, size):
         return None
-    rows = np.ascontiguousarray(matrices).reshape(len(matrices), -1)
-    _, first = np.unique(rows.view(np.dtype((np.void, rows.shape[1] * 8))).ravel(),
-                         return_index=True)
+    first, _ = distinct_rows(matrices)
     if any(problem is not None for problem in problems(matrices[first])):
         return None
     if order is not None:

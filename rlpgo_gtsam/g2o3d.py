@@ -42,6 +42,7 @@ from rlpgo_gtsam.files import write_text
 from rlpgo_gtsam.g2o import (
     TAGS_3D,
     check_references,
+    distinct_rows,
     fix_lines,
     format_15,
     g2o_text,
@@ -322,10 +323,8 @@ def _scan_block(text: Text, scan: _Scan) -> bool:
         else:
             upper = text.numbers(edges, 10, 21)
             if upper is not None:
-                rows = upper.view(np.dtype((np.void, upper.itemsize * 21))).ravel()
-                _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
-                order = np.argsort(first)  # in the order they first appear
-                upper, inverse = upper[first[order]], np.argsort(order)[inverse.ravel()]
+                first, inverse = distinct_rows(upper)  # in the order they first appear
+                upper = upper[first]
         index = None if upper is None else _matrix_indices(_informations(upper), scan)
         if index is None:
             return False

@@ -321,6 +321,13 @@ class Manifold:
         """``Lambda V``."""
         raise NotImplementedError
 
+    def gradient(self, y: np.ndarray, qy: np.ndarray,
+                 lam: np.ndarray | None = None) -> np.ndarray:
+        """The Riemannian gradient ``2 (Q Y - Lambda(Y) Y)`` of ``f`` at ``y`` (``qy``: ``Q
+        Y``; ``lam``: its multipliers, where known)."""
+        lam = self.multipliers(y, qy) if lam is None else lam
+        return 2.0 * (qy - self.times(lam, y))
+
     def hessian(self, y: np.ndarray, lam: np.ndarray, v: np.ndarray,
                 qv: np.ndarray) -> np.ndarray:
         """The Riemannian Hessian of ``tr(Y^* Q Y)`` at ``y`` along ``v`` (``qv = Q v``)."""
@@ -550,7 +557,7 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
     factor_s = 0.0  # seconds of the longest preconditioner factorization so far
     for iteration in range(max_iterations + 1):
         lam = m.multipliers(y, qy)
-        grad = 2.0 * (qy - m.times(lam, y))
+        grad = m.gradient(y, qy, lam)
         grad_norm = float(np.linalg.norm(grad))
         run.iterations, run.cost, run.gradient = iteration, f, grad_norm
         if progress is not None:
