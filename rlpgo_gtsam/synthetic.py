@@ -74,8 +74,8 @@ from rlpgo_gtsam.graph import MAX_CONDITION, PoseGraph2D, odometry_edges
 from rlpgo_gtsam.graph3d import PoseGraph3D
 
 __all__ = ["SyntheticGraph", "generate", "generate3d", "add_outliers", "add_outliers3d",
-           "OUTLIER_MODES", "VERTIGO_MODES", "ROW_LENGTH", "LAYER_ROWS", "GROUP_SIZE",
-           "LOCAL_RANGE"]
+           "scaled_informations", "OUTLIER_MODES", "VERTIGO_MODES", "ROW_LENGTH", "LAYER_ROWS",
+           "GROUP_SIZE", "LOCAL_RANGE"]
 
 ROW_LENGTH = 10
 LAYER_ROWS = 10  # 3D: rows of a layer
@@ -344,6 +344,23 @@ def add_outliers3d(
 
     return _add_wrong_closures(graph, g, g.translations, g.measured_translations, fraction, rng,
                                mode, group_size, gtsam.BetweenFactorPose3, measure)
+
+
+def scaled_informations(graph: gtsam.NonlinearFactorGraph,
+                        factor: float) -> gtsam.NonlinearFactorGraph:
+    """``graph`` with every between factor's (``BetweenFactorPose2``, ``BetweenFactorPose3``)
+    information multiplied by ``factor``: its covariance divided by it, the noise understated
+    ``factor`` times (an optimistic front end's covariances) for ``factor > 1``. The same
+    factors, measurements and order; other factors as they are."""
+    scaled = gtsam.NonlinearFactorGraph()
+    for k in range(graph.size()):
+        f = graph.at(k)
+        if isinstance(f, (gtsam.BetweenFactorPose2, gtsam.BetweenFactorPose3)):
+            f = type(f)(f.keys()[0], f.keys()[1], f.measured(),
+                        gtsam.noiseModel.Gaussian.Information(
+                            factor * f.noiseModel().information()))
+        scaled.add(f)
+    return scaled
 
 
 def _add_wrong_closures(graph: gtsam.NonlinearFactorGraph, g: PoseGraph2D | PoseGraph3D,

@@ -8,6 +8,7 @@ any. Edge lists are compared as entries ``(line, id_i, id_j)``.
 
 from __future__ import annotations
 
+import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -190,6 +191,33 @@ def test_a_clean_graph_gets_the_same_chi2_with_and_without_robust(clean):
     assert_same_edges(clean.graph, clean.robust)
 
 
+def test_covariance_scale_tells_the_robust_path_the_noise_is_larger(clean, tmp_path):
+    # the clean graph with every information 4x too large (covariances 4x too small): told
+    # so, --robust keeps every closure and writes the clean run's map; its chi2 and record
+    # are those of the file as written
+    graph, values = read_g2o(clean.graph)
+    optimistic, output, record = tmp_path / "optimistic.g2o", tmp_path / "o.g2o", \
+        tmp_path / "o.json"
+    text = []
+    for line in clean.graph.read_text().splitlines():
+        fields = line.split()
+        if fields and fields[0] == "EDGE_SE2":
+            fields[6:] = [repr(4.0 * float(v)) for v in fields[6:]]
+        text.append(" ".join(fields))
+    optimistic.write_text("\n".join(text) + "\n")
+    result = _run(init_main, optimistic, "-o", output, "--robust", "--covariance-scale", 4,
+                  "--json", record)
+    cli_ok(result)
+    summary = SUMMARY.match(result.stdout.splitlines()[-1])
+    assert summary is not None and summary["rejected"] == "0"
+    _, robust = read_g2o(clean.robust)
+    _, written = read_g2o(output)
+    assert 2.0 * graph.error(written) == pytest.approx(2.0 * graph.error(robust), rel=1e-6)
+    recorded = json.loads(record.read_text())
+    assert recorded["covariance_scale"] == 4.0 and recorded["rejected"] == []
+    assert recorded["chi2"] == pytest.approx(4.0 * 2.0 * graph.error(robust), rel=1e-6)
+
+
 def test_robust_with_refine_none_writes_the_same_guess(clean, tmp_path):
     output = tmp_path / "none.g2o"
     cli_ok(_run(init_main, clean.graph, "-o", output, "--robust", "--refine", "none"))
@@ -237,9 +265,12 @@ def test_outliers_out_may_not_be_the_input(clean, tmp_path):
     (init_main, ["--robust", "--method", "chordal"], ["--robust", "--method chordal"]),
     (init_main, ["--robust", "--budget", "5", "--refine", "gn"], ["--budget", "--refine gn"]),
     (init_main, ["--no-trust-odometry"], ["--robust"]),
+    (init_main, ["--covariance-scale", "4"], ["--covariance-scale", "--robust"]),
+    (init_main, ["--robust", "--covariance-scale", "0"], ["--covariance-scale", "(0, 1e+06]"]),
     (generate_main, ["--outliers", "1"], ["--outliers", "[0, 1)"]),
     (generate_main, ["--outlier-mode", "sneaky"], ["--outlier-mode"]),
-], ids=["method", "staged_options", "trust_without_robust", "outliers_one", "mode"])
+], ids=["method", "staged_options", "trust_without_robust", "scale_without_robust",
+        "scale_zero", "outliers_one", "mode"])
 def test_options_that_do_not_go_together_are_usage_errors(clean, tmp_path, command, args,
                                                           mentions):
     output = tmp_path / "out.g2o"

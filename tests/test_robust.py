@@ -16,7 +16,7 @@ from rlpgo_gtsam.residuals import outlier_suspicion
 from rlpgo_gtsam.robust import robust_initialize
 from rlpgo_gtsam.solvers import refine
 from rlpgo_gtsam.staged import staged_initialize
-from rlpgo_gtsam.synthetic import add_outliers, generate
+from rlpgo_gtsam.synthetic import add_outliers, generate, scaled_informations
 from tests.conftest import dataset
 
 # A 300-pose lawn mower with noisy measurements: rotation noise 0.1 rad per measurement.
@@ -118,6 +118,33 @@ def test_bad_parameters_are_one_line_errors():
     sample = generate(20, 0.1, 0.05, 1.0, 0.5, np.random.default_rng(0))
     with pytest.raises(SolverError, match="inlier_probability"):
         robust_initialize(sample.graph, sample.initial, inlier_probability=1.0)
+    for scale in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(SolverError, match="covariance_scale"):
+            robust_initialize(sample.graph, sample.initial, covariance_scale=scale)
+
+
+def test_covariance_scale_judges_as_if_the_covariances_were_right():
+    # covariances 4x too small: every chi-square bound is 4x too tight for true closures;
+    # told so, the robust path takes the same decisions as on the graph as generated, and
+    # reports the map and chi2 of the graph it was given
+    for outliers, mode in ((0.0, "random"), (0.2, "group")):
+        sample = generate(*ARGS, np.random.default_rng(3), noisy_measurements=True,
+                          outliers=outliers, outlier_mode=mode)
+        stated = robust_initialize(sample.graph, sample.initial)
+        optimistic = scaled_informations(sample.graph, 4.0)
+        told = robust_initialize(optimistic, sample.initial, covariance_scale=4.0)
+        assert told.rejected == stated.rejected == sample.outlier_edges
+        assert told.chi2 == pytest.approx(4.0 * stated.chi2, rel=1e-6)
+        assert told.chi2 == pytest.approx(chi2(_without_edges(optimistic, told.rejected),
+                                               told.values), rel=1e-12)
+
+
+def _without_edges(graph: gtsam.NonlinearFactorGraph, rejected: list[int]):
+    kept = gtsam.NonlinearFactorGraph()
+    for k in range(graph.size()):
+        if k not in set(rejected):
+            kept.add(graph.at(k))
+    return kept
 
 
 def test_edge_chi2_is_gtsams():

@@ -175,6 +175,9 @@ def _check_robust_options(ctx: click.Context, robust: bool, method: str, refine:
                                    "--robust too")
         if _given(ctx, "trust_odometry"):
             raise click.UsageError("--trust-odometry/--no-trust-odometry apply only with --robust")
+        if _given(ctx, "covariance_scale"):
+            raise click.UsageError("--covariance-scale applies only with --robust (the tests "
+                                   "that judge loop closures)")
         return
     if method != "auto":
         raise click.UsageError(f"--robust is its own method: it does not combine with --method "
@@ -216,7 +219,8 @@ def _print_notes(notes: list[str]) -> None:
 
 
 def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
-                trust_odometry: bool, json_path: Path | None) -> None:
+                trust_odometry: bool, json_path: Path | None,
+                covariance_scale: float = 1.0) -> None:
     from rlpgo_gtsam.robust import robust_initialize  # not on the default's path
 
     run = RunFiles([input_path])
@@ -228,12 +232,13 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
     pose_graph = read.pose_graph()
     if pose_graph.dimension == 3:  # the robust path takes what it can: its error otherwise
         try:
-            result = robust_initialize(graph, values, trust_odometry=trust_odometry)
+            result = robust_initialize(graph, values, trust_odometry=trust_odometry,
+                                       covariance_scale=covariance_scale)
         except RlpgoError as error:
             raise RlpgoError(f"--robust on {input_path} (a 3D pose graph): {error}") from None
     else:
         result = robust_initialize(graph, values, trust_odometry=trust_odometry,
-                                   pose_graph=pose_graph)
+                                   pose_graph=pose_graph, covariance_scale=covariance_scale)
     for step in result.steps:
         click.echo(_describe_step(step))
     for kept, other in result.ambiguous:
@@ -255,6 +260,7 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
             "input": str(input_path), "output": str(output), "dimension": pose_graph.dimension,
             "poses": pose_graph.num_poses, "edges": pose_graph.num_edges, "method": "robust",
             "input_chi2": chi2(graph, values), "chi2": result.chi2, "judged": judged,
+            "covariance_scale": covariance_scale,
             "rejected": list(result.rejected), "steps": result.steps, "seconds": seconds,
             "notes": notes}).encode()))
     run.write_together(files)  # the guess, its list and its record, or none
@@ -308,6 +314,12 @@ def _print_stage(row: MethodResult, reason: str) -> None:
               help="With --robust: a text file listing the rejected edges, one a line as "
                    f"'{EDGE_LIST_LINE}' (L: the edge's line in INPUT.g2o, from 1), after one "
                    "'#' line.")
+@click.option("--covariance-scale", type=FiniteFloat(0.0, 1e6, min_open=True), default=1.0,
+              show_default=True,
+              help="With --robust: how many times larger the edges' noise is than their "
+                   "covariances say (a front end's optimistic covariances); the tests that "
+                   "judge loop closures use each covariance times this. The map and its chi2 "
+                   "are those of INPUT.g2o as written.")
 @click.option("--model", default=DEFAULT_MODEL, show_default=True,
               help="[agent] A shipped model name or a model file (--method rl, rl@<start>, "
                    "all).")
@@ -323,7 +335,7 @@ def _print_stage(row: MethodResult, reason: str) -> None:
               help="[agent] Seed of the rollouts' initial last actions.")
 @click.pass_context
 def main(ctx, input_path, output, method, budget, model, cycles, episodes, start, refine,
-         iters, json_path, seed, robust, trust_odometry, outliers_out):
+         iters, json_path, seed, robust, trust_odometry, outliers_out, covariance_scale):
     """Write an initial guess for INPUT.g2o (planar or 3D) to OUTPUT.
 
     The default, --method auto, runs the certified SE(d) relaxation, refines its estimate
@@ -339,7 +351,8 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
     command_began = time.perf_counter()
     _check_robust_options(ctx, robust, method, refine, outliers_out)
     if robust:
-        _run_robust(input_path, output, outliers_out, trust_odometry, json_path)
+        _run_robust(input_path, output, outliers_out, trust_odometry, json_path,
+                    covariance_scale)
         return
     _check_method_name(method, start)
     _check_method_options(ctx, method)

@@ -107,6 +107,7 @@ from rlpgo_gtsam.robust.consistency import pairwise_consistency
 from rlpgo_gtsam.robust.gnc import robust_positions
 from rlpgo_gtsam.robust.groups import PoseGraph, group_of
 from rlpgo_gtsam.solvers import gauge_prior, refine, solver_params
+from rlpgo_gtsam.synthetic import scaled_informations
 
 __all__ = ["RobustResult", "robust_initialize", "DEFAULT_INLIER_PROBABILITY", "REJECTED_BELOW"]
 
@@ -213,6 +214,7 @@ def robust_initialize(
     inlier_probability: float = DEFAULT_INLIER_PROBABILITY,
     gnc_iterations: int = _MAX_GNC_ITERATIONS,
     pose_graph: PoseGraph | None = None,
+    covariance_scale: float = 1.0,
 ) -> RobustResult:
     """Reject wrong loop closures and return the refined guess; see the module docstring.
 
@@ -227,6 +229,12 @@ def robust_initialize(
             GTSAM's).
         pose_graph: the graph's extraction, if the caller has it (a ``PoseGraph3D`` read with
             ``check_information=False`` lets through informations the reader refuses).
+        covariance_scale: how many times larger the edges' noise is than their stated
+            covariances say: every step judges with each between factor's covariance times
+            this (its information divided by it); the map, its chi2 and the weights are
+            those of ``graph`` as given. 1: as stated. Every test here is a chi-square
+            bound on the stated noise, so covariances that understate it make true closures
+            look wrong (see docs/robust.md, "When the covariances are too small").
 
     Raises:
         GraphError: a graph the package cannot work on.
@@ -237,8 +245,13 @@ def robust_initialize(
         raise SolverError(f"inlier_probability must lie in (0, 1), got {inlier_probability}")
     if gnc_iterations < 1:
         raise SolverError(f"gnc_iterations must be >= 1, got {gnc_iterations}")
+    if not (math.isfinite(covariance_scale) and covariance_scale > 0.0):
+        raise SolverError(f"covariance_scale must be a positive number, got {covariance_scale}")
     g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
     graph, g = _judged_by_printed(graph, values, g)
+    reported = graph  # what the result's chi2 and weights are taken on
+    if covariance_scale != 1.0:
+        graph, g = _covariances_scaled(graph, values, covariance_scale)
     group = group_of(g)
     factor_of_edge = _edge_factor_indices(graph, g.num_edges, group.between_factor)
     chain = odometry_edges(g)
@@ -271,7 +284,7 @@ def robust_initialize(
                       "noise_scale": clean.noise_scale, "passed": clean.passed})
         if clean.passed:  # no evidence against any edge: keep them all
             steps[-1]["seconds"] += consistency_s
-            return _result(graph, factor_of_edge, clean.values, np.ones(g.num_edges, bool),
+            return _result(reported, factor_of_edge, clean.values, np.ones(g.num_edges, bool),
                            np.ones(g.num_edges), known, began, steps, [],
                            "every edge fits: the relaxation of all edges is certified and "
                            "every residual lies within the inlier bound after refinement")
@@ -326,7 +339,7 @@ def robust_initialize(
     kept &= gnc_weights >= REJECTED_BELOW
     steps.append(_step("gnc", step_began, None, kept, known))
 
-    return _result(graph, factor_of_edge, result, kept, gnc_weights, known, began, steps,
+    return _result(reported, factor_of_edge, result, kept, gnc_weights, known, began, steps,
                    ambiguous, "GNC-LM from the consistent set's verified optimum")
 
 
@@ -417,6 +430,14 @@ def _judged_by_printed(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                 gtsam.noiseModel.Gaussian.Information(blocks))
         judged.add(factor)
     return judged, extract_pose_graph(judged, values)
+
+def _covariances_scaled(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                        scale: float) -> tuple[gtsam.NonlinearFactorGraph, PoseGraph]:
+    """``graph`` with each between factor's covariance times ``scale`` (its information over
+    it; the same factors, measurements and order, priors as they are), and its extraction."""
+    judged = scaled_informations(graph, 1.0 / scale)
+    return judged, extract_pose_graph(judged, values)
+
 
 @dataclass
 class _AllEdges:
