@@ -75,7 +75,11 @@ The anchor (and any FIXed pose) keeps its pose.
 
 Thresholds are chi-square quantiles at ``inlier_probability`` (:func:`chi2_quantile`): the
 group's dof for an edge or a cycle (3 planar, 6 in 3D), the translation dimension in step 2
-(2 or 3), ``dof x k`` for a set of k closures judged together in step 3.
+(2 or 3), ``dof x k`` for a set of k closures judged together in step 3. They bound the noise
+the covariances state: where those understate it, true closures fail them (step 0's scale
+from the odometry chain helps only where step 0 runs and passes). ``covariance_scale``
+judges every step with the covariances times that factor (docs/robust.md, "When the
+covariances are too small").
 
 3D graphs (``BetweenFactorPose3``, :class:`~rlpgo_gtsam.graph3d.PoseGraph3D`) run the same
 steps in SE(3) (:mod:`rlpgo_gtsam.robust.groups`): the SE(3) relaxation
