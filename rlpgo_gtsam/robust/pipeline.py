@@ -435,6 +435,7 @@ def _judged_by_printed(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
         judged.add(factor)
     return judged, extract_pose_graph(judged, values)
 
+
 def _covariances_scaled(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                         scale: float) -> tuple[gtsam.NonlinearFactorGraph, PoseGraph]:
     """``graph`` with each between factor's covariance times ``scale`` (its information over
