@@ -481,7 +481,7 @@ def _lines(path: Path, handle: BinaryIO) -> Iterator[tuple[int, str]]:
                                      "line endings); convert them to LF or CR LF")
             raise G2oFormatError(path, number,
                                  f"line longer than {MAX_LINE_BYTES} bytes (not a g2o file?)")
-        if b"\r" in raw.rstrip(b"\r\n"):
+        if b"\r" in raw.rstrip(b"\r\n") and raw.strip():  # a blank line's stray CR: blank
             raise G2oFormatError(path, number, "a CR inside a line (classic Mac line "
                                  "endings?); convert them to LF or CR LF")
         if number == 1 and raw.startswith(BOM):

@@ -273,6 +273,20 @@ def test_classic_mac_line_endings_are_named(tmp_path):
         read_g2o(path)
 
 
+def test_a_blank_line_with_a_stray_cr_is_blank(tmp_path):
+    # whitespace and CRs only: skipped like any blank line, in CR LF and LF files (found by
+    # test_g2o_properties: the reader named such a line, which holds nothing)
+    graph_lines = b"VERTEX_SE2 0 0 0 0\r\nVERTEX_SE2 1 1 0 0\r\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\r\n"
+    for blank in (b"\r \r\n", b" \r\t\n", b"\r\r\n"):
+        path = tmp_path / "blank.g2o"
+        path.write_bytes(blank + graph_lines + blank)
+        graph, values = read_g2o(path)
+        assert (graph.size(), values.size()) == (1, 2)
+    path.write_bytes(b"VERTEX_SE2 0 0 0 0\r \r\n" + graph_lines)  # CR inside a line: named
+    with pytest.raises(G2oFormatError, match=r"blank\.g2o:1: a CR inside a line"):
+        read_g2o(path)
+
+
 # 13. the library: typed errors for what a g2o file cannot hold, bounded options
 
 def _pair():
