@@ -298,6 +298,8 @@ def test_mutated_file_reads_or_raises_format_error(mutations):
 @example([("truncate", len(BASE_LINES[0]))])
 # 'VERTEX_SE2 0 0 0 0\nFIX 0\n': graph.size() == 1 (the prior), values.size() == 1
 @example([("drop_line", 1)] * 10)
+# first line '\r \r\n' (a blank line with a stray CR): once named 'a CR inside a line'
+@example([("cut_line", 0, 0), ("crlf",), ("duplicate_field", 0, 0)])
 def test_accepted_file_has_an_edge_and_two_poses(mutations):
     result = _read_bytes(_apply(mutations))
     if result is not None:
