@@ -49,6 +49,8 @@ def graph12(tmp_path_factory) -> Path:
 # command -> (options fuzzed, the other arguments from (folder, graph12), the output written)
 COMMANDS = {
     "init": (init_main, ["--iters", "--budget"], lambda f, g: [g, "-o", f / "o.g2o"], "o.g2o"),
+    "init-robust": (init_main, ["--covariance-scale"],
+                    lambda f, g: [g, "-o", f / "o.g2o", "--robust"], "o.g2o"),
     "init-agent": (init_main, ["--seed", "--episodes", "--cycles"],
                    lambda f, g: [g, "-o", f / "o.g2o", "--method", "rl"], "o.g2o"),
     "generate": (generate_main, ["--sigma-r", "--sigma-t", "--d", "--lc", "--seed"],
