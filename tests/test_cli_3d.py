@@ -148,8 +148,10 @@ def test_json_record_of_a_3d_run(tmp_path):
     cli_ok(result)
     data = json.loads(record.read_text())
     assert {"input", "output", "dimension", "poses", "edges", "method", "input_chi2", "result",
-            "refine", "iters", "chi2", "certified", "status", "stopped", "hint", "seconds",
-            "notes", "rows"} == set(data)
+            "refine", "iters", "chi2", "variance_factor", "certified", "status", "stopped",
+            "hint", "seconds", "notes", "rows"} == set(data)
+    # SE-Sync's smallGrid3D (no FIX): 6 dof over 297 - 125 + 1 independent cycles
+    assert data["variance_factor"] == pytest.approx(data["chi2"] / (6 * (297 - 125 + 1)))
     assert (data["dimension"], data["poses"], data["edges"]) == (3, 125, 297)
     assert (data["method"], data["result"], data["refine"], data["iters"]) == \
         ("auto", "certified", "lm", 30)
@@ -182,6 +184,8 @@ def test_json_record_of_planar_and_robust_runs(tmp_path):
     assert f"rejected {len(data['rejected'])} of {data['judged']} loop closures" in result.stdout
     assert data["chi2"] == pytest.approx(float(re.search(r"; chi2 (\S+) on the edges kept",
                                                          result.stdout)[1]), rel=1e-5)
+    kept = data["edges"] - len(data["rejected"])  # the chi2 is the kept edges'
+    assert data["variance_factor"] == pytest.approx(data["chi2"] / (3 * (kept - 60 + 1)))
 
 
 def test_budget_cuts_the_certified_stage_and_still_writes(tmp_path):

@@ -190,6 +190,16 @@ def _check_robust_options(ctx: click.Context, robust: bool, method: str, refine:
                                "GNC-LM's guess, already refined on the edges it kept)")
 
 
+def _variance_factor(pose_graph, chi2_value: float | None, edges: int) -> float | None:
+    """``chi2_value`` over its degrees of freedom, ``dof (edges - poses + held)`` (dof 3 planar,
+    6 in 3D; held: the anchor and the FIXed poses): about 1 where the covariances state the
+    noise, above 1 where they understate it (docs/robust.md); None without a chi2 or
+    without a redundant measurement."""
+    dof = 3 if pose_graph.dimension == 2 else 6
+    redundancy = dof * (edges - pose_graph.num_poses + len(pose_graph.held[0]))
+    return None if chi2_value is None or redundancy <= 0 else chi2_value / redundancy
+
+
 def _describe_step(step: dict) -> str:
     """One line on a step of the robust path (``RobustResult.steps``)."""
     shown = ("step", "seconds", "judged", "kept", "rejected")
@@ -260,6 +270,8 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
             "input": str(input_path), "output": str(output), "dimension": pose_graph.dimension,
             "poses": pose_graph.num_poses, "edges": pose_graph.num_edges, "method": "robust",
             "input_chi2": chi2(graph, values), "chi2": result.chi2, "judged": judged,
+            "variance_factor": _variance_factor(pose_graph, result.chi2,
+                                                pose_graph.num_edges - len(result.rejected)),
             "covariance_scale": covariance_scale,
             "rejected": list(result.rejected), "steps": result.steps, "seconds": seconds,
             "notes": notes}).encode()))
@@ -300,8 +312,10 @@ def _print_stage(row: MethodResult, reason: str) -> None:
 @click.option("--iters", type=ITERATIONS, default=30, show_default=True,
               help="Iteration cap of the refinement.")
 @click.option("--json", "json_path", type=OutputFile(),
-              help="Also write the run as JSON: the input, the result's chi2, certificate "
-                   "status and seconds, and every row (written with OUTPUT, or neither).")
+              help="Also write the run as JSON: the input, the result's chi2 and its variance "
+                   "factor (chi2 over its degrees of freedom: above 1, covariances that "
+                   "understate the noise, or wrong closures), certificate status and seconds, "
+                   "and every row (written with OUTPUT, or neither).")
 @click.option("--robust", is_flag=True,
               help="Reject wrong loop closures instead of running --method: a start from the "
                    "closures that agree with each other, finished by GTSAM's GNC-LM. The "
@@ -420,6 +434,8 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
             "poses": pose_graph.num_poses, "edges": pose_graph.num_edges, "method": method,
             "input_chi2": input_chi2, "result": chosen.method,
             "refine": solver, "iters": iters if solver else 0, "chi2": chosen.refined_chi2,
+            "variance_factor": _variance_factor(pose_graph, chosen.refined_chi2,
+                                                pose_graph.num_edges),
             "certified": staged.certified if method == "auto" else (
                 None if certificate is None else bool(certificate.certified)),
             "status": None if certificate is None else str(certificate.status),
