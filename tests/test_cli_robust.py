@@ -205,11 +205,17 @@ def test_covariance_scale_tells_the_robust_path_the_noise_is_larger(clean, tmp_p
             fields[6:] = [repr(4.0 * float(v)) for v in fields[6:]]
         text.append(" ".join(fields))
     optimistic.write_text("\n".join(text) + "\n")
+    as_stated = _run(init_main, optimistic, "-o", tmp_path / "as_stated.g2o", "--robust")
+    cli_ok(as_stated)  # true closures go, and the hint says why that may be
+    assert SUMMARY.match(as_stated.stdout.splitlines()[-1])["rejected"] != "0"
+    [hint] = [line for line in as_stated.stdout.splitlines() if line.startswith("hint: ")]
+    assert "times worse than their covariances say" in hint and "--covariance-scale" in hint
     result = _run(init_main, optimistic, "-o", output, "--robust", "--covariance-scale", 4,
                   "--json", record)
     cli_ok(result)
     summary = SUMMARY.match(result.stdout.splitlines()[-1])
     assert summary is not None and summary["rejected"] == "0"
+    assert "hint:" not in result.stdout
     _, robust = read_g2o(clean.robust)
     _, written = read_g2o(output)
     assert 2.0 * graph.error(written) == pytest.approx(2.0 * graph.error(robust), rel=1e-6)

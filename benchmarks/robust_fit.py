@@ -1,0 +1,78 @@
+"""How well the edges ``--robust`` keeps fit their covariances, on Vertigo's policies: the
+evidence behind its hint (``rlpgo_cli.init._LOOSE_FIT``).
+
+    python benchmarks/robust_fit.py [--cases gen,MIT,Intel,FR079,M3500,City10K]
+        [--fractions 0.05,0.1,0.2,0.3] [--name robust_fit]
+
+Per case (:mod:`benchmarks.robust`'s, covariances as the file gives them), without wrong
+closures and with each policy and fraction of them: the closures ``robust_initialize``
+rejected, its recall, the wrong closures it kept, and the kept edges' variance factor,
+``chi2 / (3 (kept edges - poses + 1))``, which ``rlpgo-init --robust`` compares with 1.5
+(over ``--covariance-scale``) to print its hint where it rejected any. Rows are checkpointed
+to ``benchmarks/results/<name>.json``; the table goes to ``<name>.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.common import RESULTS  # noqa: E402
+from benchmarks.robust import clean_case, corrupted, scores  # noqa: E402
+from rlpgo_gtsam.graph3d import extract_pose_graph  # noqa: E402
+from rlpgo_gtsam.robust import robust_initialize  # noqa: E402
+
+MODES = ("random", "local", "group", "localgroup")
+LOOSE_FIT = 1.5  # rlpgo_cli.init._LOOSE_FIT
+
+
+def row(name: str, mode: str, fraction: float, graph, values, wrong: list[int]) -> dict:
+    result = robust_initialize(graph, values)
+    g = extract_pose_graph(graph, values)
+    kept = g.num_edges - len(result.rejected)
+    fit = result.chi2 / (3 * (kept - g.num_poses + 1))
+    return {"case": name, "mode": mode, "fraction": fraction, "wrong": len(wrong),
+            "rejected": len(result.rejected), "recall": scores(result.rejected, wrong)[1],
+            "wrong_kept": len(set(wrong) - set(result.rejected)), "chi2": result.chi2,
+            "variance_factor": fit, "hint": bool(result.rejected) and fit > LOOSE_FIT}
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| case | policy | fraction | wrong | rejected | recall | wrong kept | kept edges' "
+             "variance factor | hint |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['case']} | {r['mode']} | {r['fraction']:g} | {r['wrong']} | "
+                     f"{r['rejected']} | {r['recall']:.3f} | {r['wrong_kept']} | "
+                     f"{r['variance_factor']:.3g} | {'yes' if r['hint'] else ''} |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", default="gen,MIT,Intel,FR079,M3500,City10K")
+    parser.add_argument("--fractions", default="0.05,0.1,0.2,0.3")
+    parser.add_argument("--name", default="robust_fit")
+    args = parser.parse_args()
+    rows: list[dict] = []
+    for name in args.cases.split(","):
+        graph, values, optimum, _ = clean_case(name)
+        cases = [("clean", 0.0, graph, [])]
+        for fraction in map(float, args.fractions.split(",")):
+            for mode in MODES:
+                cases.append((mode, fraction, *corrupted(name, graph, optimum, fraction, mode)))
+        for mode, fraction, judged, wrong in cases:
+            rows.append(row(name, mode, fraction, judged, values, wrong))
+            print(json.dumps(rows[-1]), flush=True)
+            (RESULTS / f"{args.name}.json").write_text(json.dumps(
+                {"command": "python benchmarks/robust_fit.py " + " ".join(sys.argv[1:]),
+                 "rows": rows}, indent=1) + "\n")
+            (RESULTS / f"{args.name}.md").write_text(table(rows))
+    print(table(rows))
+
+
+if __name__ == "__main__":
+    main()
