@@ -205,11 +205,13 @@ def test_covariance_scale_tells_the_robust_path_the_noise_is_larger(clean, tmp_p
             fields[6:] = [repr(4.0 * float(v)) for v in fields[6:]]
         text.append(" ".join(fields))
     optimistic.write_text("\n".join(text) + "\n")
-    as_stated = _run(init_main, optimistic, "-o", tmp_path / "as_stated.g2o", "--robust")
+    as_stated = _run(init_main, optimistic, "-o", tmp_path / "as_stated.g2o", "--robust",
+                     "--json", tmp_path / "as_stated.json")
     cli_ok(as_stated)  # true closures go, and the hint says why that may be
     assert SUMMARY.match(as_stated.stdout.splitlines()[-1])["rejected"] != "0"
     [hint] = [line for line in as_stated.stdout.splitlines() if line.startswith("hint: ")]
     assert "times worse than their covariances say" in hint and "--covariance-scale" in hint
+    assert json.loads((tmp_path / "as_stated.json").read_text())["hint"] == hint[len("hint: "):]
     result = _run(init_main, optimistic, "-o", output, "--robust", "--covariance-scale", 4,
                   "--json", record)
     cli_ok(result)
@@ -221,6 +223,7 @@ def test_covariance_scale_tells_the_robust_path_the_noise_is_larger(clean, tmp_p
     assert 2.0 * graph.error(written) == pytest.approx(2.0 * graph.error(robust), rel=1e-6)
     recorded = json.loads(record.read_text())
     assert recorded["covariance_scale"] == 4.0 and recorded["rejected"] == []
+    assert recorded["hint"] is None
     assert recorded["chi2"] == pytest.approx(4.0 * 2.0 * graph.error(robust), rel=1e-6)
 
 

@@ -262,12 +262,13 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
                    "others that agree among themselves and are nearly as well supported; the "
                    f"map's fit decided (kept factors {_few(kept)}; the others {_few(other)})")
     fit = _variance_factor(pose_graph, result.chi2, pose_graph.num_edges - len(result.rejected))
+    hint = None
     if result.rejected and fit is not None and fit > _LOOSE_FIT * covariance_scale:
-        click.echo(f"hint: the edges kept fit {fit / covariance_scale:.3g} times worse than "
-                   "their covariances say (chi2 over its degrees of freedom): wrong loop "
-                   "closures remain among them, or the covariances understate the noise and "
-                   "true ones were rejected; --covariance-scale says by how much "
-                   "(docs/robust.md)")
+        hint = (f"the edges kept fit {fit / covariance_scale:.3g} times worse than their "
+                "covariances say (chi2 over its degrees of freedom): wrong loop closures "
+                "remain among them, or the covariances understate the noise and true ones "
+                "were rejected; --covariance-scale says by how much (docs/robust.md)")
+        click.echo(f"hint: {hint}")
     # every edge, new vertices
     files = [(output, pose_graph_text(graph, result.values, pose_graph).encode())]
     if outliers_out is not None:
@@ -283,9 +284,7 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
             "input": str(input_path), "output": str(output), "dimension": pose_graph.dimension,
             "poses": pose_graph.num_poses, "edges": pose_graph.num_edges, "method": "robust",
             "input_chi2": chi2(graph, values), "chi2": result.chi2, "judged": judged,
-            "variance_factor": _variance_factor(pose_graph, result.chi2,
-                                                pose_graph.num_edges - len(result.rejected)),
-            "covariance_scale": covariance_scale,
+            "variance_factor": fit, "covariance_scale": covariance_scale, "hint": hint,
             "rejected": list(result.rejected), "steps": result.steps, "seconds": seconds,
             "notes": notes}).encode()))
     run.write_together(files)  # the guess, its list and its record, or none
