@@ -32,3 +32,12 @@ def write_result(name: str, data: dict) -> Path:
     path = RESULTS / f"{name}.json"
     path.write_text(json.dumps({"machine": machine(), **data}, indent=2) + "\n")
     return path
+
+
+def write_rows(name: str, command: str, rows: list[dict], table: str) -> None:
+    """Checkpoint a benchmark's rows: ``benchmarks/results/<name>.json`` (the command that made
+    them and the rows so far) and its table, ``<name>.md``."""
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / f"{name}.json").write_text(json.dumps({"command": command, "rows": rows},
+                                                     indent=1) + "\n")
+    (RESULTS / f"{name}.md").write_text(table)

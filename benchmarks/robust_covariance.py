@@ -28,7 +28,7 @@ import gtsam
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.common import RESULTS  # noqa: E402
+from benchmarks.common import write_rows  # noqa: E402
 from benchmarks.robust import FILES, clean_case  # noqa: E402
 from rlpgo_gtsam.robust import robust_initialize  # noqa: E402
 from rlpgo_gtsam.synthetic import scaled_informations  # noqa: E402
@@ -76,17 +76,14 @@ def main() -> None:
     parser.add_argument("--factors", default="2,4,10")
     parser.add_argument("--name", default="robust_covariance")
     args = parser.parse_args()
+    command = "python benchmarks/robust_covariance.py " + " ".join(sys.argv[1:])
     rows: list[dict] = []
     for name in args.cases.split(","):
         graph, values, _, optimum_chi2 = clean_case(name)
         for factor in map(float, args.factors.split(",")):
             rows.append(row(name, factor, graph, values, optimum_chi2))
             print(json.dumps(rows[-1]), flush=True)
-            RESULTS.mkdir(parents=True, exist_ok=True)
-            (RESULTS / f"{args.name}.json").write_text(json.dumps(
-                {"command": "python benchmarks/robust_covariance.py " + " ".join(sys.argv[1:]),
-                 "rows": rows}, indent=1) + "\n")
-            (RESULTS / f"{args.name}.md").write_text(table(rows))
+            write_rows(args.name, command, rows, table(rows))
     print(table(rows))
 
 

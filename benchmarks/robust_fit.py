@@ -21,7 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.common import RESULTS  # noqa: E402
+from benchmarks.common import write_rows  # noqa: E402
 from benchmarks.robust import clean_case, corrupted, scores  # noqa: E402
 from rlpgo_gtsam.graph3d import extract_pose_graph  # noqa: E402
 from rlpgo_gtsam.robust import robust_initialize  # noqa: E402
@@ -57,6 +57,7 @@ def main() -> None:
     parser.add_argument("--fractions", default="0.05,0.1,0.2,0.3")
     parser.add_argument("--name", default="robust_fit")
     args = parser.parse_args()
+    command = "python benchmarks/robust_fit.py " + " ".join(sys.argv[1:])
     rows: list[dict] = []
     for name in args.cases.split(","):
         graph, values, optimum, _ = clean_case(name)
@@ -67,10 +68,7 @@ def main() -> None:
         for mode, fraction, judged, wrong in cases:
             rows.append(row(name, mode, fraction, judged, values, wrong))
             print(json.dumps(rows[-1]), flush=True)
-            (RESULTS / f"{args.name}.json").write_text(json.dumps(
-                {"command": "python benchmarks/robust_fit.py " + " ".join(sys.argv[1:]),
-                 "rows": rows}, indent=1) + "\n")
-            (RESULTS / f"{args.name}.md").write_text(table(rows))
+            write_rows(args.name, command, rows, table(rows))
     print(table(rows))
 
 

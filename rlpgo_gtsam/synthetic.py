@@ -74,8 +74,8 @@ from rlpgo_gtsam.graph import MAX_CONDITION, PoseGraph2D, odometry_edges
 from rlpgo_gtsam.graph3d import PoseGraph3D
 
 __all__ = ["SyntheticGraph", "generate", "generate3d", "add_outliers", "add_outliers3d",
-           "scaled_informations", "OUTLIER_MODES", "VERTIGO_MODES", "ROW_LENGTH", "LAYER_ROWS",
-           "GROUP_SIZE", "LOCAL_RANGE"]
+           "scaled_informations", "with_informations", "OUTLIER_MODES", "VERTIGO_MODES",
+           "ROW_LENGTH", "LAYER_ROWS", "GROUP_SIZE", "LOCAL_RANGE"]
 
 ROW_LENGTH = 10
 LAYER_ROWS = 10  # 3D: rows of a layer
@@ -352,15 +352,25 @@ def scaled_informations(graph: gtsam.NonlinearFactorGraph,
     information multiplied by ``factor``: its covariance divided by it, the noise understated
     ``factor`` times (an optimistic front end's covariances) for ``factor > 1``. The same
     factors, measurements and order; other factors as they are."""
-    scaled = gtsam.NonlinearFactorGraph()
+    between = (gtsam.BetweenFactorPose2, gtsam.BetweenFactorPose3)
+    return with_informations(graph, {
+        k: factor * graph.at(k).noiseModel().information() for k in range(graph.size())
+        if isinstance(graph.at(k), between)})
+
+
+def with_informations(graph: gtsam.NonlinearFactorGraph,
+                      informations: dict[int, np.ndarray]) -> gtsam.NonlinearFactorGraph:
+    """``graph`` with the between factor at each index of ``informations`` given that
+    information (a Gaussian noise model), its keys and measurement kept; the other factors,
+    and the order, as they are."""
+    replaced = gtsam.NonlinearFactorGraph()
     for k in range(graph.size()):
         f = graph.at(k)
-        if isinstance(f, (gtsam.BetweenFactorPose2, gtsam.BetweenFactorPose3)):
+        if k in informations:
             f = type(f)(f.keys()[0], f.keys()[1], f.measured(),
-                        gtsam.noiseModel.Gaussian.Information(
-                            factor * f.noiseModel().information()))
-        scaled.add(f)
-    return scaled
+                        gtsam.noiseModel.Gaussian.Information(informations[k]))
+        replaced.add(f)
+    return replaced
 
 
 def _add_wrong_closures(graph: gtsam.NonlinearFactorGraph, g: PoseGraph2D | PoseGraph3D,

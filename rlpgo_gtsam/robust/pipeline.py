@@ -111,7 +111,7 @@ from rlpgo_gtsam.robust.consistency import pairwise_consistency
 from rlpgo_gtsam.robust.gnc import robust_positions
 from rlpgo_gtsam.robust.groups import PoseGraph, group_of
 from rlpgo_gtsam.solvers import gauge_prior, refine, solver_params
-from rlpgo_gtsam.synthetic import scaled_informations
+from rlpgo_gtsam.synthetic import scaled_informations, with_informations
 
 __all__ = ["RobustResult", "robust_initialize", "DEFAULT_INLIER_PROBABILITY", "REJECTED_BELOW"]
 
@@ -420,19 +420,14 @@ def _judged_by_printed(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     if not printed:
         return graph, g
     edge_factors = _edge_factor_indices(graph, g.num_edges, group_of(g).between_factor)
-    replaced = {int(f): printed[g.information[e].tobytes()]
-                for e, f in enumerate(edge_factors.tolist())
-                if g.information[e].tobytes() in printed}
-    judged = gtsam.NonlinearFactorGraph()
-    for k in range(graph.size()):
-        factor = graph.at(k)
-        if k in replaced:
-            blocks = np.zeros((6, 6))
-            blocks[:3, :3], blocks[3:, 3:] = replaced[k][:3, :3], replaced[k][3:, 3:]
-            factor = gtsam.BetweenFactorPose3(
-                factor.keys()[0], factor.keys()[1], factor.measured(),
-                gtsam.noiseModel.Gaussian.Information(blocks))
-        judged.add(factor)
+    blocks = {}
+    for e, f in enumerate(edge_factors.tolist()):
+        matrix = printed.get(g.information[e].tobytes())
+        if matrix is not None:  # its rotation and translation blocks, the coupling left out
+            block = np.zeros((6, 6))
+            block[:3, :3], block[3:, 3:] = matrix[:3, :3], matrix[3:, 3:]
+            blocks[int(f)] = block
+    judged = with_informations(graph, blocks)
     return judged, extract_pose_graph(judged, values)
 
 
