@@ -51,15 +51,20 @@ and lets GTSAM's GNC-LM (truncated least squares) finish from it:
    that the map would have to turn by more than ``_LINEAR_RAD`` to fit (the linearization
    does not reach that far: those are judged by a solve, :func:`_turned`, when nothing
    else comes in); kept clusters of nearby closures that hold their stretch are judged by
-   a solve without them (:func:`_clusters`, :func:`_held`). Repeated until nothing
-   changes (see :func:`_verify`). Then the certified relaxation of the edges kept (the
-   clean default on them); where it turns some pose of the rounds' map by
-   ``_SAME_BASIN_RAD`` or more and its optimum lies lower than the rounds' map (which can
-   settle in a wrong basin: City10K, when the rounds grew from the seed's map), the rounds
-   run again from it. (The own-covariance chi2 the step used before, under a falling bar
-   of 10x to 1x the threshold, ignored how well the map knows a closure's two poses: on
-   MIT's weak odometry true closures far from the seed never came back, and on Intel wrong
-   local closures that alone held a stretch of the map fitted it because they bent it.)
+   a solve without them (:func:`_clusters`, :func:`_held`). Where the rounds settle, the
+   closures still kept whose p-value the false-rejection bar (Benjamini and Hochberg's,
+   at the false-rejection rate ``false_rejection_rate``: :func:`_doubted`) rejects go too:
+   a wrong closure can fit within the 0.9999 bar (aliasing between nearby poses: Vertigo's
+   ``local`` policy), and where many closures are refuted, a fit that unlikely is evidence
+   against it as well. Repeated until nothing changes (see :func:`_verify`). Then the
+   certified relaxation of the edges kept (the clean default on them); where it turns some
+   pose of the rounds' map by ``_SAME_BASIN_RAD`` or more and its optimum lies lower than
+   the rounds' map (which can settle in a wrong basin: City10K, when the rounds grew from
+   the seed's map), the rounds run again from it. (The own-covariance chi2 the step used
+   before, under a falling bar of 10x to 1x the threshold, ignored how well the map knows a
+   closure's two poses: on MIT's weak odometry true closures far from the seed never came
+   back, and on Intel wrong local closures that alone held a stretch of the map fitted it
+   because they bent it.)
 4. ``gnc``: GTSAM's ``GncLMOptimizer`` (TLS, super-linear schedule, the project's LM
    settings) from the verified optimum on the edges kept, the trusted edges as known
    inliers. Its weights are the last word on those edges: rejected means weight < 0.5.
@@ -113,7 +118,8 @@ from rlpgo_gtsam.robust.groups import PoseGraph, group_of
 from rlpgo_gtsam.solvers import gauge_prior, refine, solver_params
 from rlpgo_gtsam.synthetic import scaled_informations, with_informations
 
-__all__ = ["RobustResult", "robust_initialize", "DEFAULT_INLIER_PROBABILITY", "REJECTED_BELOW"]
+__all__ = ["RobustResult", "robust_initialize", "DEFAULT_INLIER_PROBABILITY",
+           "DEFAULT_FALSE_REJECTION_RATE", "REJECTED_BELOW"]
 
 # An inlier's residual lies below the chi-square quantile at this probability.
 DEFAULT_INLIER_PROBABILITY = 0.9999
@@ -147,6 +153,13 @@ _ROUND_ITERS = 5
 # the chi2 by 1e-5 to 1e-7 relative; 1e-4 took 43, with the same rejections and chi2 on 60
 # rows (MIT, Intel, FR079, M3500, gen; four policies; 5-20%)
 _ROUND_TOLERANCE = 1e-4
+# The false-rejection rate of the verify step's last bar (_doubted): the expected share of
+# its rejections that are true closures (Benjamini-Hochberg). The precision asked of a row is
+# 0.98: at most one true closure among a 5% row's 60-75 rejections (none among MIT's 41). At
+# 0.005 a 5% row of the generated graph (noise exactly as its covariances state) expects 0.3
+# true closures among its 74 rejections, P(two or more) about 4%; at 0.01 0.6 and 13%, and
+# that graph drew two (p 0.0012 and 0.0013; docs/robust_policies.md, robust_policies_v6)
+DEFAULT_FALSE_REJECTION_RATE = 0.005
 _TIGHT = 2.0  # admitted in one round: closures whose innovation spread is at most this, ...
 # ... or Group.admit_tier times the tightest's, ...
 _ADMIT_CHANCE = 1e-3  # ... or that a wrong closure would pass less often than this
@@ -219,6 +232,7 @@ def robust_initialize(
     gnc_iterations: int = _MAX_GNC_ITERATIONS,
     pose_graph: PoseGraph | None = None,
     covariance_scale: float = 1.0,
+    false_rejection_rate: float = DEFAULT_FALSE_REJECTION_RATE,
 ) -> RobustResult:
     """Reject wrong loop closures and return the refined guess; see the module docstring.
 
@@ -239,6 +253,11 @@ def robust_initialize(
             those of ``graph`` as given. 1: as stated. Every test here is a chi-square
             bound on the stated noise, so covariances that understate it make true closures
             look wrong (see docs/robust.md, "When the covariances are too small").
+        false_rejection_rate: the verify step's last bar (Benjamini-Hochberg): closures
+            that fit within the ``inlier_probability`` bar are still rejected where their
+            p-values are small enough that, with the closures the evidence already rejects,
+            at most this share of the rejections is expected to be true closures; in [0, 1),
+            0 turns the bar off (a closure goes only by the ``inlier_probability`` bar).
 
     Raises:
         GraphError: a graph the package cannot work on.
@@ -249,6 +268,8 @@ def robust_initialize(
         raise SolverError(f"inlier_probability must lie in (0, 1), got {inlier_probability}")
     if gnc_iterations < 1:
         raise SolverError(f"gnc_iterations must be >= 1, got {gnc_iterations}")
+    if not 0.0 <= false_rejection_rate < 1.0:
+        raise SolverError(f"false_rejection_rate must lie in [0, 1), got {false_rejection_rate}")
     if not (math.isfinite(covariance_scale) and covariance_scale > 0.0):
         raise SolverError(f"covariance_scale must be a positive number, got {covariance_scale}")
     g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
@@ -323,7 +344,7 @@ def robust_initialize(
 
     step_began = time.perf_counter()
     verified, kept, rounds = _verify(graph, g, factor_of_edge, start, settled, kept, known,
-                                     inlier_probability)
+                                     inlier_probability, false_rejection_rate)
     # the map the rounds settled in grew from the seed's start; the certified relaxation of
     # the edges now kept may lie in a lower basin (City10K, 10% local wrong closures: the
     # decision exact, the rounds' map 1.83x the optimum after LM): then judge again from it
@@ -333,7 +354,7 @@ def robust_initialize(
         1.0 - _RESTART_GAIN) * chi2(kept_graph, verified)
     if restarted:
         verified, kept, more = _verify(graph, g, factor_of_edge, restart, True, kept, known,
-                                       inlier_probability)
+                                       inlier_probability, false_rejection_rate)
         rounds += more
     steps.append(_step("verify", step_began, rounds, kept, known) | {"restarted": restarted})
 
@@ -693,7 +714,9 @@ def _innovations(edges: gtsam.NonlinearFactorGraph, g: PoseGraph, values: gtsam.
 
 def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Values,
             settled: bool, kept: np.ndarray, known: np.ndarray,
-            inlier_probability: float) -> tuple[gtsam.Values, np.ndarray, int]:
+            inlier_probability: float,
+            false_rejection_rate: float = DEFAULT_FALSE_REJECTION_RATE
+            ) -> tuple[gtsam.Values, np.ndarray, int]:
     """Re-decide the closures by :func:`_innovations` at the kept edges' optimum, solving
     again after each change, until nothing changes (at most ``_VERIFY_ROUNDS`` rounds).
 
@@ -718,6 +741,10 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
     a long stretch filled in one tier of a few closures per round: on sphere2500 with 5%
     wrong closures 555 true closures that passed were still waiting after 20 rounds
     (chances 1e-7 to 0.08; of the wrong ones that passed, 1.9 and up).
+    A round that refutes and admits nothing applies the false-rejection bar
+    (:func:`_doubted`) to the closures and runs judged: the kept ones it rejects are refuted
+    (and not admitted again); only where it rejects none do the solves (:func:`_turned`,
+    :func:`_held`) come, and then the end.
     Returns the last optimum, the decision and the rounds."""
     group = group_of(g)
     edges = gtsam.NonlinearFactorGraph()
@@ -772,6 +799,16 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
         else:
             admit = ~kept & candidates & ~fails
             if not admit.any():
+                judged_sets = len(singles) + len(runs)
+                doubted = _doubted(chi2_sets[:judged_sets], (singles + runs)[:judged_sets],
+                                   kept, judged & ~candidates, group.dof, false_rejection_rate)
+                if doubted.any():  # the closures kept that the false-rejection bar refutes
+                    banned |= doubted
+                    was_refuted |= doubted
+                    kept = kept & ~doubted
+                    values = _solved(graph, g, factor_of_edge, kept, values, _ROUND_ITERS,
+                                     _ROUND_TOLERANCE).values
+                    continue
                 # what the linear test cannot judge, a solve can: the closure (or run) that
                 # fits but needs the map turned too far, the one the map checks best first,
                 # is admitted when the optimum with it costs at most its bar more
@@ -802,6 +839,82 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
         values = _solved(graph, g, factor_of_edge, kept, values, _ROUND_ITERS,
                          _ROUND_TOLERANCE).values
     return values, kept, rounds
+
+
+def _doubted(chi2_sets: np.ndarray, sets: list[np.ndarray], kept: np.ndarray,
+             refuted: np.ndarray, dof: int,
+             rate: float = DEFAULT_FALSE_REJECTION_RATE) -> np.ndarray:
+    """The kept closures that the Benjamini-Hochberg bar rejects at the false-rejection
+    ``rate`` (``q``; 0: none). Every set judged (single closures and runs) has a p-value,
+    its chi2's upper tail for ``dof`` per closure; the closures no longer candidates
+    (``refuted``: banned) count as rejections at p = 0; with ``m`` hypotheses in all, the k
+    smallest p-values are rejections, k the largest with ``p_(k) <= q k / m``. The bar adapts
+    to how much the evidence already rejects: where many closures are wrong, one that the
+    0.9999 bar lets through but the map finds unlikely goes with them; where few are, the
+    bar is about q / m (1e-4 at q = 0.005, m = 50). Runs are judged as a whole as well
+    (members of a group of wrong closures each fit the map the others hold); their p-values
+    are counted among the m. Returns a mask over the edges."""
+    p_values = np.array([_innovation_p_value(float(value), dof * len(which))
+                         for value, which in zip(chi2_sets, sets, strict=True)])
+    refuted_count = int(refuted.sum())
+    m = len(p_values) + refuted_count
+    doubted = np.zeros(len(kept), bool)
+    if not len(p_values) or rate <= 0.0:
+        return doubted
+    ordered = np.sort(p_values)
+    ranks = refuted_count + np.arange(1, len(ordered) + 1)
+    below = np.flatnonzero(ordered <= rate * ranks / m)
+    if len(below):
+        for k in np.flatnonzero(p_values <= ordered[below[-1]]).tolist():
+            doubted[sets[k]] = True
+    return doubted & kept
+
+
+def _innovation_p_value(value: float, dof: int) -> float:
+    """P(a true set's statistic >= ``value``) for :func:`_innovations`' chi2 of ``dof`` dof.
+    Its covariance is estimated from ``k = _SAMPLES`` draws, so the statistic is Hotelling's
+    T^2 (scaled by ``(k - dof - 1) / k``), whose tail is heavier than chi-square's: ``T^2 (k -
+    dof + 1) / (dof k)`` is F(dof, k - dof + 1): at 3 dof, p = 3e-4 at 21.1 where the
+    chi-square tail gives 1e-4."""
+    k = _SAMPLES
+    if k - dof - 1 <= 0:
+        return 1.0 - chi2_cdf(value, dof)
+    statistic = value * (k - dof + 1) / (dof * (k - dof - 1))
+    d1, d2 = dof, k - dof + 1
+    return _regularized_beta(d2 / (d2 + d1 * statistic), 0.5 * d2, 0.5 * d1)
+
+
+def _regularized_beta(x: float, a: float, b: float) -> float:
+    """I_x(a, b), the regularized incomplete beta function, by its continued fraction
+    (modified Lentz), on the side of ``x`` where it converges fast."""
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    front = math.exp(math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b)
+                     + a * math.log(x) + b * math.log1p(-x))
+    if x < (a + 1.0) / (a + b + 2.0):
+        return front * _beta_fraction(x, a, b) / a
+    return 1.0 - front * _beta_fraction(1.0 - x, b, a) / b
+
+
+def _beta_fraction(x: float, a: float, b: float) -> float:
+    """The continued fraction of I_x(a, b) (without its front factor), to 1e-14."""
+    tiny = 1e-300
+    c, d = 1.0, 1.0 - (a + b) * x / (a + 1.0)
+    d = 1.0 / (d if abs(d) > tiny else tiny)
+    fraction = d
+    for m in range(1, 300):
+        for numerator in (m * (b - m) * x / ((a + 2 * m - 1) * (a + 2 * m)),
+                          -(a + m) * (a + b + m) * x / ((a + 2 * m) * (a + 2 * m + 1))):
+            d = 1.0 + numerator * d
+            d = 1.0 / (d if abs(d) > tiny else tiny)
+            c = 1.0 + numerator / c
+            c = c if abs(c) > tiny else tiny
+            fraction *= c * d
+        if abs(c * d - 1.0) < 1e-14:
+            break
+    return fraction
 
 
 def _turned(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Values,
