@@ -453,6 +453,38 @@ def test_the_false_rejection_bar_follows_benjamini_hochberg():
     assert not _doubted(values, sets, np.zeros_like(kept), refuted, 3, q).any()
 
 
+def test_the_false_rejection_bar_skips_only_p_values_that_cannot_matter():
+    """_doubted computes p-values only between the rate and 1e-12: the same decision as
+    Benjamini-Hochberg over every p-value, on random statistics, sets and rates."""
+    from rlpgo_gtsam.robust.pipeline import _doubted, _innovation_p_value
+
+    def reference(values, sets, kept, refuted, rate):
+        p = np.array([_innovation_p_value(float(v), 3 * len(w))
+                      for v, w in zip(values, sets, strict=True)])
+        m = len(p) + int(refuted.sum())
+        passing = [k for k in range(len(p))
+                   if p[k] <= rate * (int(refuted.sum()) + int((p <= p[k]).sum())) / m]
+        out = np.zeros(len(kept), bool)
+        if passing:
+            cut = max(p[k] for k in passing)
+            for k in np.flatnonzero(p <= cut).tolist():
+                out[sets[k]] = True
+        return out & kept
+
+    rng = np.random.default_rng(0)
+    for _ in range(60):
+        n = int(rng.integers(5, 300))
+        kept = rng.random(n) < 0.8
+        refuted = ~kept & (rng.random(n) < 0.5)
+        sets = [np.array([e]) for e in range(n)] + [np.array([e, e + 1])
+                                                    for e in range(0, n - 1, 7)]
+        scale = rng.choice([1.0, 1.0, 1.0, 5.0, 40.0], len(sets))
+        values = np.array([rng.chisquare(3 * len(w)) for w in sets]) * scale
+        for rate in (0.005, 0.05, 0.3):
+            assert (_doubted(values, sets, kept, refuted, 3, rate)
+                    == reference(values, sets, kept, refuted, rate)).all()
+
+
 def _value_with_p(p_wanted: float, dof: int = 3) -> float:
     """The statistic whose _innovation_p_value is ``p_wanted`` (bisection)."""
     from rlpgo_gtsam.robust.pipeline import _innovation_p_value

@@ -854,13 +854,21 @@ def _doubted(chi2_sets: np.ndarray, sets: list[np.ndarray], kept: np.ndarray,
     bar is about q / m (1e-4 at q = 0.005, m = 50). Runs are judged as a whole as well
     (members of a group of wrong closures each fit the map the others hold); their p-values
     are counted among the m. Returns a mask over the edges."""
-    p_values = np.array([_innovation_p_value(float(value), dof * len(which))
-                         for value, which in zip(chi2_sets, sets, strict=True)])
     refuted_count = int(refuted.sum())
-    m = len(p_values) + refuted_count
+    m = len(chi2_sets) + refuted_count
     doubted = np.zeros(len(kept), bool)
-    if not len(p_values) or rate <= 0.0:
+    if not len(chi2_sets) or rate <= 0.0:
         return doubted
+    # only p-values up to the rate can be rejections, and below 1e-12 all are (q k / m is
+    # larger): the others are set to 1 and 0, the same decision without computing them
+    # (M3500, 20%: 9546 p-values, 0.23 s)
+    p_values = np.ones(len(chi2_sets))
+    for k, (value, which) in enumerate(zip(chi2_sets.tolist(), sets, strict=True)):
+        low, high = _p_value_span(dof * len(which), rate)
+        if value >= high:
+            p_values[k] = 0.0
+        elif value > low:
+            p_values[k] = _innovation_p_value(value, dof * len(which))
     ordered = np.sort(p_values)
     ranks = refuted_count + np.arange(1, len(ordered) + 1)
     below = np.flatnonzero(ordered <= rate * ranks / m)
@@ -868,6 +876,22 @@ def _doubted(chi2_sets: np.ndarray, sets: list[np.ndarray], kept: np.ndarray,
         for k in np.flatnonzero(p_values <= ordered[below[-1]]).tolist():
             doubted[sets[k]] = True
     return doubted & kept
+
+
+@lru_cache(maxsize=256)
+def _p_value_span(dof: int, rate: float) -> tuple[float, float]:
+    """The statistics (``dof``) at which :func:`_innovation_p_value` is ``rate`` and 1e-12
+    (bisection; it falls as the statistic grows)."""
+    def at(p_value: float) -> float:
+        low, high = 0.0, 1.0
+        while _innovation_p_value(high, dof) > p_value:
+            high *= 2.0
+        for _ in range(100):
+            middle = 0.5 * (low + high)
+            low, high = (middle, high) if _innovation_p_value(middle, dof) > p_value \
+                else (low, middle)
+        return low
+    return at(rate), at(1e-12)
 
 
 def _innovation_p_value(value: float, dof: int) -> float:
