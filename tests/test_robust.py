@@ -384,6 +384,13 @@ def test_vertigo_policies_are_rejected_exactly(name, mode, fraction):
     bad, values, wrong, clean, lowest = _vertigo_on(name, mode, fraction)
     result = robust_initialize(bad, values)
     assert result.rejected == wrong
+    verify = next(step for step in result.steps if step["step"] == "verify")
+    if mode == "local":  # the verify step says how many went by the false-rejection bar
+        assert 1 <= verify["unlikely_fits"] <= len(wrong)
+        off = robust_initialize(bad, values, false_rejection_rate=0.0)
+        assert set(off.rejected) < set(wrong)  # without it, wrong closures stay
+        assert next(step for step in off.steps if step["step"] == "verify")[
+            "unlikely_fits"] == 0
     assert refine(clean, result.values, "lm", 100).chi2 == pytest.approx(lowest, rel=1e-6)
 
 
@@ -421,9 +428,10 @@ def test_innovation_p_values_are_hotellings():
 
 
 def test_the_false_rejection_bar_follows_benjamini_hochberg():
-    """p-values sorted, the k smallest rejected for the largest k with p_(k) <= q k / m; the
-    closures already refuted count as rejections at p = 0; a run's p-value rejects every
-    member; only kept closures come back."""
+    """p-values sorted, the k smallest rejected for the largest k with p_(k) <= q k / (pi0 m)
+    (pi0 = 1 here: most p-values lie above 1/2); the closures already refuted count as
+    rejections at p = 0; a run's p-value rejects every member; only kept closures come
+    back; where most p-values are small, pi0 < 1 lifts the bar."""
     from rlpgo_gtsam.robust.pipeline import _doubted
 
     q = 0.01
@@ -451,19 +459,31 @@ def test_the_false_rejection_bar_follows_benjamini_hochberg():
     assert np.flatnonzero(_doubted(values, sets, kept, refuted, 3, q)).tolist() == [50, 51]
     # a closure that is out already is never "doubted"
     assert not _doubted(values, sets, np.zeros_like(kept), refuted, 3, q).any()
+    # 10 closures kept, 90 refuted: pi0 = (1 + 9) / 50 = 0.2, the bar 5x higher; a kept
+    # closure at p = 2 q k / m passes it (plain Benjamini-Hochberg would keep it)
+    kept = np.zeros(100, bool)
+    kept[90:] = True
+    few = [np.array([e]) for e in range(90, 100)]
+    few_values = np.array([_value_with_p(2.0 * q * 91 / 100)] + [1.0] * 9)
+    assert np.flatnonzero(_doubted(few_values, few, kept, ~kept, 3, q)).tolist() == [90]
 
 
 def test_the_false_rejection_bar_skips_only_p_values_that_cannot_matter():
-    """_doubted computes p-values only between the rate and 1e-12: the same decision as
-    Benjamini-Hochberg over every p-value, on random statistics, sets and rates."""
+    """_doubted computes p-values only between 1/2 and 1e-12 (all where the bar may reach
+    above 1/2): the same decision as the adaptive Benjamini-Hochberg procedure over every
+    p-value (the share of true closures estimated over the single closures), on random
+    statistics, sets and rates."""
     from rlpgo_gtsam.robust.pipeline import _doubted, _innovation_p_value
 
     def reference(values, sets, kept, refuted, rate):
         p = np.array([_innovation_p_value(float(v), 3 * len(w))
                       for v, w in zip(values, sets, strict=True)])
         m = len(p) + int(refuted.sum())
+        single = np.array([len(w) == 1 for w in sets])
+        share = min(1.0, (1 + int((p[single] > 0.5).sum()))
+                    / (0.5 * (single.sum() + refuted.sum())))
         passing = [k for k in range(len(p))
-                   if p[k] <= rate * (int(refuted.sum()) + int((p <= p[k]).sum())) / m]
+                   if p[k] <= rate * (int(refuted.sum()) + int((p <= p[k]).sum())) / (share * m)]
         out = np.zeros(len(kept), bool)
         if passing:
             cut = max(p[k] for k in passing)
