@@ -256,11 +256,12 @@ def robust_initialize(
             those of ``graph`` as given. 1: as stated. Every test here is a chi-square
             bound on the stated noise, so covariances that understate it make true closures
             look wrong (see docs/robust.md, "When the covariances are too small").
-        false_rejection_rate: the verify step's last bar (Benjamini-Hochberg): closures
-            that fit within the ``inlier_probability`` bar are still rejected where their
-            p-values are small enough that, with the closures the evidence already rejects,
-            at most this share of the rejections is expected to be true closures; in [0, 1),
-            0 turns the bar off (a closure goes only by the ``inlier_probability`` bar).
+        false_rejection_rate: the verify step's last bar (adaptive Benjamini-Hochberg,
+            :func:`_doubted`): closures that fit within the ``inlier_probability`` bar are
+            still rejected where their p-values are small enough that, with the closures
+            the evidence already rejects, at most this share of the rejections is expected
+            to be true closures; in [0, 1), 0 turns the bar off (a closure goes only by the
+            ``inlier_probability`` bar).
 
     Raises:
         GraphError: a graph the package cannot work on.
@@ -861,13 +862,13 @@ def _doubted(chi2_sets: np.ndarray, sets: list[np.ndarray], kept: np.ndarray,
     all and ``pi0 = min(1, (1 + #{p > 1/2}) / (c / 2))`` the estimated share of true
     closures (over the ``c`` single closures, the refuted ones included: a run repeats its
     members, and the runs of a grouped policy's wrong closures, counted too, took two true
-    closures of the generated graph at 5%), the k smallest p-values are rejections, k the
-    largest with ``p_(k) <= q k / (pi0 m)``.
-    The bar adapts to how much the evidence rejects: where many closures are wrong, one that
-    the 0.9999 bar lets through but the map finds unlikely goes with them; where few are,
-    the bar is about q / m (1e-4 at q = 0.005, m = 50). Runs are judged as a whole as well
-    (members of a group of wrong closures each fit the map the others hold); their p-values
-    are counted among the m. Returns a mask over the edges."""
+    closures of the generated graph at 5% at a rate of 0.005), the k smallest p-values are
+    rejections, k the largest with ``p_(k) <= q k / (pi0 m)``. The bar adapts to how much
+    the evidence rejects: where many closures are wrong, one that the 0.9999 bar lets
+    through but the map finds unlikely goes with them; where few are, the bar is about q / m
+    (5e-5 at q = 0.0025, m = 50). Runs are judged as a whole as well (members of a group of
+    wrong closures each fit the map the others hold); their p-values are counted among the
+    m. Returns a mask over the edges."""
     refuted_count = int(refuted.sum())
     m = len(chi2_sets) + refuted_count
     doubted = np.zeros(len(kept), bool)
