@@ -18,10 +18,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner, Result
 from rlpgo_cli.generate import main as generate_main
+from rlpgo_cli.init import FALSE_REJECTIONS_DEFAULT
 from rlpgo_cli.init import main as init_main
 
 from rlpgo_gtsam import read_g2o, read_g2o_lines, refine
 from rlpgo_gtsam.g2o import edge_list_text, g2o_text_lines
+from rlpgo_gtsam.robust import DEFAULT_FALSE_REJECTION_RATE, robust_initialize
 from rlpgo_gtsam.synthetic import generate
 from tests.conftest import assert_same_edges, cli_error, cli_ok
 
@@ -227,6 +229,25 @@ def test_covariance_scale_tells_the_robust_path_the_noise_is_larger(clean, tmp_p
     assert recorded["chi2"] == pytest.approx(4.0 * 2.0 * graph.error(robust), rel=1e-6)
 
 
+def test_false_rejections_reaches_the_robust_path(with_outliers, tmp_path):
+    # the rate goes to robust_initialize as given (0: the false-rejection bar off, so the
+    # verify step reports no unlikely fit) and into the record; --help's default is the
+    # library's
+    assert FALSE_REJECTIONS_DEFAULT == DEFAULT_FALSE_REJECTION_RATE
+    record = tmp_path / "r.json"
+    result = _run(init_main, with_outliers.graph, "-o", tmp_path / "o.g2o", "--robust",
+                  "--false-rejections", 0, "--json", record)
+    cli_ok(result)
+    recorded = json.loads(record.read_text())
+    assert recorded["false_rejection_rate"] == 0.0
+    [verify] = [step for step in recorded["steps"] if step["step"] == "verify"]
+    assert verify["unlikely_fits"] == 0
+    assert "; unlikely fits 0" in result.stdout
+    graph, values = read_g2o(with_outliers.graph)
+    assert recorded["rejected"] == robust_initialize(graph, values,
+                                                     false_rejection_rate=0.0).rejected
+
+
 def test_robust_with_refine_none_writes_the_same_guess(clean, tmp_path):
     output = tmp_path / "none.g2o"
     cli_ok(_run(init_main, clean.graph, "-o", output, "--robust", "--refine", "none"))
@@ -276,10 +297,12 @@ def test_outliers_out_may_not_be_the_input(clean, tmp_path):
     (init_main, ["--no-trust-odometry"], ["--robust"]),
     (init_main, ["--covariance-scale", "4"], ["--covariance-scale", "--robust"]),
     (init_main, ["--robust", "--covariance-scale", "0"], ["--covariance-scale", "(0, 1e+06]"]),
+    (init_main, ["--false-rejections", "0.01"], ["--false-rejections", "--robust"]),
+    (init_main, ["--robust", "--false-rejections", "1"], ["--false-rejections", "[0, 1)"]),
     (generate_main, ["--outliers", "1"], ["--outliers", "[0, 1)"]),
     (generate_main, ["--outlier-mode", "sneaky"], ["--outlier-mode"]),
 ], ids=["method", "staged_options", "trust_without_robust", "scale_without_robust",
-        "scale_zero", "outliers_one", "mode"])
+        "scale_zero", "rate_without_robust", "rate_one", "outliers_one", "mode"])
 def test_options_that_do_not_go_together_are_usage_errors(clean, tmp_path, command, args,
                                                           mentions):
     output = tmp_path / "out.g2o"

@@ -36,6 +36,10 @@ from rlpgo_gtsam.staged import DEFAULT_BUDGET_S, DEFAULT_SEARCHES, staged_initia
 ALL = [*CLASSICAL, "fastsync", "certified", *(f"rl@{s}" for s in (*CLASSICAL, "certified"))]
 # Options of the staged default and the methods, which --robust does not use.
 NOT_ROBUST = ("budget", "model", "cycles", "episodes", "start", "iters", "seed")
+# --false-rejections' default in --help: the library's DEFAULT_FALSE_REJECTION_RATE, written
+# here so that --help need not import the robust path (tests/test_cli_robust.py holds them
+# equal)
+FALSE_REJECTIONS_DEFAULT = 0.0025
 # The agent's options (--start, read by --method rl alone, is checked on its own).
 AGENT_OPTIONS = ("model", "cycles", "episodes", "seed")
 
@@ -178,6 +182,9 @@ def _check_robust_options(ctx: click.Context, robust: bool, method: str, refine:
         if _given(ctx, "covariance_scale"):
             raise click.UsageError("--covariance-scale applies only with --robust (the tests "
                                    "that judge loop closures)")
+        if _given(ctx, "false_rejections"):
+            raise click.UsageError("--false-rejections applies only with --robust (the tests "
+                                   "that judge loop closures)")
         return
     if method != "auto":
         raise click.UsageError(f"--robust is its own method: it does not combine with --method "
@@ -237,7 +244,8 @@ def _print_notes(notes: list[str]) -> None:
 
 def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
                 trust_odometry: bool, json_path: Path | None,
-                covariance_scale: float = 1.0) -> None:
+                covariance_scale: float = 1.0,
+                false_rejections: float | None = None) -> None:
     from rlpgo_gtsam.robust import robust_initialize  # not on the default's path
 
     run = RunFiles([input_path])
@@ -247,15 +255,17 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
     _print_notes(notes)
     began = time.perf_counter()
     pose_graph = read.pose_graph()
+    rate = {} if false_rejections is None else {"false_rejection_rate": false_rejections}
     if pose_graph.dimension == 3:  # the robust path takes what it can: its error otherwise
         try:
             result = robust_initialize(graph, values, trust_odometry=trust_odometry,
-                                       covariance_scale=covariance_scale)
+                                       covariance_scale=covariance_scale, **rate)
         except RlpgoError as error:
             raise RlpgoError(f"--robust on {input_path} (a 3D pose graph): {error}") from None
     else:
         result = robust_initialize(graph, values, trust_odometry=trust_odometry,
-                                   pose_graph=pose_graph, covariance_scale=covariance_scale)
+                                   pose_graph=pose_graph, covariance_scale=covariance_scale,
+                                   **rate)
     for step in result.steps:
         click.echo(_describe_step(step))
     for kept, other in result.ambiguous:
@@ -285,7 +295,8 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
             "input": str(input_path), "output": str(output), "dimension": pose_graph.dimension,
             "poses": pose_graph.num_poses, "edges": pose_graph.num_edges, "method": "robust",
             "input_chi2": chi2(graph, values), "chi2": result.chi2, "judged": judged,
-            "variance_factor": fit, "covariance_scale": covariance_scale, "hint": hint,
+            "variance_factor": fit, "covariance_scale": covariance_scale,
+            "false_rejection_rate": false_rejections, "hint": hint,
             "rejected": list(result.rejected), "steps": result.steps, "seconds": seconds,
             "notes": notes}).encode()))
     run.write_together(files)  # the guess, its list and its record, or none
@@ -347,6 +358,11 @@ def _print_stage(row: MethodResult, reason: str) -> None:
                    "covariances say (a front end's optimistic covariances); the tests that "
                    "judge loop closures use each covariance times this. The map and its chi2 "
                    "are those of INPUT.g2o as written.")
+@click.option("--false-rejections", type=FiniteFloat(0.0, 1.0, max_open=True), default=None,
+              help="With --robust: the expected share of true loop closures among those it "
+                   "rejects beyond the chi-square bar (adaptive Benjamini-Hochberg; default "
+                   f"{FALSE_REJECTIONS_DEFAULT}, the library's); 0 rejects a closure only "
+                   "past that bar.")
 @click.option("--model", default=DEFAULT_MODEL, show_default=True,
               help="[agent] A shipped model name or a model file (--method rl, rl@<start>, "
                    "all).")
@@ -362,7 +378,8 @@ def _print_stage(row: MethodResult, reason: str) -> None:
               help="[agent] Seed of the rollouts' initial last actions.")
 @click.pass_context
 def main(ctx, input_path, output, method, budget, model, cycles, episodes, start, refine,
-         iters, json_path, seed, robust, trust_odometry, outliers_out, covariance_scale):
+         iters, json_path, seed, robust, trust_odometry, outliers_out, covariance_scale,
+         false_rejections):
     """Write an initial guess for INPUT.g2o (planar or 3D) to OUTPUT.
 
     The default, --method auto, runs the certified SE(d) relaxation, refines its estimate
@@ -379,7 +396,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
     _check_robust_options(ctx, robust, method, refine, outliers_out)
     if robust:
         _run_robust(input_path, output, outliers_out, trust_odometry, json_path,
-                    covariance_scale)
+                    covariance_scale, false_rejections)
         return
     _check_method_name(method, start)
     _check_method_options(ctx, method)
