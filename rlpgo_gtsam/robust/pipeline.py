@@ -788,7 +788,9 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
         holding: list[tuple[float, np.ndarray]] = []  # kept sets that hold their stretch
         for which, value, wide, angle, cluster in zip(singles + runs + clusters, chi2_sets,
                                                       spread, turn, is_cluster, strict=True):
-            bar_set = chi2_quantile(inlier_probability, group.dof * len(which))
+            bar_set = (_hotelling_bar(inlier_probability, group.dof * len(which))
+                       if group.hotelling_runs and len(which) > 1
+                       else chi2_quantile(inlier_probability, group.dof * len(which)))
             if (kept[which[0]] and len(which) > 1 and wide < _LEVERAGE_CHECK
                     and 0.5 * bar_set <= value):
                 holding.append((float(wide), which))
@@ -899,20 +901,30 @@ def _doubted(chi2_sets: np.ndarray, sets: list[np.ndarray], kept: np.ndarray,
     return doubted & kept
 
 
-@lru_cache(maxsize=256)
+def _hotelling_bar(inlier_probability: float, dof: int) -> float:
+    """The verify step's bar of a run where the group reads it so
+    (``Group.hotelling_runs``): the statistic at which its tail falls to ``1 -
+    inlier_probability``."""
+    return _statistic_at(1.0 - inlier_probability, dof)
+
+
 def _p_value_span(dof: int) -> tuple[float, float]:
-    """The statistics (``dof``) at which :func:`_innovation_p_value` is 1/2 and 1e-12
-    (bisection; it falls as the statistic grows)."""
-    def at(p_value: float) -> float:
-        low, high = 0.0, 1.0
-        while _innovation_p_value(high, dof) > p_value:
-            high *= 2.0
-        for _ in range(100):
-            middle = 0.5 * (low + high)
-            low, high = (middle, high) if _innovation_p_value(middle, dof) > p_value \
-                else (low, middle)
-        return low
-    return at(0.5), at(1e-12)
+    """The statistics (``dof``) at which :func:`_innovation_p_value` is 1/2 and 1e-12."""
+    return _statistic_at(0.5, dof), _statistic_at(1e-12, dof)
+
+
+@lru_cache(maxsize=256)
+def _statistic_at(p_value: float, dof: int) -> float:
+    """The statistic (``dof``) at which :func:`_innovation_p_value` falls to ``p_value``
+    (bisection; the tail falls as the statistic grows)."""
+    low, high = 0.0, 1.0
+    while _innovation_p_value(high, dof) > p_value:
+        high *= 2.0
+    for _ in range(100):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if _innovation_p_value(middle, dof) > p_value \
+            else (low, middle)
+    return high
 
 
 def _innovation_p_value(value: float, dof: int) -> float:
