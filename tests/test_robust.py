@@ -427,6 +427,21 @@ def test_innovation_p_values_are_hotellings():
     assert _innovation_p_value(21.1, 3) == pytest.approx(2.966e-4, rel=1e-3)  # chi2: 1e-4
 
 
+def test_a_3d_run_is_judged_by_its_own_tail():
+    """In 3D a run's bar is where its Hotelling tail reaches 1 - inlier_probability (30 dof:
+    108, where chi-square's 67.6 would pass a true run only with probability 0.993); planar
+    runs and every single closure keep the chi-square quantile."""
+    from rlpgo_gtsam.robust.groups import _Planar, _Spatial
+    from rlpgo_gtsam.robust.pipeline import _hotelling_bar, _innovation_p_value, chi2_quantile
+
+    assert _Spatial.hotelling_runs and not _Planar.hotelling_runs
+    bar = _hotelling_bar(0.9999, 30)
+    assert _innovation_p_value(bar, 30) == pytest.approx(1e-4, rel=1e-6)
+    assert bar == pytest.approx(108.03, abs=0.01) and chi2_quantile(0.9999, 30) < 67.7
+    assert 1.0 - _innovation_p_value(chi2_quantile(0.9999, 30), 30) == pytest.approx(
+        0.993, abs=5e-4)
+
+
 def test_the_false_rejection_bar_follows_benjamini_hochberg():
     """p-values sorted, the k smallest rejected for the largest k with p_(k) <= q k / (pi0 m)
     (pi0 = 1 here: most p-values lie above 1/2); the closures already refuted count as
