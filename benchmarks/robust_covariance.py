@@ -11,9 +11,10 @@ wrong closure). Columns: the closures ``robust_initialize`` rejects as stated an
 ``covariance_scale=F``; the chi2 of the second over F against the clean default's (certified
 + LM to convergence on the graph as it was); and the estimate of F a user can make on a map
 believed clean, chi2 / (dof x (edges - poses + 1)) of the clean default on the scaled graph
-(the variance factor of least squares), and the closures rejected when told that estimate
-(at least 1) and twice it. Seconds of the first two runs. Rows are checkpointed to
-``benchmarks/results/<name>.json``; the table goes to ``<name>.md``.
+(the variance factor of least squares: :func:`rlpgo_gtsam.residuals.variance_factor`), and
+the closures rejected when told that estimate (at least 1) and twice it. Seconds of the
+first two runs. Rows are checkpointed to ``benchmarks/results/<name>.json``; the table goes
+to ``<name>.md``.
 """
 
 from __future__ import annotations
@@ -24,12 +25,12 @@ import sys
 import time
 from pathlib import Path
 
-import gtsam
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.common import write_rows  # noqa: E402
 from benchmarks.robust import FILES, clean_case  # noqa: E402
+from rlpgo_gtsam.graph3d import extract_pose_graph  # noqa: E402
+from rlpgo_gtsam.residuals import variance_factor  # noqa: E402
 from rlpgo_gtsam.robust import robust_initialize  # noqa: E402
 from rlpgo_gtsam.synthetic import scaled_informations  # noqa: E402
 
@@ -42,9 +43,7 @@ def row(name: str, factor: float, graph, values, optimum_chi2: float) -> dict:
     began = time.perf_counter()
     told = robust_initialize(scaled, values, covariance_scale=factor)
     told_s = time.perf_counter() - began
-    poses, edges = values.size(), sum(isinstance(scaled.at(k), gtsam.BetweenFactorPose2)
-                                      for k in range(scaled.size()))
-    estimate = factor * optimum_chi2 / (3 * (edges - poses + 1))
+    estimate = factor * variance_factor(extract_pose_graph(graph, values), optimum_chi2)
     # told the estimate (at least 1: below, the covariances overstate the noise), and twice it
     told_estimate = [len(robust_initialize(scaled, values, covariance_scale=k * max(estimate, 1.0)
                                            ).rejected) for k in (1.0, 2.0)]

@@ -1,13 +1,13 @@
 """How well the edges ``--robust`` keeps fit their covariances, on Vertigo's policies: the
-evidence behind its hint (``rlpgo_cli.init._LOOSE_FIT``).
+evidence behind its hint (``rlpgo_cli.init.LOOSE_FIT``).
 
     python benchmarks/robust_fit.py [--cases gen,MIT,Intel,FR079,M3500,City10K]
         [--fractions 0.05,0.1,0.2,0.3] [--name robust_fit]
 
 Per case (:mod:`benchmarks.robust`'s, covariances as the file gives them), without wrong
 closures and with each policy and fraction of them: the closures ``robust_initialize``
-rejected, its recall, the wrong closures it kept, and the kept edges' variance factor,
-``chi2 / (3 (kept edges - poses + 1))``, which ``rlpgo-init --robust`` compares with 1.5
+rejected, its recall, the wrong closures it kept, and the kept edges' variance factor
+(:func:`rlpgo_gtsam.residuals.variance_factor`), which ``rlpgo-init --robust`` compares with 1.5
 (over ``--covariance-scale``) to print its hint where it rejected any. Rows are checkpointed
 to ``benchmarks/results/<name>.json``; the table goes to ``<name>.md``.
 """
@@ -21,20 +21,21 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from rlpgo_cli.init import LOOSE_FIT  # noqa: E402
+
 from benchmarks.common import write_rows  # noqa: E402
 from benchmarks.robust import clean_case, corrupted, scores  # noqa: E402
 from rlpgo_gtsam.graph3d import extract_pose_graph  # noqa: E402
+from rlpgo_gtsam.residuals import variance_factor  # noqa: E402
 from rlpgo_gtsam.robust import robust_initialize  # noqa: E402
 
 MODES = ("random", "local", "group", "localgroup")
-LOOSE_FIT = 1.5  # rlpgo_cli.init._LOOSE_FIT
 
 
 def row(name: str, mode: str, fraction: float, graph, values, wrong: list[int]) -> dict:
     result = robust_initialize(graph, values)
     g = extract_pose_graph(graph, values)
-    kept = g.num_edges - len(result.rejected)
-    fit = result.chi2 / (3 * (kept - g.num_poses + 1))
+    fit = variance_factor(g, result.chi2, g.num_edges - len(result.rejected))
     return {"case": name, "mode": mode, "fraction": fraction, "wrong": len(wrong),
             "rejected": len(result.rejected), "recall": scores(result.rejected, wrong)[1],
             "wrong_kept": len(set(wrong) - set(result.rejected)), "chi2": result.chi2,

@@ -17,7 +17,7 @@ from rlpgo_gtsam.graph import edge_chi2
 from rlpgo_gtsam.graph3d import AnyPoseGraph
 from rlpgo_gtsam.graph3d import edge_chi2 as edge_chi2_3d
 
-__all__ = ["outlier_suspicion", "SUSPICION_CHI2", "SUSPICION_CHI2_3D"]
+__all__ = ["outlier_suspicion", "variance_factor", "SUSPICION_CHI2", "SUSPICION_CHI2_3D"]
 
 # Per-edge chi2 above these has probability 0.001 under Gaussian noise: 3 dof (planar
 # edges) and 6 dof (3D edges).
@@ -49,3 +49,16 @@ def outlier_suspicion(pose_graph: AnyPoseGraph, values: gtsam.Values) -> str | N
     return (f"{count} of {g.num_edges} edges fit with chi2 > {bound:g} (Gaussian noise "
             f"gives about {expected:.0f}; worst: edges {shown}): wrong loop closures are likely; "
             "try --robust")
+
+
+def variance_factor(pose_graph: AnyPoseGraph, chi2_value: float | None,
+                    edges: int | None = None) -> float | None:
+    """``chi2_value`` over its degrees of freedom, ``dof (edges - poses + held)`` (dof 3
+    planar, 6 in 3D; ``edges``: the edges it was taken on, all of the graph's by default;
+    held: the anchor and the FIXed poses): about 1 where the covariances state the noise,
+    above 1 where they understate it (docs/robust.md); None without a chi2 or without a
+    redundant measurement."""
+    dof = 3 if pose_graph.dimension == 2 else 6
+    edges = pose_graph.num_edges if edges is None else edges
+    redundancy = dof * (edges - pose_graph.num_poses + len(pose_graph.held[0]))
+    return None if chi2_value is None or redundancy <= 0 else chi2_value / redundancy

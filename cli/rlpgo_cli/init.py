@@ -28,6 +28,7 @@ from rlpgo_gtsam.ranking import (
     ties,
     usable_rows,
 )
+from rlpgo_gtsam.residuals import variance_factor
 from rlpgo_gtsam.rl.models import DEFAULT_MODEL, model_path
 from rlpgo_gtsam.staged import DEFAULT_BUDGET_S, DEFAULT_SEARCHES, staged_initialize
 
@@ -201,17 +202,7 @@ def _check_robust_options(ctx: click.Context, robust: bool, method: str, refine:
 # the robust benchmark's cases with their covariances as given (benchmarks/robust_fit.py, 102
 # runs) it was at most 1.07 where no wrong closure was kept (gen), and 1.61, 1.78 and 3.10 on
 # MIT's `local` runs at 5, 20 and 30%, which kept 2, 8 and 17.
-_LOOSE_FIT = 1.5
-
-
-def _variance_factor(pose_graph, chi2_value: float | None, edges: int) -> float | None:
-    """``chi2_value`` over its degrees of freedom, ``dof (edges - poses + held)`` (dof 3 planar,
-    6 in 3D; held: the anchor and the FIXed poses): about 1 where the covariances state the
-    noise, above 1 where they understate it (docs/robust.md); None without a chi2 or
-    without a redundant measurement."""
-    dof = 3 if pose_graph.dimension == 2 else 6
-    redundancy = dof * (edges - pose_graph.num_poses + len(pose_graph.held[0]))
-    return None if chi2_value is None or redundancy <= 0 else chi2_value / redundancy
+LOOSE_FIT = 1.5
 
 
 def _describe_step(step: dict) -> str:
@@ -246,7 +237,8 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
                 trust_odometry: bool, json_path: Path | None,
                 covariance_scale: float = 1.0,
                 false_rejections: float | None = None) -> None:
-    from rlpgo_gtsam.robust import robust_initialize  # not on the default's path
+    # not on the default's path
+    from rlpgo_gtsam.robust import DEFAULT_FALSE_REJECTION_RATE, robust_initialize
 
     run = RunFiles([input_path])
     run.check(output, outliers_out, json_path)  # fail before the work, not after
@@ -255,26 +247,27 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
     _print_notes(notes)
     began = time.perf_counter()
     pose_graph = read.pose_graph()
-    rate = {} if false_rejections is None else {"false_rejection_rate": false_rejections}
+    rate = DEFAULT_FALSE_REJECTION_RATE if false_rejections is None else false_rejections
     if pose_graph.dimension == 3:  # the robust path takes what it can: its error otherwise
         try:
             result = robust_initialize(graph, values, trust_odometry=trust_odometry,
-                                       covariance_scale=covariance_scale, **rate)
+                                       covariance_scale=covariance_scale,
+                                       false_rejection_rate=rate)
         except RlpgoError as error:
             raise RlpgoError(f"--robust on {input_path} (a 3D pose graph): {error}") from None
     else:
         result = robust_initialize(graph, values, trust_odometry=trust_odometry,
                                    pose_graph=pose_graph, covariance_scale=covariance_scale,
-                                   **rate)
+                                   false_rejection_rate=rate)
     for step in result.steps:
         click.echo(_describe_step(step))
     for kept, other in result.ambiguous:
         click.echo(f"ambiguous: {len(kept)} loop closures kept conflict with {len(other)} "
                    "others that agree among themselves and are nearly as well supported; the "
                    f"map's fit decided (kept factors {_few(kept)}; the others {_few(other)})")
-    fit = _variance_factor(pose_graph, result.chi2, pose_graph.num_edges - len(result.rejected))
+    fit = variance_factor(pose_graph, result.chi2, pose_graph.num_edges - len(result.rejected))
     hint = None
-    if result.rejected and fit is not None and fit > _LOOSE_FIT * covariance_scale:
+    if result.rejected and fit is not None and fit > LOOSE_FIT * covariance_scale:
         hint = (f"the edges kept fit {fit / covariance_scale:.3g} times worse than their "
                 "covariances say (chi2 over its degrees of freedom): wrong loop closures "
                 "remain among them, or the covariances understate the noise and true ones "
@@ -464,8 +457,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
             "poses": pose_graph.num_poses, "edges": pose_graph.num_edges, "method": method,
             "input_chi2": input_chi2, "result": chosen.method,
             "refine": solver, "iters": iters if solver else 0, "chi2": chosen.refined_chi2,
-            "variance_factor": _variance_factor(pose_graph, chosen.refined_chi2,
-                                                pose_graph.num_edges),
+            "variance_factor": variance_factor(pose_graph, chosen.refined_chi2),
             "certified": staged.certified if method == "auto" else (
                 None if certificate is None else bool(certificate.certified)),
             "status": None if certificate is None else str(certificate.status),
