@@ -409,7 +409,7 @@ class _Problem(Relaxation):
         return rows, cols, pos_a, lap, b, d
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Shifted:
     """A factor of the block matrix whose Schur complement is Q + diag(shift)."""
 
@@ -428,7 +428,7 @@ class _Shifted:
         return negative_pivots(self.lu)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Tangent:
     """A factor of the rank-1 tangent Hessian at ``z`` (:meth:`_Problem.tangent_factor`)."""
 

@@ -90,7 +90,7 @@ _UPPER = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))  # g2o's order of the 
 T = TypeVar("T")
 
 
-@dataclass
+@dataclass(eq=False)
 class _Table:
     """A g2o file as arrays, in file order: what both readers produce.
 
@@ -213,7 +213,7 @@ def open_g2o(path: Path) -> BinaryIO:
 # --------------------------------------------------------------------------- the fast reader
 
 
-@dataclass
+@dataclass(eq=False)
 class _Scan:
     """What the fast reader has gathered so far, one list entry per chunk."""
 
@@ -437,7 +437,7 @@ def _information(upper: list[float]) -> np.ndarray:
 # --------------------------------------------------------------------------- the careful reader
 
 
-@dataclass
+@dataclass(eq=False)
 class _Edge:
     line: int
     i: int
@@ -446,7 +446,7 @@ class _Edge:
     information: np.ndarray
 
 
-@dataclass
+@dataclass(eq=False)
 class _Parsed:
     vertices: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     vertex_lines: dict[int, int] = field(default_factory=dict)

@@ -96,7 +96,7 @@ _UPPER = np.triu_indices(6)
 _QUATERNION_FLOOR = 1e-9  # a quaternion shorter than this has no direction to normalize
 
 
-@dataclass
+@dataclass(eq=False)
 class _Parsed:
     vertices: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     vertex_lines: dict[int, int] = field(default_factory=dict)
@@ -108,7 +108,7 @@ class _Parsed:
     changed: dict[str, list[int]] = field(default_factory=dict)
 
 
-@dataclass
+@dataclass(eq=False)
 class _Table:
     """A 3D g2o file as arrays, in file order: what both readers produce.
 
@@ -232,7 +232,7 @@ def _build(path: Path, table: _Table) -> tuple[gtsam.NonlinearFactorGraph, gtsam
 # --------------------------------------------------------------------------- the fast reader
 
 
-@dataclass
+@dataclass(eq=False)
 class _Scan:
     """What the fast reader has gathered so far, one list entry per chunk."""
 

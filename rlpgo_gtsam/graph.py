@@ -80,7 +80,7 @@ class PoseArrays:
             raise GraphError(disconnection(self.keys, self.keys[self.edges]))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class PoseGraph2D(PoseArrays):
     """The measurements of a planar pose graph as arrays; poses indexed 0..n-1.
 
@@ -293,7 +293,7 @@ def information_problems(matrices: np.ndarray,
     return problems
 
 
-@dataclass
+@dataclass(eq=False)
 class Factors:
     """A graph's factors sorted by :func:`sort_factors`.
 

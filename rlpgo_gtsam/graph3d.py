@@ -76,7 +76,7 @@ LIFTED = "lifted"
 INDEFINITE = "indefinite"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class PoseGraph3D(PoseArrays):
     """The measurements of a 3D pose graph as arrays; poses indexed 0..n-1.
 

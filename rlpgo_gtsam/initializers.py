@@ -61,7 +61,7 @@ __all__ = [
 ]
 
 
-@dataclass
+@dataclass(eq=False)
 class Estimate:
     """What an initializer's :meth:`Initializer.estimate` produces.
 
@@ -76,7 +76,7 @@ class Estimate:
     certificate: Any = None
 
 
-@dataclass
+@dataclass(eq=False)
 class InitResult:
     """One initializer's answer for one graph.
 

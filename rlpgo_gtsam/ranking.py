@@ -35,7 +35,7 @@ FITS_MARGIN = 4.0
 _PROGRESS_EVERY_S = 2.0  # refine_until's progress lines, as often as the staircase's
 
 
-@dataclass
+@dataclass(eq=False)
 class MethodResult:
     """One method's row of a comparison; ``failure`` says why a method gave no result.
 

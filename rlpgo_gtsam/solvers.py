@@ -24,7 +24,7 @@ _LM_LAMBDA_MAX = 1e5
 Params = gtsam.LevenbergMarquardtParams | gtsam.GaussNewtonParams
 
 
-@dataclass
+@dataclass(eq=False)
 class RefineResult:
     """What :func:`refine` returns.
 

@@ -77,7 +77,7 @@ REFINE_RESERVE = 0.2
 _FALLBACK = "chordal"
 
 
-@dataclass
+@dataclass(eq=False)
 class StagedResult:
     """What :func:`staged_initialize` did.
 

@@ -125,7 +125,7 @@ _REASONS = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Certificate:
     """What the relaxation proves about an orientation estimate (costs in the relaxation's
     own units, see the module docstring: about chi2 plus its rotational part near a good
@@ -244,7 +244,7 @@ class Relaxation:
         return float(tolerance)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Manifold:
     """The blocks' operations (methods a subclass defines) and the staircase's settings.
 
@@ -515,7 +515,7 @@ class Progress:
                           + (f" ({note})" if note else ""))
 
 
-@dataclass
+@dataclass(eq=False)
 class Run:
     """What one rank's trust region did (for the progress lines)."""
 
@@ -695,7 +695,7 @@ def _shortened(path: list, radius: float) -> tuple | None:
 
 # --- verification, escape, certificate ------------------------------------------------------
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Check:
     certified: bool  # lambda_min(S) >= -eta
     min_eigenvalue: float  # a proven floor under it where imprecise, NaN where not verified

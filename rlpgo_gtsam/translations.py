@@ -42,7 +42,7 @@ def solve_translations(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray
     return TranslationStep(pose_graph).positions(np.asarray(theta, dtype=float), gauge=False)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SystemParts:
     """What the translation step's whitened system takes from the edges alone, not from the
     orientations (see :func:`whitened_system`).

@@ -13,7 +13,7 @@ from rlpgo_gtsam.g2o3d import read_pose_graph_extracted
 from rlpgo_gtsam.graph3d import AnyPoseGraph, extract_pose_graph
 
 
-@dataclass
+@dataclass(eq=False)
 class InputGraph:
     """One g2o input as read.
 
