@@ -81,6 +81,7 @@ EDGE_LIST_LINE = "line <L> EDGE_SE2 <id_i> <id_j>"
 _FIX_PER_LINE = 1000  # 21-byte ids: at most 22 KB a line, well inside MAX_LINE_BYTES
 # A line whose tag starts so is a 3D one.
 TAGS_3D = ("VERTEX_SE3", "EDGE_SE3", "VERTEX3", "EDGE3", "VERTEX_TRACKXYZ", "EDGE_SE3_")
+TAGS_2D = ("VERTEX_SE2", "EDGE_SE2", "VERTEX2", "EDGE2")  # a line's tag starting so is planar
 # The fast reader's chunk (2 MiB: about 10 000 edge lines) and the longest line it takes;
 # a longer one, or anything near MAX_LINE_BYTES, is the careful reader's to judge.
 _CHUNK_BYTES = 1 << 21

@@ -20,8 +20,9 @@ the 3D rule (:func:`~rlpgo_gtsam.graph3d.information_rule_3d`); one it changes, 
 indefinite as ``gtsam.readG2o`` does, is told in an
 :class:`~rlpgo_gtsam.errors.InformationWarning` per file and kind.
 
-:func:`read_pose_graph` reads a g2o file of either dimension, told by its first pose line
-(:func:`g2o_dimension`); :func:`write_pose_graph` writes a graph of either dimension.
+Files and graphs of either dimension are told apart, and handed here or to
+:mod:`rlpgo_gtsam.g2o`, by :mod:`rlpgo_gtsam.dimension` (``read_pose_graph``,
+``write_pose_graph``).
 """
 
 from __future__ import annotations
@@ -40,12 +41,11 @@ import numpy as np
 from rlpgo_gtsam.errors import G2oFormatError, InformationWarning, OutputError
 from rlpgo_gtsam.files import write_text
 from rlpgo_gtsam.g2o import (
-    TAGS_3D,
+    TAGS_2D,
     check_references,
     distinct_rows,
     fix_lines,
     format_15,
-    g2o_text,
     information_texts,
     numbered_lines,
     parse_fix,
@@ -53,24 +53,18 @@ from rlpgo_gtsam.g2o import (
     parse_numbers,
     plain_keys,
     read_either,
-    read_g2o,
-    read_g2o_extracted,
-    read_g2o_lines,
     scan_blocks,
     short_token,
     texts_15,
     with_fix_lines,
     writable_factors,
-    write_g2o,
 )
-from rlpgo_gtsam.graph import PoseGraph2D, disconnection
+from rlpgo_gtsam.graph import disconnection
 from rlpgo_gtsam.graph3d import (
     INDEFINITE,
     LIFTED,
     MAX_CONDITION_3D,
     ROUNDING_3D,
-    AnyPoseGraph,
-    graph_dimension,
     information_problem_6,
     information_problems_6,
     information_rule_3d,
@@ -80,15 +74,12 @@ from rlpgo_gtsam.se3 import compose, inverse, quaternions_to_rotations, rotation
 from rlpgo_gtsam.textscan import Text
 
 __all__ = ["read_g2o3d", "read_g2o3d_lines", "write_g2o3d", "g2o3d_text", "g2o3d_text_lines",
-           "G2O_TO_GTSAM", "TAGS_2D", "g2o_dimension", "read_pose_graph", "read_pose_graph_lines",
-           "read_pose_graph_extracted",
-           "write_pose_graph", "pose_graph_text"]
+           "G2O_TO_GTSAM"]
 
 VERTEX = "VERTEX_SE3:QUAT"
 EDGE = "EDGE_SE3:QUAT"
 _VERTEX_FIELDS = 8
 _EDGE_FIELDS = 30
-TAGS_2D = ("VERTEX_SE2", "EDGE_SE2", "VERTEX2", "EDGE2")  # a line's tag starting so is planar
 # g2o's tangent order (x y z, then rotation) -> GTSAM's (rotation, then x y z): the
 # information in GTSAM's order is info_g2o[G2O_TO_GTSAM][:, G2O_TO_GTSAM]
 G2O_TO_GTSAM = np.array([3, 4, 5, 0, 1, 2])
@@ -712,91 +703,3 @@ def write_g2o3d(path: str | os.PathLike[str], graph: gtsam.NonlinearFactorGraph,
             cannot (see :func:`g2o3d_text`).
     """
     write_text(path, g2o3d_text(graph, values))
-
-
-# --------------------------------------------------------------------------- either dimension
-
-
-def g2o_dimension(path: str | os.PathLike[str]) -> int:
-    """3 if the first pose line of the g2o file at ``path`` is a 3D one (``VERTEX_SE3:QUAT``,
-    ``EDGE_SE3:QUAT``, any tag of :data:`~rlpgo_gtsam.g2o.TAGS_3D`), else 2.
-
-    It reads up to that line only: a later line of the other dimension is the reader's
-    ``file:line`` error (a file holds 2D or 3D lines, not both). A file without a pose line
-    is 2: the planar reader names what it holds.
-
-    Raises:
-        G2oFormatError: the file is missing or unreadable, or a line before the first pose
-            line is (too long, binary, not UTF-8).
-    """
-    for _, tag, _ in _records(Path(path)):
-        upper = tag.upper()
-        if upper.startswith(TAGS_3D):
-            return 3
-        if upper.startswith(TAGS_2D) or tag != "FIX":
-            return 2  # an unknown tag: the planar reader names it
-    return 2
-
-
-def read_pose_graph(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph,
-                                                          gtsam.Values]:
-    """Read a g2o file of either dimension (:func:`g2o_dimension`): a ``BetweenFactorPose2``
-    graph by :func:`~rlpgo_gtsam.g2o.read_g2o` or a ``BetweenFactorPose3`` one by
-    :func:`read_g2o3d`, with their ``file:line`` errors.
-
-    Raises:
-        G2oFormatError: as the reader of the file's dimension.
-    """
-    return read_g2o3d(path) if g2o_dimension(path) == 3 else read_g2o(path)
-
-
-def read_pose_graph_lines(
-    path: str | os.PathLike[str],
-) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int]]:
-    """:func:`read_pose_graph`, and the file line of each factor
-    (:func:`~rlpgo_gtsam.g2o.read_g2o_lines` or :func:`read_g2o3d_lines`).
-
-    Raises:
-        G2oFormatError: as the reader of the file's dimension.
-    """
-    return read_g2o3d_lines(path) if g2o_dimension(path) == 3 else read_g2o_lines(path)
-
-
-def read_pose_graph_extracted(
-    path: str | os.PathLike[str],
-) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int], PoseGraph2D | None]:
-    """:func:`read_pose_graph_lines`, and for a planar file the graph's extraction as its
-    reader made it (:func:`~rlpgo_gtsam.g2o.read_g2o_extracted`); None for a 3D file, or
-    where the extraction would refuse the graph: extract it then
-    (:func:`~rlpgo_gtsam.graph3d.extract_pose_graph`).
-
-    Raises:
-        G2oFormatError: as the reader of the file's dimension.
-    """
-    if g2o_dimension(path) == 3:
-        return (*read_g2o3d_lines(path), None)
-    return read_g2o_extracted(path)
-
-
-def pose_graph_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                    pose_graph: AnyPoseGraph | None = None) -> str:
-    """The g2o text of a planar or a 3D graph (:func:`~rlpgo_gtsam.graph3d.graph_dimension`):
-    :func:`~rlpgo_gtsam.g2o.g2o_text` (given ``pose_graph``, the graph's extraction, from its
-    arrays) or :func:`g2o3d_text`."""
-    if graph_dimension(graph) == 3:
-        return g2o3d_text(graph, values)
-    return g2o_text(graph, values, pose_graph if isinstance(pose_graph, PoseGraph2D) else None)
-
-
-def write_pose_graph(path: str | os.PathLike[str], graph: gtsam.NonlinearFactorGraph,
-                     values: gtsam.Values) -> None:
-    """Write a planar or a 3D graph as g2o, atomically (:func:`~rlpgo_gtsam.g2o.write_g2o` or
-    :func:`write_g2o3d`).
-
-    Raises:
-        OutputError: as the writer of the graph's dimension.
-    """
-    if graph_dimension(graph) == 3:
-        write_g2o3d(path, graph, values)
-    else:
-        write_g2o(path, graph, values)

@@ -8,8 +8,9 @@ an :class:`~rlpgo_gtsam.initializers.InitResult` whose ``poses`` is an (n, 3, 4)
 Rotation initializers get positions from
 :func:`~rlpgo_gtsam.translations3d.poses_with_rotations` (GTSAM's cost minimized exactly
 for the rotations). They are not in the planar registry: :data:`INITIALIZERS_3D` names them
-(the one list of 3D method names), :func:`make_initializer_3d` makes one by name, and
-:func:`make_initializer_for` one for a graph of either dimension.
+(the one list of 3D method names; :data:`rlpgo_gtsam.dimension.METHODS_3D` is held equal to
+it by a test) and :func:`make_initializer_3d` makes one by name;
+:func:`rlpgo_gtsam.dimension.make_initializer_for` makes one for a graph of either dimension.
 """
 
 from __future__ import annotations
@@ -24,15 +25,13 @@ import numpy as np
 from rlpgo_gtsam.chordal3d import chordal_rotations
 from rlpgo_gtsam.errors import RlpgoError, SolverError, one_line
 from rlpgo_gtsam.graph import chi2
-from rlpgo_gtsam.graph3d import AnyPoseGraph, PoseGraph3D, rotation_weights
+from rlpgo_gtsam.graph3d import PoseGraph3D, rotation_weights
 from rlpgo_gtsam.initializers import (
     Estimate,
     Initializer,
     InitResult,
     build_initializer,
-    check_method,
     initializer_names,
-    make_initializer,
 )
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.translations3d import poses_with_rotations
@@ -47,13 +46,10 @@ __all__ = [
     "FastSync3D",
     "Shonan3D",
     "INITIALIZERS_3D",
-    "COMPARISON_3D",
     "pose_matrices",
     "method_names",
     "check_method_3d",
-    "check_method_for",
     "make_initializer_3d",
-    "make_initializer_for",
 ]
 
 
@@ -253,11 +249,6 @@ INITIALIZERS_3D: dict[str, type[Initializer3D]] = {
     cls.name: cls for cls in (Odometry3D, Chordal3D, Certified3D, InitializePose3, FastSync3D,
                               Shonan3D)
 }
-# The 3D comparison rows, the certified relaxation first (ties go to the earlier row):
-# rlpgo-compare's default on a 3D file and rlpgo-init --method all's.
-COMPARISON_3D = ("certified", *(name for name in INITIALIZERS_3D if name != "certified"))
-
-
 def method_names(dimension: int) -> list[str]:
     """The method names of graphs of ``dimension`` (2: the planar registry's, 3:
     :data:`INITIALIZERS_3D`'s)."""
@@ -278,12 +269,6 @@ def check_method_3d(name: str) -> None:
     raise RlpgoError(f"unknown method '{name}'; {choose}")
 
 
-def check_method_for(dimension: int, name: str) -> None:
-    """:func:`~rlpgo_gtsam.initializers.check_method` on a planar graph, else
-    :func:`check_method_3d`."""
-    (check_method_3d if dimension == 3 else check_method)(name)
-
-
 def make_initializer_3d(name: str, **options: Any) -> Initializer:
     """A new 3D initializer of a name in :data:`INITIALIZERS_3D`; ``options`` go to its
     factory.
@@ -293,11 +278,3 @@ def make_initializer_3d(name: str, **options: Any) -> Initializer:
     """
     check_method_3d(name)
     return build_initializer(INITIALIZERS_3D[name], name, options)
-
-
-def make_initializer_for(pose_graph: AnyPoseGraph, name: str, **options: Any) -> Initializer:
-    """:func:`~rlpgo_gtsam.initializers.make_initializer` for a planar graph,
-    :func:`make_initializer_3d` for a 3D one."""
-    if pose_graph.dimension == 3:
-        return make_initializer_3d(name, **options)
-    return make_initializer(name, **options)

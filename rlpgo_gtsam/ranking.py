@@ -8,16 +8,18 @@ import math
 import time
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gtsam
 import numpy as np
 
+from rlpgo_gtsam.dimension import extract_pose_graph, make_initializer_for
 from rlpgo_gtsam.errors import RlpgoError, one_line
-from rlpgo_gtsam.graph3d import AnyPoseGraph, extract_pose_graph
 from rlpgo_gtsam.initializers import InitResult
-from rlpgo_gtsam.initializers3d import make_initializer_for, pose_matrices
 from rlpgo_gtsam.solvers import RefineResult, refine
+
+if TYPE_CHECKING:
+    from rlpgo_gtsam.graph3d import AnyPoseGraph
 
 __all__ = ["MethodResult", "compare_methods", "best_of", "tied_best", "run_method",
            "initialize_row", "refine_row", "refine_until", "start_from", "line_progress_options",
@@ -252,7 +254,7 @@ def start_from(row: MethodResult, pose_graph: AnyPoseGraph) -> InitResult:
     charged again: the row already counts them)."""
     poses = pose_graph.poses_of(row.refined)
     if pose_graph.dimension == 3:
-        poses = pose_matrices(*poses)
+        poses = np.concatenate([poses[0], poses[1][:, :, None]], axis=2)  # (n, 3, 4) [R | t]
     return InitResult(row.method, row.refined, poses, row.refined_chi2, 0.0)
 
 

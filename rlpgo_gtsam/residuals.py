@@ -9,13 +9,15 @@ and imports nothing of the robust pipeline.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import gtsam
 import numpy as np
 
 from rlpgo_gtsam.graph import edge_chi2
-from rlpgo_gtsam.graph3d import AnyPoseGraph
-from rlpgo_gtsam.graph3d import edge_chi2 as edge_chi2_3d
+
+if TYPE_CHECKING:
+    from rlpgo_gtsam.graph3d import AnyPoseGraph
 
 __all__ = ["outlier_suspicion", "variance_factor", "SUSPICION_CHI2", "SUSPICION_CHI2_3D"]
 
@@ -37,6 +39,8 @@ def outlier_suspicion(pose_graph: AnyPoseGraph, values: gtsam.Values) -> str | N
     """
     g = pose_graph
     if g.dimension == 3:
+        from rlpgo_gtsam.graph3d import edge_chi2 as edge_chi2_3d  # a 3D graph's module
+
         residuals, bound = edge_chi2_3d(g, *g.poses_of(values)), SUSPICION_CHI2_3D
     else:
         residuals, bound = edge_chi2(g, g.poses_of(values)), SUSPICION_CHI2

@@ -6,12 +6,16 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import gtsam
 
 from rlpgo_gtsam.errors import SolverError, one_line
 from rlpgo_gtsam.graph import chi2
-from rlpgo_gtsam.graph3d import AnyPoseGraph, extract_pose_graph
+from rlpgo_gtsam.graph3d import extract_pose_graph
+
+if TYPE_CHECKING:
+    from rlpgo_gtsam.graph3d import AnyPoseGraph
 
 __all__ = ["RefineResult", "refine", "solver_params", "gauge_prior", "SOLVERS"]
 

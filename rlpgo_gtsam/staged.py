@@ -49,17 +49,19 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gtsam
 
+from rlpgo_gtsam.dimension import check_method_for, extract_pose_graph
 from rlpgo_gtsam.errors import RlpgoError
-from rlpgo_gtsam.graph3d import AnyPoseGraph, extract_pose_graph
 from rlpgo_gtsam.initializers import InitResult
-from rlpgo_gtsam.initializers3d import check_method_for
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.ranking import MethodResult, best_of, initialize_row, refine_row, start_from
 from rlpgo_gtsam.residuals import outlier_suspicion
+
+if TYPE_CHECKING:
+    from rlpgo_gtsam.graph3d import AnyPoseGraph
 
 __all__ = ["StagedResult", "staged_initialize", "DEFAULT_BUDGET_S", "DEFAULT_SEARCHES",
            "SEARCHES", "SEARCHES_3D", "REFINE_RESERVE"]

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
+import sys
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -26,7 +28,8 @@ from rlpgo_gtsam import (
     staged_initialize,
     write_g2o,
 )
-from rlpgo_gtsam.g2o3d import G2O_TO_GTSAM, g2o_dimension, read_pose_graph
+from rlpgo_gtsam.dimension import COMPARISON_3D, METHODS_3D, g2o_dimension, read_pose_graph
+from rlpgo_gtsam.g2o3d import G2O_TO_GTSAM
 from rlpgo_gtsam.graph import information_problem
 from rlpgo_gtsam.graph3d import (
     INDEFINITE,
@@ -39,7 +42,7 @@ from rlpgo_gtsam.graph3d import (
     rotation_weights,
     translation_weights,
 )
-from rlpgo_gtsam.initializers3d import COMPARISON_3D, INITIALIZERS_3D
+from rlpgo_gtsam.initializers3d import INITIALIZERS_3D
 from rlpgo_gtsam.residuals import outlier_suspicion
 from rlpgo_gtsam.solvers import refine
 from rlpgo_gtsam.staged import SEARCHES, SEARCHES_3D
@@ -303,6 +306,32 @@ def test_dimension_is_told_by_the_first_pose_line(tmp_path):
     assert g2o_dimension(path) == 2  # the planar reader names the unknown tag
     with pytest.raises(RlpgoError, match=r":1: unknown tag 'FOO'"):
         read_pose_graph(path)
+
+
+def test_the_planar_names_of_the_3d_methods_are_the_registry_s():
+    assert METHODS_3D == tuple(INITIALIZERS_3D)
+    assert COMPARISON_3D[0] == "certified" and sorted(COMPARISON_3D) == sorted(METHODS_3D)
+
+
+_LOADED = ("import sys\n"
+           "from rlpgo_cli.init import main\n"
+           "try:\n"
+           "    main(sys.argv[1:])\n"
+           "except SystemExit as stop:\n"
+           "    assert not stop.code, stop.code\n"
+           "print(' '.join(m for m in sys.modules if m.startswith('rlpgo_gtsam')))\n")
+_MODULES_3D = {"rlpgo_gtsam.g2o3d", "rlpgo_gtsam.initializers3d", "rlpgo_gtsam.certified3d",
+               "rlpgo_gtsam.chordal3d", "rlpgo_gtsam.translations3d"}
+
+
+@pytest.mark.parametrize("name, loaded", [("MIT.g2o", False), ("3d/tinyGrid3D.g2o", True)])
+def test_a_planar_command_loads_no_3d_module(tmp_path, name, loaded):
+    done = subprocess.run([sys.executable, "-c", _LOADED, str(dataset(name)), "-o",
+                           str(tmp_path / "out.g2o")], capture_output=True, text=True,
+                          check=True, timeout=120)
+    modules = set(done.stdout.splitlines()[-1].split())
+    assert "rlpgo_gtsam.dimension" in modules
+    assert (_MODULES_3D <= modules) if loaded else not (_MODULES_3D & modules)
 
 
 # --------------------------------------------------------------------------- rlpgo-compare

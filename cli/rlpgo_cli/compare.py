@@ -13,14 +13,18 @@ from rlpgo_cli.inputs import read_input
 from rlpgo_cli.output import RunFiles, json_text
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, OutputFile
 from rlpgo_gtsam.accuracy import TrajectoryErrors, trajectory_errors
+from rlpgo_gtsam.dimension import (
+    COMPARISON_3D,
+    METHODS_3D,
+    check_method_3d,
+    extract_pose_graph,
+    g2o_dimension,
+)
 from rlpgo_gtsam.errors import OutputError, RlpgoError
 from rlpgo_gtsam.files import check_name
 from rlpgo_gtsam.g2o import read_g2o
-from rlpgo_gtsam.g2o3d import g2o_dimension
 from rlpgo_gtsam.graph import chi2
-from rlpgo_gtsam.graph3d import extract_pose_graph
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
-from rlpgo_gtsam.initializers3d import COMPARISON_3D, INITIALIZERS_3D, check_method_3d
 from rlpgo_gtsam.ranking import (
     FROM_BEST,
     TIE_RELATIVE,
@@ -115,12 +119,12 @@ def _methods(text: str, start: str) -> list[str]:
         raise click.BadParameter("give at least one method", param_hint="--methods")
     methods = [f"rl@{start}" if m == "rl" else m for m in methods]
     for method in methods:
-        if method in INITIALIZERS_3D:
+        if method in METHODS_3D:
             continue
         try:
             check_method(method)
         except RlpgoError as error:
-            raise click.BadParameter(f"{error} (3D files: {', '.join(INITIALIZERS_3D)})",
+            raise click.BadParameter(f"{error} (3D files: {', '.join(METHODS_3D)})",
                                      param_hint="--methods") from None
     return methods
 

@@ -14,12 +14,17 @@ from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.inputs import read_input
 from rlpgo_cli.output import RunFiles, json_text
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, FiniteFloat, OutputFile
+from rlpgo_gtsam.dimension import (
+    COMPARISON_3D,
+    METHODS_3D,
+    check_method_3d,
+    g2o_dimension,
+    pose_graph_text,
+)
 from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text
-from rlpgo_gtsam.g2o3d import g2o_dimension, pose_graph_text
 from rlpgo_gtsam.graph import chi2
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
-from rlpgo_gtsam.initializers3d import COMPARISON_3D, INITIALIZERS_3D, check_method_3d
 from rlpgo_gtsam.ranking import (
     MethodResult,
     best_of,
@@ -68,12 +73,12 @@ def _progress_bar():
 def _check_method_name(method: str, start: str) -> None:
     """A usage error for a --method that is no method of either dimension."""
     name = f"rl@{start}" if method == "rl" else method
-    if method in ("auto", "all") or name in INITIALIZERS_3D:
+    if method in ("auto", "all") or name in METHODS_3D:
         return
     try:
         check_method(name)
     except RlpgoError as error:
-        raise click.BadParameter(f"{error} (3D graphs: {', '.join(INITIALIZERS_3D)})",
+        raise click.BadParameter(f"{error} (3D graphs: {', '.join(METHODS_3D)})",
                                  param_hint="--method") from None
 
 
@@ -317,7 +322,7 @@ def _print_stage(row: MethodResult, reason: str) -> None:
               help="auto (certify, then refine), all (every method, keep the lowest chi2), rl, "
                    "rl@<start>, or one initializer: " + ", ".join(
                        [*CLASSICAL, "fastsync", "certified"]) + "; on a 3D graph auto, all "
-                   "or one of " + ", ".join(INITIALIZERS_3D) + ".")
+                   "or one of " + ", ".join(METHODS_3D) + ".")
 @click.option("--budget", type=FiniteFloat(0.0, 1e6), default=DEFAULT_BUDGET_S,
               show_default=True,
               help="--method auto: the whole run's time limit, the certified stage's included; "

@@ -5,12 +5,15 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import gtsam
 
+from rlpgo_gtsam.dimension import extract_pose_graph, read_pose_graph_extracted
 from rlpgo_gtsam.errors import InformationWarning
-from rlpgo_gtsam.g2o3d import read_pose_graph_extracted
-from rlpgo_gtsam.graph3d import AnyPoseGraph, extract_pose_graph
+
+if TYPE_CHECKING:
+    from rlpgo_gtsam.graph3d import AnyPoseGraph
 
 
 @dataclass(eq=False)
@@ -41,7 +44,7 @@ class InputGraph:
 
 def read_input(path: Path) -> InputGraph:
     """Read a planar or a 3D g2o file
-    (:func:`~rlpgo_gtsam.g2o3d.read_pose_graph_extracted`), with each factor's file line
+    (:func:`~rlpgo_gtsam.dimension.read_pose_graph_extracted`), with each factor's file line
     and the reader's information warnings as notes; any other warning is passed on."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", InformationWarning)
