@@ -440,6 +440,8 @@ def _information(upper: list[float]) -> np.ndarray:
 
 @dataclass(eq=False)
 class _Edge:
+    """An EDGE_SE2 line as the careful reader parsed it."""
+
     line: int
     i: int
     j: int
@@ -449,6 +451,8 @@ class _Edge:
 
 @dataclass(eq=False)
 class _Parsed:
+    """What the careful reader has parsed so far."""
+
     vertices: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     vertex_lines: dict[int, int] = field(default_factory=dict)
     edges: list[_Edge] = field(default_factory=list)

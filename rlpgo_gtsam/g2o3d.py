@@ -89,6 +89,8 @@ _QUATERNION_FLOOR = 1e-9  # a quaternion shorter than this has no direction to n
 
 @dataclass(eq=False)
 class _Parsed:
+    """What the careful 3D reader has parsed so far."""
+
     vertices: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     vertex_lines: dict[int, int] = field(default_factory=dict)
     # (line, i, j, rotation, translation, information in GTSAM's order)
