@@ -254,7 +254,9 @@ def start_from(row: MethodResult, pose_graph: AnyPoseGraph) -> InitResult:
     charged again: the row already counts them)."""
     poses = pose_graph.poses_of(row.refined)
     if pose_graph.dimension == 3:
-        poses = np.concatenate([poses[0], poses[1][:, :, None]], axis=2)  # (n, 3, 4) [R | t]
+        from rlpgo_gtsam.initializers3d import pose_matrices  # loaded with the 3D graph
+
+        poses = pose_matrices(*poses)
     return InitResult(row.method, row.refined, poses, row.refined_chi2, 0.0)
 
 
