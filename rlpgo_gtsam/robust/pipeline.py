@@ -809,42 +809,44 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
             kept = kept & ~refuted
         else:
             admit = ~kept & candidates & ~fails
-            if not admit.any():
+            if admit.any():
+                # where the map is loose, the closures it can check best go first, and those
+                # a wrong closure would rarely pass (the map's extent against each one's own
+                # test)
+                side = max(float(np.ptp(group.translations(group.poses_of(g, values)),
+                                        axis=0).max()), 1e-9)
+                chance = np.full(len(kept), np.inf)
+                chance[index] = group.agreement_chance(
+                    bar, spread[:len(index)] ** (group.dof / 2) * measurement_volume[index],
+                    side)
+                admit &= (loose <= max(_TIGHT, group.admit_tier * loose[admit].min())) | (
+                    (chance < _ADMIT_CHANCE) & ~was_refuted)
+                kept = kept | admit
+                admitted |= admit
+            else:
                 judged_sets = len(singles) + len(runs)
                 doubted = _doubted(chi2_sets[:judged_sets], (singles + runs)[:judged_sets],
                                    kept, judged & ~candidates, group.dof, false_rejection_rate)
-                if doubted.any():  # the closures kept that the false-rejection bar refutes
-                    banned |= doubted
-                    unlikely |= doubted
-                    was_refuted |= doubted
-                    kept = kept & ~doubted
-                    values = _solved(graph, g, factor_of_edge, kept, values, _ROUND_ITERS,
-                                     _ROUND_TOLERANCE).values
-                    continue
-                # what the linear test cannot judge, a solve can: the closure (or run) that
-                # fits but needs the map turned too far, the one the map checks best first,
-                # is admitted when the optimum with it costs at most its bar more
-                trial = _turned(graph, g, factor_of_edge, values, kept, candidates & ~misfit,
-                                turning, tried, inlier_probability)
-                if trial is None:
-                    trial = _held(graph, g, factor_of_edge, values, kept, holding, tried,
-                                  checks, inlier_probability)
+                if not doubted.any():
+                    # what the linear test cannot judge, a solve can: the closure (or run)
+                    # that fits but needs the map turned too far, the one the map checks
+                    # best first, is admitted when the optimum with it costs at most its bar
+                    # more
+                    trial = _turned(graph, g, factor_of_edge, values, kept,
+                                    candidates & ~misfit, turning, tried, inlier_probability)
                     if trial is None:
-                        break
-                    was_refuted |= kept & ~trial[1]
-                values, kept = trial
-                continue
-            # where the map is loose, the closures it can check best go first, and those a
-            # wrong closure would rarely pass (the map's extent against each one's own test)
-            side = max(float(np.ptp(group.translations(group.poses_of(g, values)),
-                                    axis=0).max()), 1e-9)
-            chance = np.full(len(kept), np.inf)
-            chance[index] = group.agreement_chance(
-                bar, spread[:len(index)] ** (group.dof / 2) * measurement_volume[index], side)
-            admit &= (loose <= max(_TIGHT, group.admit_tier * loose[admit].min())) | (
-                (chance < _ADMIT_CHANCE) & ~was_refuted)
-            kept = kept | admit
-            admitted |= admit
+                        trial = _held(graph, g, factor_of_edge, values, kept, holding, tried,
+                                      checks, inlier_probability)
+                        if trial is None:
+                            break
+                        was_refuted |= kept & ~trial[1]
+                    values, kept = trial
+                    continue
+                # the closures kept that the false-rejection bar refutes: as refuted ones
+                banned |= doubted
+                unlikely |= doubted
+                was_refuted |= doubted
+                kept = kept & ~doubted
         # a round's map needs its shape and its residuals to a few digits, not convergence
         # to 1e-10 (MIT's weak odometry took 30-40 Gauss-Newton steps for that); GTSAM's
         # GNC-LM converges from the last one
