@@ -22,7 +22,6 @@ from rlpgo_gtsam.g2o import (
     TAGS_3D,
     g2o_text,
     numbered_lines,
-    read_g2o,
     read_g2o_extracted,
     read_g2o_lines,
     write_g2o,
@@ -82,11 +81,8 @@ def read_pose_graph(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactor
     Raises:
         G2oFormatError: as the reader of the file's dimension.
     """
-    if g2o_dimension(path) == 3:
-        from rlpgo_gtsam.g2o3d import read_g2o3d
-
-        return read_g2o3d(path)
-    return read_g2o(path)
+    graph, values, _lines = read_pose_graph_lines(path)
+    return graph, values
 
 
 def read_pose_graph_lines(
