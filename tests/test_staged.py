@@ -122,12 +122,14 @@ def test_refine_until_ends_by_its_deadline(heavy):
 
 
 def test_a_failed_initializer_reports_the_seconds_it_spent(heavy):
-    """Shonan with max_p 2 does not converge on this graph (after about 0.3 s)."""
+    """Shonan with max_p 2 does not converge on this graph (after 0.01-0.3 s, by host): the
+    failure names the seconds the row measured, not 0.00 (it once did after 4 s)."""
     pose_graph = PoseGraph2D.from_gtsam(heavy.graph, heavy.initial)
     row = run_method(heavy.graph, pose_graph, "shonan", options={"max_p": 2, "starts": 1})
     assert row.init is None and "failed from every start (1 run, " in row.failure
     told = float(row.failure.split("(1 run, ")[1].split(" s)")[0])
-    assert told > 0.01 and row.init_seconds >= told - 0.005  # the message rounds to 0.01 s
+    assert row.init_seconds > 0.0
+    assert abs(told - row.init_seconds) <= 0.02  # the message rounds to 0.01 s
     assert row.record()["init_seconds"] == row.init_seconds
 
 
