@@ -16,6 +16,10 @@ imports, first calls and the driver's first load are not charged to it); then ce
 LM30 and SE-Sync + LM30 each run ``--repeats`` times on each case, their seconds the medians
 (the runs give the same estimate; chi2 and certificates are the first run's); InitializePose3
 runs once. Seconds are printed with 3 significant digits.
+On a generated graph the commands run too, process to process: ``rlpgo-init FILE -o OUT``
+(the staged default, the project's LM30) against SE-Sync's driver then
+``benchmarks/sesync/lm30.py`` (LM30 with the settings ``rlpgo-init`` uses), their chi2 and
+wall seconds in the last two columns.
 SE-Sync runs through its driver (``benchmarks/sesync``: ``--sesync`` or
 ``$RLPGO_SESYNC_BINARY``, default options, BLAS on one thread): its seconds are the driver's
 wall time of the whole ``SESync()`` call, its certificate the driver's (verification passed
@@ -43,7 +47,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.process import check_binaries  # noqa: E402
+from benchmarks.process import check_binaries, chi2_of, run_baseline, run_ours  # noqa: E402
 from benchmarks.sesync.runner import run_sesync, to_values  # noqa: E402
 from rlpgo_gtsam.errors import RlpgoError, one_line  # noqa: E402
 from rlpgo_gtsam.g2o3d import write_g2o3d  # noqa: E402
@@ -57,6 +61,7 @@ DATA = ROOT.parent / "shared" / "datasets" / "3d"
 FILES = ["tinyGrid3D", "smallGrid3D", "parking-garage", "sphere2500", "torus3D", "cubicle",
          "sphere_bignoise_vertex3"]
 MARGIN = 1e-4  # chi2 at or below SE-Sync + LM30 (+0.01%)
+COMMAND_TIMEOUT = 600.0  # seconds per process of the generated graphs' commands
 # The generated family: sigma_t (m), d (m), lc; noisy measurements
 GENERATED = (0.1, 1.0, 0.5)
 
@@ -183,6 +188,25 @@ def _generated_case(n: int, sigma_r: float, seed: int, time_limit: float,
     write_g2o3d(path, graph, sample.initial)
     row.update(_sesync(graph, path, sesync, repeats))
     row.update(_targets(row))
+    row.update(_commands(graph, path, folder, sesync))
+    return row
+
+
+def _commands(graph: gtsam.NonlinearFactorGraph, path: Path, folder: Path,
+              sesync: Path | None) -> dict:
+    """What a user's commands give on the file, process to process, idle: ``rlpgo-init
+    FILE -o OUT`` (the staged default with the project's LM30) and SE-Sync's driver then
+    ``benchmarks/sesync/lm30.py`` (GTSAM LM30 with the settings ``rlpgo-init`` uses): their
+    chi2 (2 x GTSAM error of the file's graph at what each wrote) and wall seconds."""
+    ours = run_ours(path, folder / "command.g2o", COMMAND_TIMEOUT)
+    row = {"command_chi2": chi2_of(graph, folder / "command.g2o", 3),
+           "command_seconds": ours["seconds"], "command_failure": ours["failure"],
+           "command_baseline_chi2": None, "command_baseline_seconds": None}
+    if sesync is not None:
+        base = run_baseline(path, folder, str(sesync), "1", COMMAND_TIMEOUT, busy=False)
+        if base.get("lm30_failure", base["sesync_failure"]) is None:
+            row.update(command_baseline_chi2=base["lm30_chi2"],
+                       command_baseline_seconds=base["sesync_seconds"] + base["lm30_seconds"])
     return row
 
 
@@ -206,7 +230,8 @@ def _generated_table(rows: list[dict]) -> str:
 
     head = ("| graph | edges | certified3d (rank, bound, CPU s) | + LM30 chi2 | CPU s (+ LM30) "
             "| SE-Sync (rank, bound, s) | + LM30 chi2 | s (+ LM30) | InitializePose3 + LM30 "
-            "chi2 (CPU s) | truth + LM30 chi2 |\n|---|---|---|---|---|---|---|---|---|---|")
+            "chi2 (CPU s) | truth + LM30 chi2 | rlpgo-init chi2 (s) | SE-Sync + lm30.py chi2 "
+            "(s) |\n|---|---|---|---|---|---|---|---|---|---|---|---|")
     lines = [head]
     for r in rows:
         cert = r["certificate"]
@@ -225,8 +250,17 @@ def _generated_table(rows: list[dict]) -> str:
             f"{cert['suboptimality_bound']:.3g}, {r['certified_seconds']:.3g}) | "
             f"{number(r['certified_lm30_chi2'])} | {r['in_process_seconds']:.3g} | {sesync} | "
             f"{number(r['sesync_lm30_chi2'])} | {sesync_s} | {init} "
-            f"({r['initialize_pose3_seconds']:.3g}) | {number(r['truth_lm30_chi2'])} |")
+            f"({r['initialize_pose3_seconds']:.3g}) | {number(r['truth_lm30_chi2'])} | "
+            f"{_command_cell(r['command_chi2'], r['command_seconds'], r['command_failure'])} | "
+            f"{_command_cell(r['command_baseline_chi2'], r['command_baseline_seconds'])} |")
     return "\n".join(lines) + "\n"
+
+
+def _command_cell(chi2: float | None, seconds: float | None,
+                  failure: str | None = None) -> str:
+    if failure is not None:
+        return f"fails: {failure[:40]}"
+    return "-" if chi2 is None else f"{chi2:.9g} ({seconds:.3g})"
 
 
 def _table(rows: list[dict]) -> str:
