@@ -248,6 +248,14 @@ def test_false_rejections_reaches_the_robust_path(with_outliers, tmp_path):
                                                      false_rejection_rate=0.0).rejected
 
 
+def test_the_record_names_the_false_rejection_rate_used_when_none_is_given(with_outliers,
+                                                                          tmp_path):
+    record = tmp_path / "r.json"
+    cli_ok(_run(init_main, with_outliers.graph, "-o", tmp_path / "o.g2o", "--robust",
+                "--json", record))
+    assert json.loads(record.read_text())["false_rejection_rate"] == DEFAULT_FALSE_REJECTION_RATE
+
+
 def test_robust_with_refine_none_writes_the_same_guess(clean, tmp_path):
     output = tmp_path / "none.g2o"
     cli_ok(_run(init_main, clean.graph, "-o", output, "--robust", "--refine", "none"))

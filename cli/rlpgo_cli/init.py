@@ -294,7 +294,7 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
             "poses": pose_graph.num_poses, "edges": pose_graph.num_edges, "method": "robust",
             "input_chi2": chi2(graph, values), "chi2": result.chi2, "judged": judged,
             "variance_factor": fit, "covariance_scale": covariance_scale,
-            "false_rejection_rate": false_rejections, "hint": hint,
+            "false_rejection_rate": rate, "hint": hint,  # the rate used, given or not
             "rejected": list(result.rejected), "steps": result.steps, "seconds": seconds,
             "notes": notes}).encode()))
     run.write_together(files)  # the guess, its list and its record, or none
