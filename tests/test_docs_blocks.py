@@ -48,12 +48,15 @@ def _checkout_files() -> set[str]:
 @pytest.mark.skipif(not (ROOT.parent / "shared" / "datasets").is_dir(),
                     reason="the docs read ../shared/datasets")
 @pytest.mark.parametrize(("language", "code"), _blocks())
-def test_block_runs_as_pasted(tmp_path, language, code):
+def test_block_runs_as_pasted(request, tmp_path, language, code):
     code = code.replace("/tmp/", f"{tmp_path}/")
+    # the set-up and training blocks run for minutes (400 training episodes: more than 5 on
+    # 2 cores); the others have 5 minutes
+    timeout = 1800 if request.node.get_closest_marker("slow") else 300
     before = _checkout_files()
     command = ["bash", "-euo", "pipefail", "-c", code] if language == "bash" else \
         [sys.executable, "-c", code]
-    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
     assert done.returncode == 0, f"{done.stdout}\n{done.stderr}"
     assert "Traceback" not in done.stderr
     assert _checkout_files() == before, "a block left files in the checkout"
