@@ -21,7 +21,7 @@ from rlpgo_gtsam.g2o import (
     TAGS_2D,
     TAGS_3D,
     g2o_text,
-    numbered_lines,
+    line_records,
     read_g2o_extracted,
     read_g2o_lines,
     write_g2o,
@@ -59,11 +59,7 @@ def g2o_dimension(path: str | os.PathLike[str]) -> int:
         G2oFormatError: the file is missing or unreadable, or a line before the first pose
             line is (too long, binary, not UTF-8).
     """
-    for _, text in numbered_lines(Path(path)):
-        tokens = text.split()
-        if not tokens or tokens[0].startswith("#"):
-            continue
-        tag = tokens[0]
+    for _, tag, _ in line_records(Path(path)):
         upper = tag.upper()
         if upper.startswith(TAGS_3D):
             return 3

@@ -463,12 +463,23 @@ class _Parsed:
 def numbered_lines(path: Path, handle: BinaryIO | None = None) -> Iterator[tuple[int, str]]:
     """(line number, text) of each line of the file at ``path`` (read from ``handle`` where
     given), with the careful reader's checks (line length, NUL bytes, UTF-8, a byte-order
-    mark): the 3D reader's lines."""
+    mark): what :func:`line_records` reads."""
     if handle is not None:
         yield from _lines(path, handle)
         return
     with open_g2o(path) as opened:
         yield from _lines(path, opened)
+
+
+def line_records(path: Path, handle: BinaryIO | None = None
+                 ) -> Iterator[tuple[int, str, list[str]]]:
+    """(line number, tag, fields) of each line of :func:`numbered_lines` that is neither
+    blank nor a comment: what the careful readers (planar and 3D) and
+    :func:`~rlpgo_gtsam.dimension.g2o_dimension` read."""
+    for number, text in numbered_lines(path, handle):
+        tokens = text.split()
+        if tokens and not tokens[0].startswith("#"):
+            yield number, tokens[0], tokens[1:]
 
 
 def _lines(path: Path, handle: BinaryIO) -> Iterator[tuple[int, str]]:
@@ -502,12 +513,7 @@ def _lines(path: Path, handle: BinaryIO) -> Iterator[tuple[int, str]]:
 def _parse(path: Path, handle: BinaryIO) -> _Table:
     """The careful reader: line by line, raising at the first bad line."""
     parsed = _Parsed()
-    for number, text in _lines(path, handle):
-        tokens = text.split()
-        if not tokens or tokens[0].startswith("#"):
-            continue
-        tag = tokens[0]
-        fields = tokens[1:]
+    for number, tag, fields in line_records(path, handle):
         if tag == "VERTEX_SE2":
             _parse_vertex(path, number, fields, parsed)
         elif tag == "EDGE_SE2":

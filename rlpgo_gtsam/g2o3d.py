@@ -30,7 +30,6 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
@@ -47,7 +46,7 @@ from rlpgo_gtsam.g2o import (
     fix_lines,
     format_15,
     information_texts,
-    numbered_lines,
+    line_records,
     parse_fix,
     parse_id,
     parse_numbers,
@@ -405,18 +404,9 @@ def _informations(upper: np.ndarray) -> np.ndarray:
     return information[:, G2O_TO_GTSAM][:, :, G2O_TO_GTSAM]
 
 
-def _records(path: Path, handle: BinaryIO | None = None
-             ) -> Iterator[tuple[int, str, list[str]]]:
-    """(line number, tag, fields) of each line that is neither blank nor a comment."""
-    for number, text in numbered_lines(path, handle):
-        tokens = text.split()
-        if tokens and not tokens[0].startswith("#"):
-            yield number, tokens[0], tokens[1:]
-
-
 def _parse(path: Path, handle: BinaryIO) -> _Parsed:
     parsed = _Parsed()
-    for number, tag, fields in _records(path, handle):
+    for number, tag, fields in line_records(path, handle):
         if tag == VERTEX:
             _check_count(path, number, tag, fields, _VERTEX_FIELDS)
             key = parse_id(path, number, fields[0])
