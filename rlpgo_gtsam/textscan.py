@@ -161,6 +161,21 @@ class Text:
         data = self.data
         return [data[s:e] for s, e in zip(starts.tolist(), ends.tolist(), strict=True)]
 
+    def joined(self, starts: np.ndarray, ends: np.ndarray) -> bytes:
+        """The spans ``data[starts[k]:ends[k]]`` (ascending, apart, each ending where a field
+        ends) as one text, each followed by the whitespace byte that ends it: what
+        ``b" ".join(self.spans(starts, ends))`` holds to ``np.fromstring(..., sep=" ")``.
+        Where the spans cover much of the text, numpy gathers their bytes at once (a third
+        of the time of a bytes object per span)."""
+        if 8 * int((ends - starts).sum(initial=0)) < len(self.data):
+            return b" ".join(self.spans(starts, ends))
+        size = len(self.data) + 1  # the byte after the last span may be the padding
+        edges = np.zeros(size + 1, np.int8)
+        edges[starts] = 1
+        edges[ends + 1] -= 1
+        inside = np.cumsum(edges[:size], dtype=np.int8).view(bool)
+        return self._buffer[:size][inside].tobytes()
+
     def lines_text(self, lines: np.ndarray) -> bytes:
         """The given lines (ascending), each with its LF, as one block of text."""
         if not len(lines):
@@ -228,8 +243,7 @@ class Text:
         if not len(lines):
             return np.zeros((0, count))
         index = self.first[lines] + first
-        block = b" ".join(self.spans(self.field_starts[index],
-                                     self.field_ends[index + count - 1]))
+        block = self.joined(self.field_starts[index], self.field_ends[index + count - 1])
         if b"_" in block:  # float() takes '1_0'; the careful reader does not
             return None
         numbers = _floats(block)

@@ -188,6 +188,49 @@ def test_values_built_by_gtsam_are_the_values_inserted_one_by_one(tmp_path):
         assert values.atPose2(key).matrix().tobytes() == gtsam.Pose2(x, y, theta).matrix().tobytes()
 
 
+def test_gtsam_reads_every_number_the_checks_pass_as_float_does(tmp_path):
+    """GTSAM's parse of the vertex lines is compared with this reader's on a sample only:
+    that rests on the C library reading every field that ``float()`` takes (plain ASCII,
+    finite) to the same double. Here 3000 vertices (three times the sample) hold numbers
+    written every way a file may write them (signs, bare points, exponents, 25 significant
+    digits, halfway cases, subnormals, underflow to zero, 1e300 in a position), and every value
+    GTSAM built is the reader's Pose2, bit for bit."""
+    rng = np.random.default_rng(11)
+    forms = [
+        lambda v: repr(v), lambda v: f"{v:.3f}", lambda v: f"{v:+.6e}", lambda v: f"{v:.25g}",
+        lambda v: f"{v:E}", lambda v: f"{v:.0f}.", lambda v: f"{v:.2e}".replace("e-0", "e-"),
+        lambda v: (f"{v:.4f}".lstrip("0") or "0") if 0 <= v < 1 else repr(v),
+        lambda v: "00" + repr(abs(v)), lambda v: f"{v * 1e-310!r}", lambda v: f"{v}e-400",
+        lambda v: "0.1000000000000000055511151231257827", lambda v: "2.2250738585072011e-308",
+    ]
+    # positions only: an angle this large wraps in numpy and in GTSAM's cos and sin apart
+    # by more than the 1e-9 rad the comparison allows (the reader then inserts the values)
+    large = [lambda v: f"{v * 1e300:.17g}", lambda v: "9007199254740993"]
+    n = 3000
+    numbers = rng.normal(0.0, 50.0, (n, 3))
+    numbers[:, 2] /= 20.0
+    lines = []
+    for k in range(n):
+        fields = [(forms + large if c < 2 else forms)[(3 * k + c) % (len(forms) + 2 * (c < 2))](
+            float(numbers[k, c])) for c in range(3)]
+        lines.append(f"VERTEX_SE2 {k} {' '.join(fields)}")
+    lines += [f"EDGE_SE2 {k} {k + 1} 1 0 0 1 0 0 1 0 1" for k in range(n - 1)]
+    path = tmp_path / "forms.g2o"
+    path.write_text("\n".join(lines) + "\n")
+    table = g2o._read_table(path, fast=True)
+    assert table.vertex_text is not None  # the fast reader took every line
+    if not hasattr(__import__("os"), "memfd_create"):
+        pytest.skip("GTSAM's parser builds the values through a memfd (Linux) only")
+    order = np.argsort(table.vertex_keys)
+    values = g2o._values_by_gtsam(table.vertex_text, table.vertex_keys[order],
+                                  table.vertex_poses[order])
+    assert values is not None and values.size() == n
+    for k, line in enumerate(lines[:n]):
+        x, y, theta = map(float, line.split()[2:])
+        read = values.atPose2(k).matrix().tobytes()
+        assert read == gtsam.Pose2(x, y, theta).matrix().tobytes(), line
+
+
 def test_the_reader_extracts_shuffled_ids_and_wrapped_angles_as_extraction_does(tmp_path):
     """Ids in shuffled order with gaps, FIX lines naming several poses (the first is the
     anchor), measured angles beyond pi: the reader's extraction is the walk's, bit for bit."""
