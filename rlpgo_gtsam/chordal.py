@@ -22,10 +22,20 @@ __all__ = ["chordal_orientations", "chordal_blocks"]
 def chordal_orientations(pose_graph: PoseGraph2D) -> np.ndarray:
     """Orientations (n,) from the chordal relaxation; held poses keep their angles.
 
+    The graph keeps the result (``pose_graph.cache``): the certified relaxation starts from
+    it, after a comparison's chordal row has computed it. A copy is returned.
+
     Raises:
         SolverError: the rotation terms leave a pose undetermined (it is named).
     """
     g = pose_graph
+    cached = g.cache.get("chordal_orientations")
+    if cached is None:
+        cached = g.cache["chordal_orientations"] = _chordal_orientations(g)
+    return cached.copy()
+
+
+def _chordal_orientations(g: PoseGraph2D) -> np.ndarray:
     a_i, a_j = chordal_blocks(rotation_weights(g), rotation_matrices(g.measured[:, 2]))
     held, held_poses = g.held
     held_z = np.column_stack([np.cos(held_poses[:, 2]), np.sin(held_poses[:, 2])])

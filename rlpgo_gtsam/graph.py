@@ -97,6 +97,10 @@ class PoseGraph2D(PoseArrays):
         anchor_pose: (3,) where the initializers put the anchor: its prior's value if it has
             one, else its pose in ``values``.
         graph: the GTSAM graph the arrays came from (costs are evaluated on it).
+        cache: what the numeric steps derive from these arrays alone and keep for the next
+            call on the same graph (the chordal orientations, the translation step's
+            system); the arrays are never changed in place, and a graph made from another
+            (``dataclasses.replace``) starts with an empty one.
         dimension: 2 (the class's; :class:`~rlpgo_gtsam.graph3d.PoseGraph3D`'s is 3).
     """
 
@@ -111,6 +115,7 @@ class PoseGraph2D(PoseArrays):
     fixed_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     anchor_pose: np.ndarray | None = None
     graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
+    cache: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def held(self) -> tuple[np.ndarray, np.ndarray]:

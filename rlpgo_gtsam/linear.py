@@ -41,14 +41,24 @@ class PairwiseSystem:
         edges: (m, 2) indices (i, j) of each residual.
         held: (k,) indices of the vectors held fixed (k >= 1: the anchor fixes the gauge);
             their terms move to the right-hand side.
+        fixed_matrix: the caller's promise that the normal matrix is mathematically the
+            same at every solve with every edge kept and no weights (the translation step
+            where each edge's translation information is a multiple of the identity: its
+            blocks are then ``lambda_e I`` whatever the orientations). The first such
+            solve's factorization then serves the later ones, which only form the
+            right-hand side; the matrices they would have formed differ from it only by
+            rounding (``R R^T`` computed rather than ``I``).
 
     The pattern of the normal equations (and the ordering SuperLU picks for it) is computed
     on the first solve with every edge kept and reused by the later ones; a solve that
     leaves edges out (weights at or below ``1e-12``) builds its own.
     """
 
-    def __init__(self, num_poses: int, edges: np.ndarray, held: np.ndarray) -> None:
+    def __init__(self, num_poses: int, edges: np.ndarray, held: np.ndarray,
+                 fixed_matrix: bool = False) -> None:
         self.num_poses = num_poses
+        self.fixed_matrix = fixed_matrix
+        self._fixed: tuple | None = None  # (factor, normal matrix) once fixed_matrix solved
         self.edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
         self.held = np.asarray(held, dtype=np.int64).reshape(-1)
         column = np.full(num_poses, -1, dtype=np.int64)
@@ -100,8 +110,6 @@ class PairwiseSystem:
         rhs_edge = b - np.einsum("eab,eb->ea", a_i, x[i]) - np.einsum("eab,eb->ea", a_j, x[j])
         a_i_t = np.transpose(a_i, (0, 2, 1))
         a_j_t = np.transpose(a_j, (0, 2, 1))
-        cross = a_i_t @ a_j
-        blocks = [a_i_t @ a_i, a_j_t @ a_j, cross, np.transpose(cross, (0, 2, 1))]
         gradient = np.zeros(self.unknowns)
         for index, block_t in ((i, a_i_t), (j, a_j_t)):
             take = self._column[index] >= 0
@@ -110,10 +118,14 @@ class PairwiseSystem:
             part = np.einsum("eab,eb->ea", block_t[take], rhs_edge[take])
             slot = (2 * self._column[index][take][:, None] + [0, 1]).ravel()
             gradient += np.bincount(slot, weights=part.ravel(), minlength=self.unknowns)
-        if kept is None:
-            solution = self._solve_all(blocks, gradient)
+        if kept is None and weights is None and self._fixed is not None:
+            factor, normal = self._fixed
+            solution = self._checked(factor.solve(gradient), normal, None)
         else:
-            solution = self._solve_kept(blocks, gradient, kept)
+            cross = a_i_t @ a_j
+            blocks = [a_i_t @ a_i, a_j_t @ a_j, cross, np.transpose(cross, (0, 2, 1))]
+            solution = (self._solve_all(blocks, gradient, fixed=weights is None) if kept is None
+                        else self._solve_kept(blocks, gradient, kept))
         x[self.free] = solution.reshape(-1, 2)
         return x
 
@@ -138,9 +150,12 @@ class PairwiseSystem:
             parts.append(block[keep].reshape(-1))
         return np.concatenate(parts)
 
-    def _solve_all(self, blocks: list[np.ndarray], gradient: np.ndarray) -> np.ndarray:
+    def _solve_all(self, blocks: list[np.ndarray], gradient: np.ndarray,
+                   fixed: bool = False) -> np.ndarray:
         """Every edge kept: the cached pattern, already permuted into the fill-reducing
-        ordering that the first solve found (SuperLU then factorizes in natural order)."""
+        ordering that the first solve found (SuperLU then factorizes in natural order).
+        ``fixed`` (no weights): where the matrix is fixed, the first factorization is kept
+        for the later solves."""
         import scipy.sparse as sp
 
         size = self.unknowns
@@ -155,6 +170,8 @@ class PairwiseSystem:
                 raise self._indeterminate(normal, None, vanishing)
             # column k of the matrix is eliminated at position[k]
             self._ordering = (rows, cols, factor.perm_c)
+            if fixed and self.fixed_matrix:
+                self._fixed = (factor, normal)
             return self._checked(factor.solve(gradient), normal, None)
         if self._pattern is None:
             rows, cols, position = self._ordering

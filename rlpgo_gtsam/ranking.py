@@ -303,7 +303,10 @@ def compare_methods(
         on_row: called with each row as soon as it is done (to print it).
 
     A method that starts from another (``rl@chordal``) reuses that method's guess where it
-    ran earlier in the list and is charged its seconds. A method that fails (an
+    ran earlier in the list and is charged its seconds. The rows share what the graph's
+    extraction keeps (``pose_graph.cache``: the chordal orientations, the translation step's
+    system and, for isotropic translation information, its factorization): a row's seconds
+    are what it added after the rows before it. A method that fails (an
     indeterminate system, a diverging solver) gets a row with ``failure`` set; the others
     still run.
     """

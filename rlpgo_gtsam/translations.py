@@ -38,8 +38,13 @@ def solve_translations(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray
     ``||W (e_t + Lambda_tt^-1 Lambda_t,theta e_theta)||^2 + const`` with ``W^T W = Lambda_tt``,
     so xy and x/y-theta correlations are both kept. Held poses (the anchor, FIXed poses)
     keep their positions; soft priors are not used (refinement honours them).
+
+    The graph's :meth:`TranslationStep.shared` step solves it: a second call on the same
+    graph (another initializer of a comparison) reuses its system, and its factorization
+    where the translation information is isotropic.
     """
-    return TranslationStep(pose_graph).positions(np.asarray(theta, dtype=float), gauge=False)
+    return TranslationStep.shared(pose_graph).positions(np.asarray(theta, dtype=float),
+                                                         gauge=False)
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,12 +103,33 @@ class TranslationStep:
     :func:`~rlpgo_gtsam.graph.edge_chi2`.
     """
 
-    def __init__(self, pose_graph: PoseGraph2D) -> None:
+    def __init__(self, pose_graph: PoseGraph2D, parts: SystemParts | None = None,
+                 system: PairwiseSystem | None = None) -> None:
         self.pose_graph = pose_graph
-        self.parts = SystemParts.of(pose_graph)
+        self.parts = parts if parts is not None else SystemParts.of(pose_graph)
         held, held_poses = pose_graph.held
         self.held, self.held_xy = held, held_poses[:, :2]
-        self.system = PairwiseSystem(pose_graph.num_poses, pose_graph.edges, held)
+        self.system = system if system is not None else PairwiseSystem(
+            pose_graph.num_poses, pose_graph.edges, held)
+
+    @classmethod
+    def shared(cls, pose_graph: PoseGraph2D) -> TranslationStep:
+        """The step whose parts and system the graph keeps (``pose_graph.cache``) for every
+        translation step on it. Where each edge's translation information is a multiple of
+        the identity (M3500, City10K, generated graphs), the normal matrix does not depend
+        on the orientations, and its first factorization serves every later solve
+        (``PairwiseSystem(fixed_matrix=True)``): a comparison's lago, chordal, Shonan and
+        certified rows factorize once between them."""
+        cached = pose_graph.cache.get("translation_step")
+        if cached is None:
+            info = pose_graph.information
+            isotropic = bool((info[:, 0, 0] == info[:, 1, 1]).all()
+                             and (info[:, 0, 1] == 0).all() and (info[:, 1, 0] == 0).all())
+            cached = (SystemParts.of(pose_graph),
+                      PairwiseSystem(pose_graph.num_poses, pose_graph.edges,
+                                     pose_graph.held[0], fixed_matrix=isotropic))
+            pose_graph.cache["translation_step"] = cached
+        return cls(pose_graph, *cached)
 
     def positions(self, theta: np.ndarray, gauge: bool = True) -> np.ndarray:
         """(n, 2) positions of least cost for the orientations ``theta``; ``gauge``: rotate

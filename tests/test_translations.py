@@ -77,3 +77,63 @@ def test_translation_step_chi2_is_gtsams_chi2_of_the_translation_step(small_nois
         expected = chi2(graph.graph, graph.to_values(poses))
         assert step.chi2(theta) == pytest.approx(expected, rel=1e-10)
         assert np.abs(step.positions(theta) - poses[:, :2]).max() < 1e-8
+
+
+def _fresh_positions(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray:
+    """The translation step with a system of its own (nothing kept between calls)."""
+    from rlpgo_gtsam.translations import TranslationStep
+
+    return TranslationStep(pose_graph).positions(theta, gauge=False)
+
+
+def test_a_graph_keeps_one_factorization_for_isotropic_translation_information():
+    """M3500's translation information is isotropic: the normal matrix does not depend on
+    the orientations, and every translation step on the graph after the first solves with
+    the first one's factorization. The positions are those of a fresh solve (to rounding),
+    for orientations far from the first ones as well."""
+    from rlpgo_gtsam import linear
+    from rlpgo_gtsam.translations import TranslationStep
+
+    graph, values = read_g2o(dataset("M3500.g2o"))
+    pose_graph = PoseGraph2D.from_gtsam(graph, values)
+    factorized = []
+    original = linear._factorize
+    linear._factorize = lambda *args, **kw: factorized.append(1) or original(*args, **kw)
+    try:
+        rng = np.random.default_rng(4)
+        thetas = [pose_graph.poses[:, 2], rng.uniform(-np.pi, np.pi, pose_graph.num_poses)]
+        shared = [solve_translations(pose_graph, theta) for theta in thetas]
+        assert len(factorized) == 1
+    finally:
+        linear._factorize = original
+    assert TranslationStep.shared(pose_graph).system.fixed_matrix
+    for theta, positions in zip(thetas, shared, strict=True):
+        fresh = _fresh_positions(pose_graph, theta)
+        assert np.abs(positions - fresh).max() <= 1e-9 * max(1.0, np.abs(fresh).max())
+
+
+def test_anisotropic_translation_information_keeps_no_factorization():
+    """Intel's translation information is not isotropic: the matrix turns with the
+    orientations, so each step factorizes its own and matches a fresh solve (to the
+    rounding of the kept ordering: random orientations make this system ill-conditioned)."""
+    from rlpgo_gtsam.translations import TranslationStep
+
+    graph, values = read_g2o(dataset("Intel.g2o"))
+    pose_graph = PoseGraph2D.from_gtsam(graph, values)
+    theta = np.random.default_rng(5).uniform(-np.pi, np.pi, pose_graph.num_poses)
+    solve_translations(pose_graph, pose_graph.poses[:, 2])
+    assert not TranslationStep.shared(pose_graph).system.fixed_matrix
+    fresh = _fresh_positions(pose_graph, theta)
+    assert np.abs(solve_translations(pose_graph, theta) - fresh).max() <= 1e-6 * np.abs(fresh).max()
+
+
+def test_the_chordal_orientations_a_graph_keeps_are_handed_out_as_copies():
+    from rlpgo_gtsam.chordal import chordal_orientations
+
+    graph, values = read_g2o(dataset("M3500.g2o"))
+    pose_graph = PoseGraph2D.from_gtsam(graph, values)
+    first = chordal_orientations(pose_graph)
+    first[:] = 0.0
+    second = chordal_orientations(pose_graph)
+    assert np.abs(second).max() > 0.1
+    assert np.array_equal(second, chordal_orientations(pose_graph))
