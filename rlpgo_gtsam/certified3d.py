@@ -56,25 +56,24 @@ import functools
 import math
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.linalg.lapack import dpotrf, dpotrs, dtrtrs
-from scipy.sparse.linalg import splu
 
-from rlpgo_gtsam.certified import Certificate, Status
 from rlpgo_gtsam.chordal3d import chordal_rotations
 from rlpgo_gtsam.errors import GraphError, SolverError
 from rlpgo_gtsam.graph3d import PoseGraph3D, rotation_weights, translation_weights
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.se3 import exp_so3, project_to_so3, vee
 from rlpgo_gtsam.staircase import (
+    Certificate,
     Check,
     Manifold,
     Progress,
     Relaxation,
     Run,
+    Status,
     certificate,
     check_start,
     climb,
@@ -82,6 +81,9 @@ from rlpgo_gtsam.staircase import (
     verify,
 )
 from rlpgo_gtsam.translations3d import DenseCholesky
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
 
 __all__ = ["synchronize3d", "certify3d", "relaxation_cost3d"]
 
@@ -321,6 +323,9 @@ class _Problem(Relaxation):
 
     def _set_up_sparse(self, g: PoseGraph3D, kappa: np.ndarray, tau: np.ndarray) -> None:
         """D, L, B (and its transpose) as sparse matrices, L's LU."""
+        import scipy.sparse as sp  # the sparse problems' only (a dense one needs no more
+        from scipy.sparse.linalg import splu  # of scipy than scipy.linalg's LAPACK)
+
         n = self.n
         i, j = g.edges[:, 0], g.edges[:, 1]
         eye = np.broadcast_to(np.eye(3), (len(i), 3, 3))
@@ -387,6 +392,9 @@ class _Problem(Relaxation):
             except np.linalg.LinAlgError:
                 raise RuntimeError("not positive definite") from None
             return inverse.T @ inverse
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+
         if self._layout is None:
             self._layout = self._block_layout()
         base, where, in_d = self._layout
@@ -413,6 +421,8 @@ class _Problem(Relaxation):
         zeros where D has none), the positions in its data of those blocks' entries in
         :func:`_blocks` order (a shift is added there, without building the matrix again),
         and which of its entries lie in the D block."""
+        import scipy.sparse as sp
+
         m, index = self.n - 1, np.arange(self.n)
         _, rows, cols = _blocks(index, index, np.zeros((self.n, 3, 3)))
         marks = np.arange(1.0, len(rows) + 1.0)

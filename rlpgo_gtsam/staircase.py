@@ -32,12 +32,14 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from enum import Enum
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
-from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator, eigsh
 
 from rlpgo_gtsam.errors import SolverError
+
+if TYPE_CHECKING:
+    from scipy.sparse.linalg import LinearOperator
 
 __all__ = ["Status", "Certificate", "Check", "Relaxation", "Manifold", "climb", "trust_region",
            "truncated_cg", "verify", "unverified", "escape", "polish", "certificate",
@@ -803,6 +805,10 @@ def negative_pivots(lu: Any) -> int | None:
 
 
 def _shifted_inverse(problem: Any, manifold: Manifold, factor: Any) -> LinearOperator:
+    # scipy.sparse.linalg only here and in _eigsh: a small 3D graph certified by its dense
+    # checks loads scipy.linalg alone (a command's run on tinyGrid3D: 0.02 s less)
+    from scipy.sparse.linalg import LinearOperator
+
     size = manifold.size(problem.n)
     return LinearOperator((size, size), dtype=manifold.dtype,
                           matvec=lambda v: problem.solve_shifted(factor, v.reshape(-1, 1))[:, 0])
@@ -849,6 +855,8 @@ def _eigsh(op: LinearOperator, arpack_options: dict[str, Any],
            **options) -> tuple[np.ndarray, np.ndarray, bool]:
     """ARPACK's eigenpairs of ``op`` and whether all converged: a partial result (maybe
     empty) comes back with False; a failure is a SolverError."""
+    from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, eigsh
+
     try:
         values, vectors = eigsh(op, **arpack_options, **options)
     except ArpackNoConvergence as error:
