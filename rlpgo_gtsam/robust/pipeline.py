@@ -910,6 +910,7 @@ def _hotelling_bar(inlier_probability: float, dof: int) -> float:
     return _statistic_at(1.0 - inlier_probability, dof)
 
 
+@lru_cache(maxsize=256)
 def _p_value_span(dof: int) -> tuple[float, float]:
     """The statistics (``dof``) at which :func:`_innovation_p_value` is 1/2 and 1e-12."""
     return _statistic_at(0.5, dof), _statistic_at(1e-12, dof)
