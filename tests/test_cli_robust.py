@@ -164,7 +164,7 @@ def test_robust_rejects_exactly_the_wrong_closures(with_outliers, tmp_path):
                   rejected)
     cli_ok(result)
     printed = result.stdout.rstrip("\n").splitlines()
-    assert len(printed) >= 2 and all(line.startswith(("step ", "ambiguous: "))
+    assert len(printed) >= 2 and all(line.startswith(("step ", "ambiguous: ", "doubtful: "))
                                      for line in printed[:-1])
     summary = SUMMARY.match(printed[-1])
     assert summary, printed[-1]
@@ -254,6 +254,28 @@ def test_the_record_names_the_false_rejection_rate_used_when_none_is_given(with_
     cli_ok(_run(init_main, with_outliers.graph, "-o", tmp_path / "o.g2o", "--robust",
                 "--json", record))
     assert json.loads(record.read_text())["false_rejection_rate"] == DEFAULT_FALSE_REJECTION_RATE
+
+
+def test_doubtful_closures_are_named_and_recorded(with_outliers, tmp_path):
+    # the closures kept that fit poorly: one line naming them, and the record lists them with
+    # their p-values as the library found them
+    record = tmp_path / "r.json"
+    result = _run(init_main, with_outliers.graph, "-o", tmp_path / "o.g2o", "--robust",
+                  "--json", record)
+    cli_ok(result)
+    graph, values = read_g2o(with_outliers.graph)
+    found = robust_initialize(graph, values)
+    recorded = json.loads(record.read_text())["doubtful"]
+    assert recorded == [{"factor": k, "p_value": p} for k, p in found.doubtful]
+    # the generator's covariances state its noise: about 1 in 20 true closures fits this
+    # poorly (6 of the 116 kept on each of these graphs)
+    assert found.doubtful
+    [line] = [line for line in result.stdout.splitlines() if line.startswith("doubtful: ")]
+    kept = len(found.weights[~np.isnan(found.weights)]) - len(found.trusted) - len(
+        found.rejected)
+    assert line.startswith(f"doubtful: {len(found.doubtful)} of the {kept} loop closures "
+                           "kept fit the map poorly (p < 0.05")
+    assert f"factors {found.doubtful[0][0]}" in line and "in --json" in line
 
 
 def test_robust_with_refine_none_writes_the_same_guess(clean, tmp_path):

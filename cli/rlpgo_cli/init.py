@@ -243,7 +243,7 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
                 covariance_scale: float = 1.0,
                 false_rejections: float | None = None) -> None:
     # not on the default's path
-    from rlpgo_gtsam.robust import DEFAULT_FALSE_REJECTION_RATE, robust_initialize
+    from rlpgo_gtsam.robust import DEFAULT_FALSE_REJECTION_RATE, DOUBTFUL_BELOW, robust_initialize
 
     run = RunFiles([input_path])
     run.check(output, outliers_out, json_path)  # fail before the work, not after
@@ -270,6 +270,14 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
         click.echo(f"ambiguous: {len(kept)} loop closures kept conflict with {len(other)} "
                    "others that agree among themselves and are nearly as well supported; the "
                    f"map's fit decided (kept factors {_few(kept)}; the others {_few(other)})")
+    if result.doubtful:
+        judged_kept = pose_graph.num_edges - len(result.trusted) - len(result.rejected)
+        click.echo(f"doubtful: {len(result.doubtful)} of the {judged_kept} loop closures kept "
+                   f"fit the map poorly (p < {DOUBTFUL_BELOW:g}; where the covariances state "
+                   "the noise, 1 in 20 true closures does too): not rejected, and not told "
+                   "apart from wrong ones, worst first: factors "
+                   f"{_few([k for k, _ in result.doubtful])}"
+                   + ("; their p-values are in --json" if json_path is not None else ""))
     fit = variance_factor(pose_graph, result.chi2, pose_graph.num_edges - len(result.rejected))
     hint = None
     if result.rejected and fit is not None and fit > LOOSE_FIT * covariance_scale:
@@ -295,7 +303,9 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
             "input_chi2": chi2(graph, values), "chi2": result.chi2, "judged": judged,
             "variance_factor": fit, "covariance_scale": covariance_scale,
             "false_rejection_rate": rate, "hint": hint,  # the rate used, given or not
-            "rejected": list(result.rejected), "steps": result.steps, "seconds": seconds,
+            "rejected": list(result.rejected),
+            "doubtful": [{"factor": k, "p_value": p} for k, p in result.doubtful],
+            "steps": result.steps, "seconds": seconds,
             "notes": notes}).encode()))
     run.write_together(files)  # the guess, its list and its record, or none
     what = "loop closures" if trust_odometry else "edges"

@@ -9,10 +9,11 @@ planar and 3D graphs alike (:mod:`~rlpgo_gtsam.robust.groups`: SE(2) or SE(3)).
 from rlpgo_gtsam.robust.pipeline import (
     DEFAULT_FALSE_REJECTION_RATE,
     DEFAULT_INLIER_PROBABILITY,
+    DOUBTFUL_BELOW,
     REJECTED_BELOW,
     RobustResult,
     robust_initialize,
 )
 
-__all__ = ["DEFAULT_FALSE_REJECTION_RATE", "DEFAULT_INLIER_PROBABILITY", "REJECTED_BELOW",
-           "RobustResult", "robust_initialize"]
+__all__ = ["DEFAULT_FALSE_REJECTION_RATE", "DEFAULT_INLIER_PROBABILITY", "DOUBTFUL_BELOW",
+           "REJECTED_BELOW", "RobustResult", "robust_initialize"]
