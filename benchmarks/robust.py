@@ -10,7 +10,9 @@ measurements, sigma_R 0.01 rad, sigma_t 0.05 m, d 1 m, lc 0.5, seed 7) and per p
 fraction (``int(fraction x edges)`` wrong closures, groups of 5, seed 1; on shared files
 :func:`add_outliers` around the clean optimum):
 
-- ``robust_initialize``: precision and recall of its rejections; "chi2 ratio": the chi2 of
+- ``robust_initialize``: precision and recall of its rejections; "doubtful": how many kept
+  closures it names as doubtful (``RobustResult.doubtful``), how many of those are wrong, of
+  the wrong closures it kept; "chi2 ratio": the chi2 of
   its values refined by LM (100 iterations) on the outlier-free graph over that graph's
   optimum (certified + LM on it); seconds, and "x clean": its seconds over the clean
   default's (certified + LM30 on the outlier-free graph, same process);
@@ -103,7 +105,7 @@ def _anchor(kind, graph, values, queue):
         if result.rejected != first.rejected:
             raise SystemExit("the robust path decided differently on a second call")
         queue.put((result.values, (result.rejected, len(result.ambiguous), result.seconds,
-                                   first.seconds)))
+                                   first.seconds, [k for k, _ in result.doubtful])))
         return
     g = PoseGraph2D.from_gtsam(graph, values)
     start = make_initializer("certified").run(g).values
@@ -202,12 +204,14 @@ def main() -> None:
                 row = {"case": name, "mode": mode, "fraction": fraction, "wrong": len(wrong),
                        "clean_default_s": reference_s, "status": status, "seconds": seconds}
                 if extra is not None:
-                    rejected, ambiguous, seconds, first_s = extra
+                    rejected, ambiguous, seconds, first_s, doubtful = extra
                     precision, recall = scores(rejected, wrong)
                     row |= {"rejected": len(rejected), "precision": precision,
                             "recall": recall, "ratio": ratio(graph, found, best),
                             "seconds": seconds, "first_call_s": first_s,
-                            "ambiguous": ambiguous}
+                            "ambiguous": ambiguous, "doubtful": len(doubtful),
+                            "doubtful_wrong": len(set(doubtful) & set(wrong)),
+                            "kept_wrong": len(set(wrong) - set(rejected))}
                 for kind in ("gnc", "dcs") if args.anchor_timeout > 0 else ():
                     values_a, rejected_a, seconds_a, status = run_anchor(
                         kind, bad, values, args.anchor_timeout)
@@ -225,15 +229,24 @@ def _f(value, digits=3):
     return "-" if value is None else f"{value:.{digits}f}"
 
 
+def _doubtful(row: dict) -> str:
+    """``N (W of K)``: the doubtful closures, the wrong ones among them, the wrong ones kept
+    (rows from before stop 35 have none)."""
+    if "doubtful" not in row:
+        return "-"
+    return f"{row['doubtful']} ({row['doubtful_wrong']} of {row['kept_wrong']})"
+
+
 def table(rows: list[dict]) -> str:
     lines = ["| case | policy | fraction | wrong | rejected | precision | recall | chi2 ratio "
-             "| s | x clean | GNC ratio | GNC P/R | GNC s | DCS ratio | DCS s |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| s | x clean | doubtful (wrong, of kept wrong) | GNC ratio | GNC P/R | GNC s | "
+             "DCS ratio | DCS s |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["mode"] == "clean":
             lines.append(f"| {r['case']} | clean | 0 | 0 | {r['rejected']} | - | - | "
                          f"{r['robust_chi2'] / r['optimum_chi2']:.5f} | {r['seconds']:.1f} | "
-                         f"{r['seconds'] / r['clean_default_s']:.1f} | | | | | |")
+                         f"{r['seconds'] / r['clean_default_s']:.1f} | | | | | | |")
             continue
         gnc_pr = (f"{r['gnc_precision']:.2f}/{r['gnc_recall']:.2f}"
                   if "gnc_precision" in r else r.get("gnc_status", "-"))
@@ -242,7 +255,7 @@ def table(rows: list[dict]) -> str:
         if "precision" not in r:  # the robust path ran past its cap
             lines.append(
                 f"| {r['case']} | {r['mode']} | {r['fraction']:g} | {r['wrong']} | "
-                f"{r['status']} | - | - | - | {r['seconds']:.1f} | - | "
+                f"{r['status']} | - | - | - | {r['seconds']:.1f} | - | - | "
                 f"{_f(anchors['gnc_ratio'], 4)} | {gnc_pr} | {gnc_s} | "
                 f"{_f(anchors['dcs_ratio'], 4)} | {dcs_s} |")
             continue
@@ -250,7 +263,7 @@ def table(rows: list[dict]) -> str:
             f"| {r['case']} | {r['mode']} | {r['fraction']:g} | {r['wrong']} | {r['rejected']} "
             f"| {r['precision']:.3f} | {r['recall']:.3f} | {_f(r['ratio'], 4)} | "
             f"{r['seconds']:.1f} | {r['seconds'] / r['clean_default_s']:.1f} | "
-            f"{_f(anchors['gnc_ratio'], 4)} | {gnc_pr} | {gnc_s} | "
+            f"{_doubtful(r)} | {_f(anchors['gnc_ratio'], 4)} | {gnc_pr} | {gnc_s} | "
             f"{_f(anchors['dcs_ratio'], 4)} | {dcs_s} |")
     return "\n".join(lines) + "\n"
 
