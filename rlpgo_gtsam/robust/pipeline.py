@@ -763,7 +763,16 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
     dof per closure). A round first rejects the kept closures the map refutes; only a round
     that refutes none admits the closures left out that pass: the map a closure is admitted
     against holds no closure it refutes. A closure rejected after it was admitted here is
-    not admitted again.
+    not admitted again, with one exception: where the map after an admitting round refutes
+    closures that round let in (two or more came in), they clash with each other, not with
+    the map they were judged by (a group of aliased wrong closures, agreeing with itself,
+    bends the map until the true closures admitted beside it misfit as badly: on the
+    generator's 300-pose graph with 10% local groups, sigma_R 0.05, seed 3, chi2 33-259 for 8
+    true ones against 38-262 for the 5 wrong). Those misfits then go back out unjudged and
+    come back by halves, the half that fits the map best first, once no other closure is
+    waiting to come in (``benchmarks/robust_noise.py --dims 2``: 96 generated graphs, true
+    closures rejected 226 -> 124, wrong ones kept 61 -> 74, rows below precision or recall
+    0.98 49 -> 36).
 
     Admissions go in tiers where the map is loose: in one round, the closures whose
     innovation spread is at most ``_TIGHT`` or ``group.admit_tier`` times the tightest's (a
@@ -793,6 +802,8 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
     bar = chi2_quantile(inlier_probability, group.dof)
     measurement_volume = 1.0 / np.sqrt(np.linalg.det(g.information))  # sqrt(det covariance)
     admitted = np.zeros(len(kept), bool)
+    batch = np.zeros(len(kept), bool)  # the closures the last admitting round let in
+    clashed = np.zeros(len(kept), bool)  # members of a batch that clashed
     banned = np.zeros(len(kept), bool)
     was_refuted = np.zeros(len(kept), bool)
     tried = np.zeros(len(kept), bool)  # closures a solve has judged (_turned, _held)
@@ -836,7 +847,17 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
                 turning.append((float(wide), which))
             loose[which] = np.maximum(loose[which], wide)
         refuted = kept & fails
-        if refuted.any():
+        if refuted.any() and (refuted & batch).any() and batch.sum() > 1:
+            # the last admissions clash: closures that each fitted the map, let in together
+            # (a group of aliased closures agrees with itself), bend it until true ones
+            # misfit as much as they do; the batch's misfits go back out, unjudged (not
+            # banned), and come back in halves, those that fit the map best first
+            back = batch & refuted
+            kept = kept & ~back
+            admitted &= ~back
+            clashed |= back
+            batch = np.zeros(len(kept), bool)
+        elif refuted.any():
             banned |= refuted & admitted
             was_refuted |= refuted
             kept = kept & ~refuted
@@ -854,8 +875,17 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
                     side)
                 admit &= (loose <= max(_TIGHT, group.admit_tier * loose[admit].min())) | (
                     (chance < _ADMIT_CHANCE) & ~was_refuted)
+                if (admit & ~clashed).any():
+                    admit &= ~clashed
+                else:  # the best half of the clashed ones that pass
+                    fit = np.full(len(kept), np.inf)
+                    fit[index] = chi2_sets[:len(index)]
+                    order = np.flatnonzero(admit)[np.argsort(fit[admit], kind="stable")]
+                    admit = np.zeros(len(kept), bool)
+                    admit[order[:max(1, len(order) // 2)]] = True
                 kept = kept | admit
                 admitted |= admit
+                batch = admit
             else:
                 judged_sets = len(singles) + len(runs)
                 doubted = _doubted(chi2_sets[:judged_sets], (singles + runs)[:judged_sets],
