@@ -40,7 +40,7 @@ and lets GTSAM's GNC-LM (truncated least squares) finish from it:
    dropped had bent the seed's orientations), refined as far as a round is; in 3D it is
    the start's own map (see ``Group.relaxed_start``).
 3. ``verify``: from that map, every closure is judged by the chi2 of its residual under
-   the map's own uncertainty (:func:`_innovations`): a kept closure by its leave-one-out
+   the map's own uncertainty (:func:`_innovation_draws`): a kept closure by its leave-one-out
    residual (the map without it), a closure left out by its innovation (how far its
    measurement lies from what the map predicts, given how well the map knows its two
    poses), both
@@ -622,10 +622,10 @@ def _runs(g: PoseGraph, among: np.ndarray) -> list[np.ndarray]:
     return [piece for piece in pieces if len(piece) >= 2]
 
 
-def _left_out_runs(g: PoseGraph, among: np.ndarray, index: np.ndarray, alone: np.ndarray,
+def _left_out_runs(g: PoseGraph, among: np.ndarray, fits: np.ndarray,
                    bar: float) -> list[np.ndarray]:
     """:func:`_runs` of the closures left out (``among``), but for runs in which one closure
-    alone passes (its chi2 ``alone``, per closure of ``index``, below ``bar``) and fits as a
+    alone passes (its chi2 in ``fits``, per edge, below ``bar``) and fits as a
     true closure does (p-value 0.05 or more, :data:`DOUBTFUL_BELOW`): the others misfit by
     themselves, and the run's verdict would keep out the true closure they sit beside
     (Vertigo's local policy puts wrong closures beside true ones: on the generator's 300-pose
@@ -633,12 +633,10 @@ def _left_out_runs(g: PoseGraph, among: np.ndarray, index: np.ndarray, alone: np
     593, together 617). Where the lone one passes barely, the run still judges it: on Intel
     with 10% local groups the member of a wrong group that passes alone does so at 11.7-17.1
     (3 dof), and its run keeps it out."""
-    statistic = np.full(len(among), np.inf)
-    statistic[index] = alone
-    fits_well = statistic < _statistic_at(DOUBTFUL_BELOW, group_of(g).dof)
+    fits_well = fits < _statistic_at(DOUBTFUL_BELOW, group_of(g).dof)
     runs = []
     for run in _runs(g, among):
-        passing = statistic[run] < bar
+        passing = fits[run] < bar
         if passing.sum() == 1 and fits_well[run[passing]].all():
             continue
         runs.append(run)
@@ -679,17 +677,10 @@ def _clusters(g: PoseGraph, among: np.ndarray) -> list[np.ndarray]:
 
 
 def _draws(g: PoseGraph) -> np.ndarray:
-    """(m, dof, ``_SAMPLES``) the whitened noise :func:`_innovations` draws on the edges,
+    """(m, dof, ``_SAMPLES``) the whitened noise :func:`_innovation_draws` draws on the edges,
     seeded: the same for every round (drawn once per :func:`_verify`, not once per round:
     MIT's 827 edges took 4 ms a round of about 30)."""
     return np.random.default_rng(0).standard_normal((g.num_edges, group_of(g).dof, _SAMPLES))
-
-
-def _innovations(edges: gtsam.NonlinearFactorGraph, g: PoseGraph, values: gtsam.Values,
-                 kept: np.ndarray, sets: list[np.ndarray], noise: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_innovation_draws` and :func:`_judged` in one: see there."""
-    return _judged(g, _innovation_draws(edges, g, values, kept, noise), sets)
 
 
 @dataclass
@@ -805,7 +796,7 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
             inlier_probability: float,
             false_rejection_rate: float = DEFAULT_FALSE_REJECTION_RATE
             ) -> tuple[gtsam.Values, np.ndarray, int, np.ndarray, np.ndarray]:
-    """Re-decide the closures by :func:`_innovations` at the kept edges' optimum, solving
+    """Re-decide the closures by :func:`_judged` at the kept edges' optimum, solving
     again after each change, until nothing changes (at most ``_VERIFY_ROUNDS`` rounds).
 
     Each closure is judged alone and, where it belongs to a run of parallel closures
@@ -872,13 +863,12 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
         singles = [np.array([e]) for e in index.tolist()]
         draws = _innovation_draws(edges, g, values, kept, noise)
         alone = _judged(g, draws, singles)
-        runs = _runs(g, candidates & kept) + _left_out_runs(g, candidates & ~kept, index,
-                                                            alone[0], bar)
+        fits[index] = alone[0]  # this round's, for every candidate
+        runs = _runs(g, candidates & kept) + _left_out_runs(g, candidates & ~kept, fits, bar)
         clusters = _clusters(g, candidates & kept)
         chi2_sets, spread, turn = (np.concatenate(pair) for pair in zip(
             alone, _judged(g, draws, runs + clusters), strict=True))
         is_cluster = np.arange(len(chi2_sets)) >= len(singles) + len(runs)
-        fits[index] = chi2_sets[:len(index)]
         fails = np.zeros(len(kept), bool)
         misfit = np.zeros(len(kept), bool)  # by the chi2 alone
         loose = np.zeros(len(kept))
@@ -932,9 +922,7 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
                 if (admit & ~clashed).any():
                     admit &= ~clashed
                 else:  # the best half of the clashed ones that pass
-                    fit = np.full(len(kept), np.inf)
-                    fit[index] = chi2_sets[:len(index)]
-                    order = np.flatnonzero(admit)[np.argsort(fit[admit], kind="stable")]
+                    order = np.flatnonzero(admit)[np.argsort(fits[admit], kind="stable")]
                     admit = np.zeros(len(kept), bool)
                     admit[order[:max(1, len(order) // 2)]] = True
                 kept = kept | admit
@@ -1048,7 +1036,7 @@ def _statistic_at(p_value: float, dof: int) -> float:
 
 
 def _innovation_p_value(value: float, dof: int) -> float:
-    """P(a true set's statistic >= ``value``) for :func:`_innovations`' chi2 of ``dof`` dof.
+    """P(a true set's statistic >= ``value``) for :func:`_judged`'s chi2 of ``dof`` dof.
     Its covariance is estimated from ``k = _SAMPLES`` draws, so the statistic is Hotelling's
     T^2 (scaled by ``(k - dof - 1) / k``), whose tail is heavier than chi-square's: ``T^2 (k -
     dof + 1) / (dof k)`` is F(dof, k - dof + 1): at 3 dof, p = 3e-4 at 21.1 where the
