@@ -270,10 +270,11 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
         click.echo(f"ambiguous: {len(kept)} loop closures kept conflict with {len(other)} "
                    "others that agree among themselves and are nearly as well supported; the "
                    f"map's fit decided (kept factors {_few(kept)}; the others {_few(other)})")
+    judged = pose_graph.num_edges - len(result.trusted)
     if result.doubtful:
-        judged_kept = pose_graph.num_edges - len(result.trusted) - len(result.rejected)
-        click.echo(f"doubtful: {len(result.doubtful)} of the {judged_kept} loop closures kept "
-                   f"fit the map poorly (p < {DOUBTFUL_BELOW:g}; where the covariances state "
+        click.echo(f"doubtful: {len(result.doubtful)} of the {judged - len(result.rejected)} "
+                   f"loop closures kept fit the map poorly (p < {DOUBTFUL_BELOW:g}; where the "
+                   "covariances state "
                    "the noise, 1 in 20 true closures does too): not rejected, and not told "
                    "apart from wrong ones, worst first: factors "
                    f"{_few([k for k, _ in result.doubtful])}"
@@ -295,7 +296,6 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
         # a file name that is not UTF-8 comes back as the bytes it was
         files.append((outliers_out, listed.encode("utf-8", "surrogateescape")))
     seconds = time.perf_counter() - began
-    judged = pose_graph.num_edges - len(result.trusted)
     if json_path is not None:
         files.append((json_path, json_text({
             "input": str(input_path), "output": str(output), "dimension": pose_graph.dimension,
