@@ -200,6 +200,7 @@ _RUN_REACH = 2  # parallel closures this many poses apart (or closer) form a run
 _RUN_MAX = 5  # ... judged in pieces of at most this many (Vertigo's group size)
 _EXCHANGE_TRIES = 1  # kept closures _exchanged questions per verify call, at most
 _EXCHANGE_REACH = 20  # poses: Vertigo's local policy's reach
+_EXCHANGE_MISFIT = 10.0  # bars: nearby closures that misfit by more do not count (_exchanged)
 
 
 @dataclass
@@ -1179,8 +1180,9 @@ def _exchanged(graph, g: PoseGraph, factor_of_edge: np.ndarray,
 
     The suspect: an untried kept closure that fits poorly (its statistic in ``fits``, per
     edge, has a p-value below :data:`DOUBTFUL_BELOW`) with at least two closures of
-    ``failing`` (left out, refuted by the map) near it: each of its ends within
-    ``_EXCHANGE_REACH`` poses of one of theirs; the one with the most, then the
+    ``failing`` (left out, refuted by the map) near it that misfit by less than
+    ``_EXCHANGE_MISFIT`` bars (near: each of its ends within ``_EXCHANGE_REACH`` poses of one
+    of theirs); the one with the most, then the
     worst-fitting, at most ``_EXCHANGE_TRIES`` of them (each marked in ``tried``). Without
     it the kept edges are solved again; its rivals are the largest set of the nearby
     closures that then fit alone, best-fitting first, that also fit together. Where there
@@ -1194,7 +1196,11 @@ def _exchanged(graph, g: PoseGraph, factor_of_edge: np.ndarray,
     near = [left_out[(np.abs(g.edges[left_out][:, :, None] - g.edges[w][None, None, :])
                       .min(axis=1) <= _EXCHANGE_REACH).all(axis=1)]
             for w in suspects.tolist()]
-    counts = np.array([len(index) for index in near], dtype=np.int64)
+    # the count of those that misfit by less than _EXCHANGE_MISFIT bars: where the nearby
+    # closures misfit by far more, taking one closure out did not bring two of them within
+    # the bar on any benchmark row, and the question costs two solves for nothing
+    counts = np.array([int((fits[index] < _EXCHANGE_MISFIT * bar).sum()) for index in near],
+                      dtype=np.int64)
     order = np.lexsort((-fits[suspects], -counts))  # the most contested first
     for n in order[counts[order] >= 2][:_EXCHANGE_TRIES].tolist():
         suspect, index = int(suspects[n]), near[n]
