@@ -851,7 +851,7 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
     A round that refutes and admits nothing applies the false-rejection bar
     (:func:`_doubted`) to the closures and runs judged: the kept ones it rejects are refuted
     (and not admitted again); only where it rejects none do the solves (:func:`_turned`,
-    :func:`_held`) come, and then the end.
+    :func:`_held`) come, then the exchange (:func:`_exchanged`), and then the end.
     Returns the last optimum, the decision, the rounds, the closures the
     false-rejection bar rejected and per edge its statistic as a single closure in the last
     round that judged it (NaN: never judged)."""
@@ -896,9 +896,7 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
         holding: list[tuple[float, np.ndarray]] = []  # kept sets that hold their stretch
         for which, value, wide, angle, cluster in zip(singles + runs + clusters, chi2_sets,
                                                       spread, turn, is_cluster, strict=True):
-            bar_set = (_hotelling_bar(inlier_probability, group.dof * len(which))
-                       if group.hotelling_runs and len(which) > 1
-                       else chi2_quantile(inlier_probability, group.dof * len(which)))
+            bar_set = _set_bar(group, inlier_probability, len(which))
             if (kept[which[0]] and len(which) > 1 and wide < _LEVERAGE_CHECK
                     and 0.5 * bar_set <= value):
                 holding.append((float(wide), which))
@@ -1036,6 +1034,15 @@ def _doubted(chi2_sets: np.ndarray, sets: list[np.ndarray], kept: np.ndarray,
         for k in np.flatnonzero(p_values <= ordered[below[-1]]).tolist():
             doubted[sets[k]] = True
     return doubted & kept
+
+
+def _set_bar(group, inlier_probability: float, size: int) -> float:
+    """The verify step's bar of a set of ``size`` closures: the chi-square quantile at
+    ``inlier_probability`` for its dof, or, for a run where the group reads runs so
+    (``Group.hotelling_runs``), :func:`_hotelling_bar`'s."""
+    dof = group.dof * size
+    return (_hotelling_bar(inlier_probability, dof) if group.hotelling_runs and size > 1
+            else chi2_quantile(inlier_probability, dof))
 
 
 def _hotelling_bar(inlier_probability: float, dof: int) -> float:
@@ -1215,10 +1222,7 @@ def _exchanged(graph, g: PoseGraph, factor_of_edge: np.ndarray,
         candidates = [passing[:size] for size in range(len(passing), 1, -1)]
         together = _judged(g, draws, candidates)[0] if candidates else np.empty(0)
         rivals = next((which for which, value in zip(candidates, together, strict=True)
-                       if value < (_hotelling_bar(inlier_probability, dof * len(which))
-                                   if group.hotelling_runs
-                                   else chi2_quantile(inlier_probability, dof * len(which)))),
-                      None)
+                       if value < _set_bar(group, inlier_probability, len(which))), None)
         if rivals is None:
             continue
         grown = shrunk.copy()
