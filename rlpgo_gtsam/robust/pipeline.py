@@ -114,7 +114,7 @@ from rlpgo_gtsam.errors import GraphError, SolverError, one_line
 from rlpgo_gtsam.graph import chi2, component_labels, odometry_edges
 from rlpgo_gtsam.graph3d import extract_pose_graph
 from rlpgo_gtsam.numerics import numeric_call
-from rlpgo_gtsam.robust.consistency import pairwise_consistency
+from rlpgo_gtsam.robust.consistency import AMBIGUOUS_RATIO, pairwise_consistency
 from rlpgo_gtsam.robust.gnc import robust_positions
 from rlpgo_gtsam.robust.groups import PoseGraph, group_of
 from rlpgo_gtsam.solvers import gauge_prior, refine, solver_params
@@ -219,11 +219,13 @@ class RobustResult:
         steps: what each step did, in order (JSON-ready dicts: step, seconds, iterations,
             kept / rejected counts, ...).
         trusted: factor indices of the edges treated as known inliers.
-        ambiguous: what the consistency step could not tell apart: per group of conflicting
-            closures, the factor indices kept there and those of a rejected alternative that
-            is (nearly) as well supported (at least ``AMBIGUOUS_RATIO`` of its size) and
-            consistent in itself. The later steps decided by the map's fit; empty when
-            nothing was ambiguous.
+        ambiguous: what the consistency step and the verify step's exchange could not
+            tell apart: per group of conflicting closures, the factor indices kept there and
+            those of a rejected alternative that is (nearly) as well supported (at least
+            ``AMBIGUOUS_RATIO`` of its size) and consistent in itself (the consistency
+            step's: the later steps decided by the map's fit; the exchange's: each set fits
+            the map without the other, the larger was kept, of two as large the one whose
+            map has the lower chi2); empty when nothing was ambiguous.
         stopped: why the run ended where it did, in words.
         doubtful: ``(factor index, p-value)`` of the loop closures kept whose fit at the
             verified map is poor: the p-value of the verify step's statistic (the map
@@ -376,9 +378,9 @@ def robust_initialize(
     steps.append(_step("start", step_began, iterations, kept, known))
 
     step_began = time.perf_counter()
-    verified, kept, rounds, unlikely, fits = _verify(graph, g, factor_of_edge, start, settled,
-                                                     kept, known, inlier_probability,
-                                                     false_rejection_rate)
+    verified, kept, rounds, unlikely, fits, ties = _verify(
+        graph, g, factor_of_edge, start, settled, kept, known, inlier_probability,
+        false_rejection_rate)
     # the map the rounds settled in grew from the seed's start; the certified relaxation of
     # the edges now kept may lie in a lower basin (City10K, 10% local wrong closures: the
     # decision exact, the rounds' map 1.83x the optimum after LM): then judge again from it,
@@ -391,11 +393,16 @@ def robust_initialize(
                 1.0 - _RESTART_GAIN) * chi2(kept_graph, verified):
             break
         restarts += 1
-        verified, kept, more, unlikely_again, fits = _verify(
+        verified, kept, more, unlikely_again, fits, more_ties = _verify(
             graph, g, factor_of_edge, restart, True, kept, known, inlier_probability,
             false_rejection_rate)
         rounds += more
         unlikely |= unlikely_again
+        ties += more_ties
+    # a set questioned again (after a restart) is listed once, with its last alternative
+    last = {tuple(sorted(factor_of_edge[k].tolist())): sorted(factor_of_edge[r].tolist())
+            for k, r in ties}
+    ambiguous += [(list(k), r) for k, r in last.items()]
     steps.append(_step("verify", step_began, rounds, kept, known)
                  | {"restarts": restarts,
                     "unlikely_fits": int((unlikely & ~kept).sum())})
@@ -853,8 +860,9 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
     (and not admitted again); only where it rejects none do the solves (:func:`_turned`,
     :func:`_held`) come, then the exchange (:func:`_exchanged`), and then the end.
     Returns the last optimum, the decision, the rounds, the closures the
-    false-rejection bar rejected and per edge its statistic as a single closure in the last
-    round that judged it (NaN: never judged)."""
+    false-rejection bar rejected, per edge its statistic as a single closure in the last
+    round that judged it (NaN: never judged) and the sets the exchange found (nearly) as
+    well supported as each other (edges: kept, then the alternative)."""
     group = group_of(g)
     edges = gtsam.NonlinearFactorGraph()
     for k in factor_of_edge.tolist():
@@ -870,6 +878,7 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
     tried = np.zeros(len(kept), bool)  # closures a solve has judged (_turned, _held)
     checks = [0]  # _held's solves so far
     questioned = np.zeros(len(kept), bool)  # kept closures _exchanged has tried
+    ties: list[tuple[np.ndarray, np.ndarray]] = []  # what _exchanged could not tell apart
     unlikely = np.zeros(len(kept), bool)  # rejected by the false-rejection bar
     noise = _draws(g)
     fits = np.full(len(kept), np.nan)
@@ -965,7 +974,7 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
                     if trial is None:
                         exchange = _exchanged(graph, g, factor_of_edge, edges, noise, values,
                                               kept, candidates & ~kept & misfit, fits,
-                                              questioned, inlier_probability)
+                                              questioned, ties, inlier_probability)
                         if exchange is None:
                             break
                         values, grown, out = exchange
@@ -985,7 +994,7 @@ def _verify(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Value
         # GNC-LM converges from the last one
         values = _solved(graph, g, factor_of_edge, kept, values, _ROUND_ITERS,
                          _ROUND_TOLERANCE).values
-    return values, kept, rounds, unlikely, fits
+    return values, kept, rounds, unlikely, fits, ties
 
 
 def _doubted(chi2_sets: np.ndarray, sets: list[np.ndarray], kept: np.ndarray,
@@ -1177,40 +1186,61 @@ def _held(graph, g: PoseGraph, factor_of_edge: np.ndarray, values: gtsam.Values,
 def _exchanged(graph, g: PoseGraph, factor_of_edge: np.ndarray,
                edges: gtsam.NonlinearFactorGraph, noise: np.ndarray, values: gtsam.Values,
                kept: np.ndarray, failing: np.ndarray, fits: np.ndarray, tried: np.ndarray,
-               inlier_probability: float
-               ) -> tuple[gtsam.Values, np.ndarray, int] | None:
+               ambiguous: list[tuple[np.ndarray, np.ndarray]], inlier_probability: float
+               ) -> tuple[gtsam.Values, np.ndarray, np.ndarray] | None:
     """Two mutually exclusive sets of closures that each fit, the larger kept. Vertigo's
     ``local`` policy puts a wrong closure where the odometry holds loosely; the map bends to
     it, it fits the bent map barely, and the true closures of that stretch misfit (the
     generator's 300-pose graph, sigma_R 0.3, d 3, 10% ``local``, seed 1: the wrong (252,
     260), p 0.044, kept eight true closures of two runs out, the map 5.1x the optimum).
+    A wrong group does the same as a run, and fits the map it bends well (sigma_R 0.2, d 3,
+    10% ``localgroup``, seed 2: five wrong closures (43, 24)-(47, 28), chi2 1.4-6.1, kept
+    eight true closures out that misfit by 32-3062).
 
-    The suspect: an untried kept closure that fits poorly (its statistic in ``fits``, per
-    edge, has a p-value below :data:`DOUBTFUL_BELOW`) with at least two closures of
-    ``failing`` (left out, refuted by the map) near it that misfit by less than
-    ``_EXCHANGE_MISFIT`` bars (near: each of its ends within ``_EXCHANGE_REACH`` poses of one
-    of theirs); the one with the most, then the
-    worst-fitting, at most ``_EXCHANGE_TRIES`` of them (each marked in ``tried``). Without
-    it the kept edges are solved again; its rivals are the largest set of the nearby
-    closures that then fit alone, best-fitting first, that also fit together. Where there
-    are at least two and, with them in, the suspect misfits, the rivals come in and it goes:
-    returns the map, the kept edges and the suspect's edge; else None."""
+    The suspects, untried (``tried``, per edge) and kept: a closure that fits poorly (its
+    statistic in ``fits``, per edge, has a p-value below :data:`DOUBTFUL_BELOW`) with at
+    least two closures of ``failing`` (left out, refuted by the map) near it that misfit by
+    less than ``_EXCHANGE_MISFIT`` bars, and a run of kept closures (:func:`_runs`) with
+    more closures of ``failing`` near it than it has members (near: each of the suspect's
+    ends within ``_EXCHANGE_REACH`` poses of one of theirs); the one with the most, then the
+    worst-fitting, at most ``_EXCHANGE_TRIES`` of them. Without it the kept edges are
+    solved again; its rivals are the largest set of the nearby closures that then fit
+    alone, best-fitting first, that also fit together. With them in, the suspect's closures
+    that misfit go where the rivals outnumber them: returns the map, the kept edges (the
+    suspect's other closures left out, to be judged again) and the closures that go; else
+    None. Two such sets, the smaller at least ``AMBIGUOUS_RATIO`` of the larger's size, are
+    appended to ``ambiguous`` (edges: the larger, kept, then the smaller)."""
     group = group_of(g)
     dof = group.dof
     bar = chi2_quantile(inlier_probability, dof)
-    suspects = np.flatnonzero(kept & ~tried & (fits > _statistic_at(DOUBTFUL_BELOW, dof)))
     left_out = np.flatnonzero(failing)
-    near = [left_out[(np.abs(g.edges[left_out][:, :, None] - g.edges[w][None, None, :])
-                      .min(axis=1) <= _EXCHANGE_REACH).all(axis=1)]
-            for w in suspects.tolist()]
-    # the count of those that misfit by less than _EXCHANGE_MISFIT bars: where the nearby
-    # closures misfit by far more, taking one closure out did not bring two of them within
-    # the bar on any benchmark row, and the question costs two solves for nothing
-    counts = np.array([int((fits[index] < _EXCHANGE_MISFIT * bar).sum()) for index in near],
-                      dtype=np.int64)
-    order = np.lexsort((-fits[suspects], -counts))  # the most contested first
-    for n in order[counts[order] >= 2][:_EXCHANGE_TRIES].tolist():
-        suspect, index = int(suspects[n]), near[n]
+
+    def near(which: np.ndarray) -> np.ndarray:
+        ends = g.edges[which].ravel()
+        return left_out[(np.abs(g.edges[left_out][:, :, None] - ends[None, None, :])
+                         .min(axis=1) <= _EXCHANGE_REACH).all(axis=1)]
+
+    suspects: list[np.ndarray] = []
+    counts: list[int] = []
+    for w in np.flatnonzero(kept & ~tried & (fits > _statistic_at(DOUBTFUL_BELOW, dof))).tolist():
+        # the count of those that misfit by less than _EXCHANGE_MISFIT bars: where the
+        # nearby closures misfit by far more, taking one closure out did not bring two of
+        # them within the bar on any benchmark row, and the question costs two solves for
+        # nothing
+        index = near(np.array([w]))
+        suspects.append(np.array([w]))
+        counts.append(int((fits[index] < _EXCHANGE_MISFIT * bar).sum()) - 1)
+    for run in _runs(g, kept & ~tried):
+        # as for one closure, two of them within _EXCHANGE_MISFIT bars (City10K: questions
+        # where the nearest misfit by 12-58 bars took 0.5-0.7 s each and changed nothing)
+        index = near(run)
+        if (fits[index] < _EXCHANGE_MISFIT * bar).sum() >= 2:
+            suspects.append(run)
+            counts.append(len(index) - len(run))
+    worst = np.array([fits[which].max() for which in suspects])
+    order = np.lexsort((-worst, -np.array(counts, dtype=np.int64)))  # the most contested
+    for n in [n for n in order.tolist() if counts[n] >= 1][:_EXCHANGE_TRIES]:
+        suspect, index = suspects[n], near(suspects[n])
         tried[suspect] = True
         shrunk = kept.copy()
         shrunk[suspect] = False
@@ -1218,21 +1248,35 @@ def _exchanged(graph, g: PoseGraph, factor_of_edge: np.ndarray,
                           _ROUND_TOLERANCE).values
         draws = _innovation_draws(edges, g, without, shrunk, noise)
         alone = _judged(g, draws, [np.array([e]) for e in index.tolist()])[0]
-        passing = index[np.argsort(alone, kind="stable")][:int((alone < bar).sum())]
-        candidates = [passing[:size] for size in range(len(passing), 1, -1)]
-        together = _judged(g, draws, candidates)[0] if candidates else np.empty(0)
-        rivals = next((which for which, value in zip(candidates, together, strict=True)
-                       if value < _set_bar(group, inlier_probability, len(which))), None)
-        if rivals is None:
+        passing = index[alone < bar]
+        if len(passing) < 2:
             continue
         grown = shrunk.copy()
-        grown[rivals] = True
+        grown[passing] = True
         swapped = _solved(graph, g, factor_of_edge, grown, without, _ROUND_ITERS,
-                          _ROUND_TOLERANCE).values
-        if _judged(g, _innovation_draws(edges, g, swapped, grown, noise),
-                   [np.array([suspect])])[0][0] < bar:
+                          _ROUND_TOLERANCE)
+        swapped, swapped_chi2 = swapped.values, swapped.chi2
+        verdict = _judged(g, _innovation_draws(edges, g, swapped, grown, noise),
+                          [np.array([e]) for e in [*passing.tolist(), *suspect.tolist()]])[0]
+        rivals, misfits = passing[verdict[:len(passing)] < bar], verdict[len(passing):] >= bar
+        if not misfits.any():
             continue  # not exclusive: the rounds would keep both
-        return swapped, grown, suspect
+        out = suspect[misfits]
+        # of two as large (the whole suspect against every closure that came in: maps of
+        # as many edges), the one whose map lies lower
+        swap = len(rivals) > len(out) or (
+            len(rivals) == len(out) == len(suspect) == len(passing) and bool(
+                swapped_chi2 < chi2(_without(graph, factor_of_edge[~kept].tolist()), values)))
+        if min(len(rivals), len(out)) >= AMBIGUOUS_RATIO * max(len(rivals), len(out)):
+            ambiguous.append((rivals, out) if swap else (out, rivals))  # (nearly) as large
+        if not swap:
+            continue  # outnumbered; or as many, and the suspect's map lies no higher
+        if len(rivals) < len(passing):  # those that fit once all came in
+            grown = shrunk.copy()
+            grown[rivals] = True
+            swapped = _solved(graph, g, factor_of_edge, grown, swapped, _ROUND_ITERS,
+                              _ROUND_TOLERANCE).values
+        return swapped, grown, out
     return None
 
 
