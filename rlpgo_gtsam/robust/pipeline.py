@@ -1209,9 +1209,9 @@ def _exchanged(graph, g: PoseGraph, factor_of_edge: np.ndarray,
     more closures of ``failing`` near it than it has members (near: each of the suspect's
     ends within ``_EXCHANGE_REACH`` poses of one of theirs); the one with the most, then the
     worst-fitting, at most ``_EXCHANGE_TRIES`` of them. Without it the kept edges are
-    solved again; its rivals are the largest set of the nearby closures that then fit
-    alone, best-fitting first, that also fit together. With them in, the suspect's closures
-    that misfit go where the rivals outnumber them: returns the map, the kept edges (the
+    solved again; every nearby closure that then fits alone comes in, and after a second
+    solve the ones that still fit are its rivals. The suspect's closures that misfit there
+    go where the rivals outnumber them: returns the map, the kept edges (the
     suspect's other closures left out, to be judged again) and the closures that go; else
     None. Two such sets, the smaller at least ``AMBIGUOUS_RATIO`` of the larger's size, are
     appended to ``ambiguous`` (edges: the larger, kept, then the smaller)."""
@@ -1228,7 +1228,8 @@ def _exchanged(graph, g: PoseGraph, factor_of_edge: np.ndarray,
     suspects: list[np.ndarray] = []
     counts: list[int] = []
     for w in np.flatnonzero(kept & ~tried & (fits > _statistic_at(DOUBTFUL_BELOW, dof))).tolist():
-        # the count of those that misfit by less than _EXCHANGE_MISFIT bars: where the
+        # the count: those near it that misfit by less than _EXCHANGE_MISFIT bars, less
+        # the suspect's own size (one; a run's count is its excess as well): where the
         # nearby closures misfit by far more, taking one closure out did not bring two of
         # them within the bar on any benchmark row, and the question costs two solves for
         # nothing
