@@ -1228,35 +1228,41 @@ def _exchanged(graph, g: PoseGraph, factor_of_edge: np.ndarray,
         return left_out[(np.abs(g.edges[left_out][:, :, None] - ends[None, None, :])
                          .min(axis=1) <= _EXCHANGE_REACH).all(axis=1)]
 
-    def contested(index: np.ndarray) -> bool:
-        # two of the nearby closures misfit by less than _EXCHANGE_MISFIT bars, the nearest
-        # by less than _EXCHANGE_NEAREST: where they misfit by more, taking the suspect out
-        # brought no two of them within the bar on any benchmark row, and the question costs
-        # two solves for nothing (the generated 1000-pose graph: nearby misfits of
-        # 1,400-70,000; City10K: a run of three true closures beside wrong local ones, the
-        # nearest 5.0-8.2 bars, 0.5-0.9 s a question; the swaps the tests pin had their
-        # nearest within 1.8 bars, and the planar and 3D sweeps and the shared files'
-        # policies decide as without this: robust_noise_*_v10, robust_policies_v19)
+    def contested(index: np.ndarray) -> int:
+        # how many of the nearby closures misfit by less than _EXCHANGE_MISFIT bars, 0
+        # unless the nearest misfits by less than _EXCHANGE_NEAREST; a question needs two:
+        # where they misfit by more, taking the suspect out brought no two of them within
+        # the bar on any benchmark row, and the question costs two solves for nothing (the
+        # generated 1000-pose graph: nearby misfits of 1,400-70,000; City10K: a run of
+        # three true closures beside wrong local ones, the nearest 5.0-8.2 bars, 0.5-0.9 s
+        # a question; the swaps the tests pin had their nearest within 1.8 bars, and the
+        # planar and 3D sweeps and the shared files' policies decide as without this:
+        # robust_noise_*_v10, robust_policies_v19)
         misfits = fits[index] / bar
-        return bool((misfits < _EXCHANGE_MISFIT).sum() >= 2
-                    and misfits.min() < _EXCHANGE_NEAREST)
+        return (int((misfits < _EXCHANGE_MISFIT).sum())
+                if len(index) and misfits.min() < _EXCHANGE_NEAREST else 0)
 
+    # the suspects, the refuted closures near each, and how contested each is: the
+    # contested nearby closures beyond the suspect's size (a run's: every nearby closure)
     suspects: list[np.ndarray] = []
-    counts: list[int] = []  # the contested nearby closures beyond the suspect's size
+    nearby: list[np.ndarray] = []
+    counts: list[int] = []
     for w in np.flatnonzero(kept & ~tried & (fits > _statistic_at(DOUBTFUL_BELOW, dof))).tolist():
         index = near(np.array([w]))
-        if contested(index):
+        if (within := contested(index)) >= 2:
             suspects.append(np.array([w]))
-            counts.append(int((fits[index] < _EXCHANGE_MISFIT * bar).sum()) - 1)
+            nearby.append(index)
+            counts.append(within - 1)
     for run in _runs(g, kept & ~tried):
-        index = near(run)  # a run's count: every nearby closure beyond its size
-        if contested(index):
+        index = near(run)
+        if contested(index) >= 2:
             suspects.append(run)
+            nearby.append(index)
             counts.append(len(index) - len(run))
     worst = np.array([fits[which].max() for which in suspects])
     order = np.lexsort((-worst, -np.array(counts, dtype=np.int64)))  # the most contested
     for n in [n for n in order.tolist() if counts[n] >= 1][:_EXCHANGE_TRIES]:
-        suspect, index = suspects[n], near(suspects[n])
+        suspect, index = suspects[n], nearby[n]
         tried[suspect] = True
         shrunk = kept.copy()
         shrunk[suspect] = False
