@@ -42,6 +42,8 @@ from rlpgo_gtsam.synthetic import generate, generate3d  # noqa: E402
 def statistics_at_optimum(bad, clean, edges_of_interest: list[int]) -> dict[int, float]:
     """Per factor index of ``bad.graph`` in ``edges_of_interest``: the verify step's
     statistic at the outlier-free graph's optimum (its wrong closures left out)."""
+    if not edges_of_interest:
+        return {}
     g = extract_pose_graph(bad.graph, bad.initial)
     group = pipeline.group_of(g)
     factor_of_edge = pipeline._edge_factor_indices(bad.graph, g.num_edges, group.between_factor)
@@ -54,8 +56,6 @@ def statistics_at_optimum(bad, clean, edges_of_interest: list[int]) -> dict[int,
     for k in factor_of_edge.tolist():
         edges.add(bad.graph.at(k))
     draws = pipeline._innovation_draws(edges, g, optimum, kept, pipeline._draws(g))
-    if not edges_of_interest:
-        return {}
     values = pipeline._judged(g, draws, [np.array([edge_of[f]]) for f in edges_of_interest])[0]
     return dict(zip(edges_of_interest, values.tolist(), strict=True))
 
