@@ -32,19 +32,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.common import DATASETS, RESULTS, write_result  # noqa: E402
-from rlpgo_gtsam import (  # noqa: E402
-    PoseGraph2D,
-    RLInitializer,
-    generate,
-    make_initializer,
-    poses_with_orientations,
-    read_g2o,
-    refine,
-)
-from rlpgo_gtsam.errors import RlpgoError  # noqa: E402
-from rlpgo_gtsam.rl.episode import BalancingPolicy, rollout  # noqa: E402
-from rlpgo_gtsam.se2 import wrap  # noqa: E402
+from benchmarks import harness  # noqa: E402
+from benchmarks.harness import RESULTS  # noqa: E402
 
 # (poses, sigma_R, seed): noisy measurements, sigma_t 0.05, d 3, lc 0.5.
 CANDIDATES = [(n, sigma_r, seed) for n, sigma_r in
@@ -54,13 +43,17 @@ CANDIDATES = [(n, sigma_r, seed) for n, sigma_r in
 LM_ITERS = 100
 
 
-def _lm(pose_graph: PoseGraph2D, poses: np.ndarray) -> float:
+def _lm(pose_graph, poses: np.ndarray) -> float:
+    from rlpgo_gtsam import refine
+
     return refine(pose_graph.graph, pose_graph.to_values(poses), "lm", LM_ITERS,
                   pose_graph=pose_graph).chi2
 
 
-def _best_classical(g: PoseGraph2D) -> tuple[dict, np.ndarray, bool]:
+def _best_classical(g) -> tuple[dict, np.ndarray, bool]:
     """Certified, chordal and Shonan (from the certified orientations), each + LM."""
+    from rlpgo_gtsam import RlpgoError, make_initializer, refine
+
     rows, best_poses, best = {}, None, np.inf
     certified = make_initializer("certified").run(g)
     starts = {"certified": certified, "chordal": make_initializer("chordal").run(g)}
@@ -76,15 +69,21 @@ def _best_classical(g: PoseGraph2D) -> tuple[dict, np.ndarray, bool]:
     return rows, best_poses, bool(certified.certificate.certified)
 
 
-def _agent(g: PoseGraph2D, start: np.ndarray, k: int, model: str) -> float:
+def _agent(g, start: np.ndarray, k: int, model: str) -> float:
+    from rlpgo_gtsam import RLInitializer, poses_with_rotations
+    from rlpgo_gtsam.rl.episode import rollout
+
     rl = RLInitializer(model=model, episodes=k, seed=1)
     config = rl.model.env_config
     result = rollout(rl.policy, g, start[:, 2], rl.cycles, config.action_range_rad,
                      rl.last_actions())
-    return min(_lm(g, poses_with_orientations(g, theta)) for theta in result.best_theta)
+    return min(_lm(g, poses_with_rotations(g, theta)) for theta in result.best_theta)
 
 
-def _basin_hopping(g: PoseGraph2D, start: np.ndarray, k: int, rng) -> float:
+def _basin_hopping(g, start: np.ndarray, k: int, rng) -> float:
+    from rlpgo_gtsam import poses_with_rotations
+    from rlpgo_gtsam.se2 import wrap
+
     neighbours: list[list[int]] = [[] for _ in range(g.num_poses)]
     for i, j in g.edges.tolist():
         neighbours[i].append(j)
@@ -105,16 +104,19 @@ def _basin_hopping(g: PoseGraph2D, start: np.ndarray, k: int, rng) -> float:
                         patch.add(other)
                         frontier.append(other)
             theta[list(patch)] += rng.uniform(-scale, scale)
-        best = min(best, _lm(g, poses_with_orientations(g, wrap(theta))))
+        best = min(best, _lm(g, poses_with_rotations(g, wrap(theta))))
     return best
 
 
-def _balancing(g: PoseGraph2D, start: np.ndarray, k: int, action_range: float) -> float:
+def _balancing(g, start: np.ndarray, k: int, action_range: float) -> float:
+    from rlpgo_gtsam import poses_with_rotations
+    from rlpgo_gtsam.rl.episode import BalancingPolicy, rollout
+
     best = np.inf
     for cycles in range(1, k + 1):
         result = rollout(BalancingPolicy(action_range), g, start[:, 2], cycles, action_range,
                          np.zeros((1, 2)))
-        best = min(best, _lm(g, poses_with_orientations(g, result.best_theta[0])))
+        best = min(best, _lm(g, poses_with_rotations(g, result.best_theta[0])))
     return best
 
 
@@ -125,7 +127,9 @@ def _timed(function):
 
 
 def _case(name: str, graph, values, truth, args) -> dict | None:
-    g = PoseGraph2D.from_gtsam(graph, values)
+    from rlpgo_gtsam import extract_pose_graph
+
+    g = extract_pose_graph(graph, values)
     (classical, start, certified), classical_s = _timed(lambda: _best_classical(g))
     row = {"graph": name, "poses": g.num_poses, "edges": g.num_edges, "certified": certified,
            "classical": classical,
@@ -176,9 +180,9 @@ def _markdown(rows: list[dict], args) -> str:
 
 
 def _plot(rows: list[dict]) -> bytes:
-    from matplotlib.figure import Figure
+    import io
 
-    from rlpgo_gtsam.plotting import _png
+    from matplotlib.figure import Figure
 
     figure = Figure(figsize=(10, 4))
     axis = figure.subplots()
@@ -196,7 +200,9 @@ def _plot(rows: list[dict]) -> bytes:
     axis.set_ylabel("chi2 change vs best classical (%)")
     axis.legend(fontsize=7)
     figure.tight_layout()
-    return _png(figure, 110)
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=110)
+    return buffer.getvalue()
 
 
 def main() -> None:
@@ -206,6 +212,8 @@ def main() -> None:
     parser.add_argument("--model", default="preset4")
     parser.add_argument("--name", default="arena", help="stem of the result files")
     args = parser.parse_args()
+    from rlpgo_gtsam import generate, read_g2o
+
     rows, skipped = [], []
     for n, sigma_r, seed in CANDIDATES[: args.limit]:
         sample = generate(n, sigma_r, 0.05, 3.0, 0.5, np.random.default_rng(seed),
@@ -215,19 +223,16 @@ def main() -> None:
         (skipped if row["certified"] else rows).append(row)
         print({k: v for k, v in row.items() if k != "classical"}, flush=True)
     if args.limit == len(CANDIDATES):
-        graph, values = read_g2o(DATASETS / "M3500C.g2o")
+        graph, values = read_g2o(harness.shared_file("M3500C"))
         rows.append(_case("M3500C.g2o", graph, values, None, args))
         print(rows[-1], flush=True)
-    command = "python benchmarks/arena.py " + " ".join(sys.argv[1:])
-    table = _markdown(rows, args)
-    text = (f"Made by `{command}` (k = {args.k} LM runs per search, LM{LM_ITERS}); chi2 = 2 x "
-            f"GTSAM error; percentages against the best classical result. Certified (left out): "
-            f"{', '.join(r['graph'] for r in skipped) or 'none'}.\n\n")
+    table = (f"k = {args.k} LM runs per search, LM{LM_ITERS}; chi2 = 2 x GTSAM error; "
+             "percentages against the best classical result. Certified (left out): "
+             f"{', '.join(r['graph'] for r in skipped) or 'none'}.\n\n" + _markdown(rows, args))
     print(table)
-    (RESULTS / f"{args.name}.md").write_text(text + table + "\n")
     (RESULTS / f"{args.name}.png").write_bytes(_plot(rows))
-    print(write_result(args.name, {"command": command, "k": args.k, "model": args.model,
-                                   "rows": rows, "certified_left_out": skipped}))
+    print(harness.write_result(args.name, harness.command_line(), {
+        "k": args.k, "model": args.model, "rows": rows, "certified_left_out": skipped}, table))
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ arrived at least half its own seconds after the row before it (rows held back to
 arrive together). With ``--all-file``, ``rlpgo-init FILE --method all`` runs once and its
 rows are checked the same way.
 
-Bytecode as an installed package has it (``benchmarks/process.py``'s ``cache_bytecode``).
+Bytecode as an installed package has it (:func:`benchmarks.harness.cache_bytecode`).
 The machine's other load shows in every figure; init and compare of one file run back to
 back, so their ratio is steadier than either.
 
@@ -37,7 +37,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -46,13 +45,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks import processes  # noqa: E402
-from benchmarks.common import DATASETS, RESULTS, write_result  # noqa: E402
-from benchmarks.process import cache_bytecode  # noqa: E402
+from benchmarks import harness  # noqa: E402
+from benchmarks.harness import DATASETS  # noqa: E402
 
 FILES = "M3500.g2o,City10K.g2o"
-WIN_FILES = ["M3500.g2o", "M3500A.g2o", "M3500B.g2o", "M3500C.g2o", "Intel.g2o", "MIT.g2o",
-             "FR079.g2o", "City10K.g2o"]
 SIGMA_T_SWEEP = ("0.01", "0.03", "0.05", "0.1", "0.2")
 WIN_GENERATED = [(n, sigma_r, seed) for n, sigma_r in
                  [(300, 0.4), (300, 0.5), (300, 0.6), (500, 0.4), (500, 0.5), (500, 0.6)]
@@ -128,15 +124,10 @@ def streamed(rows: list[dict]) -> bool:
                for earlier, later in itertools.pairwise(rows))
 
 
-def _median(values: list[float | None]) -> float | None:
-    values = [v for v in values if v is not None]
-    return statistics.median(values) if values else None
-
-
 def measure_speed(args) -> dict:
     files = args.files.split(",")
-    paths = [DATASETS / name for name in files]
-    init, compare = processes.command_path("rlpgo-init"), processes.command_path("rlpgo-compare")
+    paths = [harness.shared_file(name) for name in files]
+    init, compare = harness.command_path("rlpgo-init"), harness.command_path("rlpgo-compare")
     runs: dict[str, list[dict]] = {}
     with tempfile.TemporaryDirectory(prefix="rlpgo_compare_speed_") as folder:
         out = Path(folder) / "out.g2o"
@@ -155,8 +146,8 @@ def measure_speed(args) -> dict:
         method_all = None
         if args.all_file:
             out.unlink(missing_ok=True)
-            done = timed_lines([init, DATASETS / args.all_file, "-o", out, "--method", "all"],
-                               args.timeout)
+            done = timed_lines([init, harness.shared_file(args.all_file), "-o", out,
+                                "--method", "all"], args.timeout)
             rows = init_all_rows(done["lines"])
             method_all = {"file": args.all_file, "seconds": done["seconds"],
                           "failure": done["failure"], "rows": rows, "streamed": streamed(rows)}
@@ -165,10 +156,10 @@ def measure_speed(args) -> dict:
         compare_runs = runs[f"compare {name}"]
         init_runs = [r for f in (files if name == "all files" else [name])
                      for r in runs[f"init {f}"]]
-        init_s = (sum(_median([r["seconds"] for r in runs[f"init {f}"] if not r["failure"]])
+        init_s = (sum(harness.median([r["seconds"] for r in runs[f"init {f}"] if not r["failure"]])
                       for f in files) if name == "all files" else
-                  _median([r["seconds"] for r in init_runs if not r["failure"]]))
-        compare_s = _median([r["seconds"] for r in compare_runs if not r["failure"]])
+                  harness.median([r["seconds"] for r in init_runs if not r["failure"]]))
+        compare_s = harness.median([r["seconds"] for r in compare_runs if not r["failure"]])
         rows = [compare_rows(r["lines"]) for r in compare_runs]
         table.append({
             "file": name, "init_seconds": init_s, "compare_seconds": compare_s,
@@ -178,21 +169,20 @@ def measure_speed(args) -> dict:
             "failures": [r["failure"] for r in [*init_runs, *compare_runs] if r["failure"]],
             "methods": list(dict.fromkeys(row["method"] for row in rows[-1])),
             # per method, its rows' seconds in one run (every file's, summed), median of runs
-            "row_seconds": {method: _median([
+            "row_seconds": {method: harness.median([
                 sum(x["seconds"] for x in run if x["method"] == method) for run in rows])
                 for method in dict.fromkeys(row["method"] for row in rows[-1])},
             "runs_rows": rows,
             "streamed": all(streamed(run) for run in rows),
-            "first_row_s": _median([run[0]["arrived_s"] for run in rows if run]),
-            "last_row_s": _median([run[-1]["arrived_s"] for run in rows if run])})
+            "first_row_s": harness.median([run[0]["arrived_s"] for run in rows if run]),
+            "last_row_s": harness.median([run[-1]["arrived_s"] for run in rows if run])})
         print(json.dumps(table[-1]), flush=True)
     return {"rows": table, "method_all": method_all, "repeats": args.repeats}
 
 
-def speed_text(result: dict, command: str) -> str:
-    lines = [f"Made by `{command}`: wall seconds of whole processes (start to exit), medians "
-             f"of {result['repeats']}; ratio = compare / init (the run over every file: / the "
-             "sum of the inits).", "",
+def speed_text(result: dict) -> str:
+    lines = [f"Wall seconds of whole processes (start to exit), medians of {result['repeats']}; "
+             "ratio = compare / init (the run over every file: / the sum of the inits).", "",
              "| file | rlpgo-init s | rlpgo-compare s | ratio | rows streamed | first row s | "
              "last row s | rows: init s + refine s (all files: summed over them), median |",
              "|---|---|---|---|---|---|---|---|"]
@@ -220,10 +210,10 @@ def _win_cases() -> list[tuple[str, object]]:
     """(name, a call that returns (graph, values)) of each graph of the wins measurement."""
     import numpy as np
 
-    from rlpgo_gtsam.g2o import read_g2o
-    from rlpgo_gtsam.synthetic import generate
+    from rlpgo_gtsam import generate, read_g2o
 
-    cases = [(name, lambda name=name: read_g2o(DATASETS / name)) for name in WIN_FILES]
+    cases = [(f"{name}.g2o", lambda name=name: read_g2o(harness.shared_file(name)))
+             for name in harness.FILES_2D]
     cases += [(f"sigma_t_{s}.g2o", lambda s=s: read_g2o(
         DATASETS / "paper_sigma_t_sweep" / f"sigma_t_{s}.g2o")) for s in SIGMA_T_SWEEP]
 
@@ -272,8 +262,8 @@ def measure_wins(args) -> dict:
     return {"methods": methods, "graphs": graphs, "summary": summary}
 
 
-def wins_text(result: dict, command: str) -> str:
-    lines = [f"Made by `{command}`: each method's guess refined by LM30 (`compare_methods`), "
+def wins_text(result: dict) -> str:
+    lines = [f"Each method's guess refined by LM30 (`compare_methods`), "
              f"{len(result['graphs'])} graphs; lowest = the lowest refined chi2 of the graph's "
              "rows (ties within a relative 1e-6).", "",
              "| method | alone lowest (graphs) | tied for the lowest | failed | seconds, all "
@@ -301,20 +291,18 @@ def main() -> None:
     parser.add_argument("--name", default=None,
                         help="results file name [default: compare_speed, compare_wins]")
     args = parser.parse_args()
-    command = ("python benchmarks/compare_speed.py " + " ".join(sys.argv[1:])).strip()
     if args.wins:
         from rlpgo_cli.compare import DEFAULT_METHODS, LEFT_OUT
 
         args.methods = args.methods or ",".join([*DEFAULT_METHODS.split(","), *LEFT_OUT])
         result, name = measure_wins(args), args.name or "compare_wins"
-        text = wins_text(result, command)
+        text = wins_text(result)
     else:
-        cache_bytecode()
+        harness.cache_bytecode()
         result, name = measure_speed(args), args.name or "compare_speed"
-        text = speed_text(result, command)
+        text = speed_text(result)
     print(text)
-    (RESULTS / f"{name}.md").write_text(text)
-    print(f"wrote {write_result(name, {'command': command, **result})}")
+    print(f"wrote {harness.write_result(name, harness.command_line(), result, text)}")
 
 
 if __name__ == "__main__":

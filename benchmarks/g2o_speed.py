@@ -7,7 +7,7 @@ Each size is a generated graph, noisy measurements, seed 1: in 2D the lawn mower
 d 3, lc 0.3: what ``rlpgo-generate --n N --sigma-r 0.05 --sigma-t 0.05 --d 3 --lc 0.3
 --noisy-measurements --seed 1`` writes), in 3D its layered sibling (the same with
 ``--dim 3``); kept in --folder as g2o_speed_N.g2o / g2o_speed_3d_N.g2o when given, and reused
-from there. In one process, each repetition runs ``read_g2o`` (``read_g2o3d``) and
+from there. In one process, each repetition runs ``read_g2o`` and
 ``gtsam.readG2o(path, is3D)`` one after the other, then our writer and ``gtsam.writeG2o`` of
 the graph our reader gave; each is reported as its best over the repetitions, in CPU seconds
 (``time.process_time``, the fairer figure on a shared machine) and wall seconds, and the
@@ -15,8 +15,7 @@ ratio ours / GTSAM's. Our read is split into parsing (the file's table) and buil
 GTSAM graph. Peak memory is the maximum resident set of a fresh process that imports, then
 reads the file once (each reader in its own process; VmHWM, as ru_maxrss survives exec), and
 its growth over the same process before the read.
-Writes benchmarks/results/g2o_speed.json and prints a table (benchmarks/results/g2o_speed.txt
-is that table).
+Prints a table, writes ``benchmarks/results/g2o_speed.json`` and ``.md``.
 """
 
 from __future__ import annotations
@@ -36,29 +35,24 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _peak_mb() -> float:
-    """The process's peak resident set, MB. Linux keeps ru_maxrss across fork and exec, so
-    a child started by a large parent would report the parent's size: the high-water mark
-    of /proc/self/status (VmHWM, reset by exec) is taken where it exists."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    """The process's peak resident set, MB: VmHWM (exec resets it; ``ru_maxrss`` would carry
+    a large parent's), else ``ru_maxrss``."""
+    from benchmarks.harness import vmhwm_mb
+
+    peak = vmhwm_mb()
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0 if peak is None else peak
 
 
 def _io(dim: int):
-    """(read, table, build, write) of our reader and writer of ``dim``."""
-    if dim == 2:
-        from rlpgo_gtsam import g2o
+    """(read, parse, build, write): our reader, its two halves (the file's table, then the
+    GTSAM graph from it) and our writer, for files of ``dim``."""
+    from rlpgo_gtsam import read_g2o, write_g2o
+    from rlpgo_gtsam.io.formats import PLANAR, SPATIAL
+    from rlpgo_gtsam.io.read import build, read_table
 
-        return (g2o.read_g2o, lambda path: g2o._read_table(path, fast=True), g2o._build,
-                g2o.write_g2o)
-    from rlpgo_gtsam import g2o3d
-
-    return (g2o3d.read_g2o3d, lambda path: g2o3d._read_table(path, fast=True), g2o3d._build,
-            g2o3d.write_g2o3d)
+    form = PLANAR if dim == 2 else SPATIAL
+    return (read_g2o, lambda path: read_table(path, form, fast=True),
+            lambda path, table: build(path, table, form), write_g2o)
 
 
 def _peak(reader: str, path: str, dim: int) -> dict:
@@ -111,15 +105,15 @@ def _measure(path: Path, dim: int, repeats: int, folder: Path) -> dict:
 
 
 def _graph_file(size: int, dim: int, folder: Path) -> Path:
-    from rlpgo_gtsam import generate, write_g2o, write_g2o3d
+    from rlpgo_gtsam import generate, write_g2o
     from rlpgo_gtsam.synthetic import generate3d
 
     path = folder / (f"g2o_speed_{size}.g2o" if dim == 2 else f"g2o_speed_3d_{size}.g2o")
     if not path.exists():
-        generator, writer = (generate, write_g2o) if dim == 2 else (generate3d, write_g2o3d)
+        generator = generate if dim == 2 else generate3d
         sample = generator(size, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(1),
                            noisy_measurements=True)
-        writer(path, sample.graph, sample.initial)
+        write_g2o(path, sample.graph, sample.initial)
     return path
 
 
@@ -172,6 +166,7 @@ def main() -> None:
     parser.add_argument("--sizes-3d", default="10000,100000", help="3D sizes ('' for none)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--folder", type=Path, help="keep the generated files here")
+    parser.add_argument("--name", default="g2o_speed", help="results file name")
     parser.add_argument("--peak", help=argparse.SUPPRESS)
     parser.add_argument("--file", help=argparse.SUPPRESS)
     parser.add_argument("--dim", type=int, default=2, help=argparse.SUPPRESS)
@@ -189,13 +184,11 @@ def main() -> None:
             rows = _run(Path(folder), sizes, args.repeats)
     table = _table(rows)
     print(table)
-    from benchmarks.common import RESULTS, write_result
+    from benchmarks import harness
 
-    command = "python benchmarks/g2o_speed.py " + " ".join(sys.argv[1:])
-    result = {"command": command.strip(), "rows": rows, "table": table}
-    print(f"wrote {write_result('g2o_speed', result)}")
-    (RESULTS / "g2o_speed.txt").write_text(
-        "\n".join(json.dumps(row) for row in rows) + "\n" + table + "\n")
+    path = harness.write_result(args.name, harness.command_line(), {"rows": rows},
+                                f"```text\n{table}\n```")
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":

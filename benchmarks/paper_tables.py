@@ -17,23 +17,18 @@ benchmarks/results/paper_tables[_<only>].{md,json} and one PNG per table.
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
-import gtsam
 import numpy as np
 
-from benchmarks.common import DATASETS, RESULTS, machine
-from rlpgo_gtsam import (
-    PoseGraph2D,
-    RLInitializer,
-    chi2,
-    make_initializer,
-    read_g2o,
-    refine,
-)
-from rlpgo_gtsam.synthetic import generate
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks import harness  # noqa: E402
+from benchmarks.harness import DATASETS, RESULTS  # noqa: E402
 
 SIGMA_T = [0.2, 0.1, 0.05, 0.03, 0.01]
 SPACING = [1.0, 3.0, 5.0, 8.0, 10.0]
@@ -46,8 +41,8 @@ GENERATOR_SEED = 2024
 @dataclass
 class Case:
     label: str
-    graph: gtsam.NonlinearFactorGraph
-    values: gtsam.Values
+    graph: Any  # gtsam.NonlinearFactorGraph
+    values: Any  # gtsam.Values
 
 
 def _timed(function):
@@ -59,6 +54,8 @@ def _timed(function):
 def run_case(case: Case, model: str, episodes: int, cycles: int | None, long_solver: tuple,
              short_solver: tuple, rl_start: str = "odometry") -> dict:
     """All rows of one column: solver from odometry, RL, RL+solver, LAGO, chordal (+solver)."""
+    from rlpgo_gtsam import RLInitializer, chi2, extract_pose_graph, make_initializer, refine
+
     g, v = case.graph, case.values
     name, iters = long_solver
     short_name, short_iters = short_solver
@@ -67,7 +64,7 @@ def run_case(case: Case, model: str, episodes: int, cycles: int | None, long_sol
     row[f"{name.upper()}{iters}"] = long_result.chi2
     row["seconds_long_solver"] = long_seconds
     rl = RLInitializer(model=model, cycles=cycles, episodes=episodes, start=rl_start, seed=0)
-    result, rl_seconds = _timed(lambda: rl.run(PoseGraph2D.from_gtsam(g, v)))
+    result, rl_seconds = _timed(lambda: rl.run(extract_pose_graph(g, v)))
     tag = short_name.upper() + str(short_iters)
     row["RL"] = float(np.mean(result.details["rollout_chi2"]))
     row["RL best"] = result.chi2
@@ -83,6 +80,8 @@ def run_case(case: Case, model: str, episodes: int, cycles: int | None, long_sol
 
 
 def _sweep_cases(kind: str, noisy: bool) -> list[Case]:
+    from rlpgo_gtsam import generate
+
     cases = []
     if kind == "sigma_t":
         for sigma_t in SIGMA_T:
@@ -98,12 +97,16 @@ def _sweep_cases(kind: str, noisy: bool) -> list[Case]:
 
 
 def _paper_sigma_t_cases() -> list[Case]:
+    from rlpgo_gtsam import read_g2o
+
     folder = DATASETS / "paper_sigma_t_sweep"
     return [Case(f"paper sigma_t={s}", *read_g2o(folder / f"sigma_t_{s}.g2o")) for s in SIGMA_T]
 
 
 def _benchmark_cases() -> list[tuple[Case, int]]:
-    return [(Case(name, *read_g2o(DATASETS / f"{name}.g2o")), cycles)
+    from rlpgo_gtsam import read_g2o
+
+    return [(Case(name, *read_g2o(harness.shared_file(name))), cycles)
             for name, cycles in BENCHMARK_CYCLES.items()]
 
 
@@ -157,6 +160,8 @@ def main() -> None:
         tables["d"] = [run_case(c, "preset5", args.episodes, None, gn100, gn10)
                        for c in _sweep_cases("d", noisy=False)]
     if "benchmarks" in wanted:
+        from rlpgo_gtsam import refine
+
         rows = []
         for case, cycles in _benchmark_cases():
             row = run_case(case, args.benchmark_model, args.episodes, cycles, lm100, lm30)
@@ -175,21 +180,18 @@ def main() -> None:
         "sigma_t_noisy": "sigma_t sweep, noisy measurements, agent preset 2",
         "d_noisy": "d sweep, noisy measurements, agent preset 5",
     }
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    text = ["# Paper tables\n", "Made by `python benchmarks/paper_tables.py "
-            f"--episodes {args.episodes} --only {args.only} --benchmark-model "
-            f"{args.benchmark_model}`; chi2 = 2 x GTSAM error.\n"]
+    text = []
     for name, rows in tables.items():
         text.append(_markdown(titles[name], rows))
         solver_keys = [k for k in rows[0] if k.startswith(("GN", "LM", "RL+", "LAGO+",
                                                             "chordal+"))]
         _plot(name, titles[name], rows, ["RL", *solver_keys])
-        print(_markdown(titles[name], rows), flush=True)
+        print(text[-1], flush=True)
     suffix = "" if wanted == {"sigma_t", "d", "benchmarks", "noisy"} else "_" + "_".join(
         sorted(wanted))
-    (RESULTS / f"paper_tables{suffix}.md").write_text("\n".join(text))
-    (RESULTS / f"paper_tables{suffix}.json").write_text(json.dumps(
-        {"machine": machine(), "episodes": args.episodes, "tables": tables}, indent=2) + "\n")
+    harness.write_result(f"paper_tables{suffix}", harness.command_line(),
+                         {"episodes": args.episodes, "tables": tables},
+                         "chi2 = 2 x GTSAM error.\n\n" + "\n".join(text))
 
 
 if __name__ == "__main__":

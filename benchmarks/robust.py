@@ -1,38 +1,57 @@
-"""Wrong loop closures by Vertigo's four policies: the robust path against two GTSAM anchors.
+"""Wrong loop closures: what the robust path rejects, the map it hands over and what it costs,
+on Vertigo's four policies, against GTSAM's anchors, as commands, in 3D and as noise grows.
 
-    python benchmarks/robust.py [--cases gen,MIT,Intel,M3500,City10K,FR079]
+    python benchmarks/robust.py policies [--cases gen,MIT,Intel,FR079,M3500,City10K]
         [--modes random,local,group,localgroup] [--fractions 0.05,0.1,0.2,0.3]
-        [--clean all|none] [--anchor-timeout 60] [--robust-timeout 300]
-        [--name robust_policies]
+        [--clean all|none] [--anchor-timeout 60] [--robust-timeout 300] [--append]
+    python benchmarks/robust.py commands [--cases MIT,Intel,FR079,gen] [--modes ...]
+        [--fractions 0.05,0.1,0.2] [--repeats 3] [--loads idle,busy]
+    python benchmarks/robust.py 3d [--clean tinyGrid3D,...|none] [--cases sphere2500,torus3D,gen]
+        [--modes random,uniform] [--fractions 0.05,0.1]
+    python benchmarks/robust.py noise [--dims 2,3] [--sigmas 0.05,0.1,0.2,0.3] [--spacings 1,3]
+        [--modes ...] [--fraction 0.1] [--seeds 1,2,3] [--n 300]
 
-Per case (a shared file, or ``gen``: the generator's 1000-pose lawn mower with noisy
-measurements, sigma_R 0.01 rad, sigma_t 0.05 m, d 1 m, lc 0.5, seed 7) and per policy and
-fraction (``int(fraction x edges)`` wrong closures, groups of 5, seed 1; on shared files
-:func:`add_outliers` around the clean optimum):
+Every subcommand takes ``--name`` (the results file, ``benchmarks/results/<name>.json`` and
+``.md``, checkpointed as rows finish).
 
-- ``robust_initialize``: precision and recall of its rejections; "doubtful": how many kept
-  closures it names as doubtful (``RobustResult.doubtful``), how many of those are wrong, of
-  the wrong closures it kept; "chi2 ratio": the chi2 of
-  its values refined by LM (100 iterations) on the outlier-free graph over that graph's
-  optimum (certified + LM on it); seconds, and "x clean": its seconds over the clean
-  default's (certified + LM30 on the outlier-free graph, same process);
-- anchors from the certified estimate of all edges (the same start for both), each in a
-  forked process capped at ``--anchor-timeout`` seconds: GTSAM ``GncLMOptimizer`` (TLS,
-  the chain known inliers) and GTSAM LM with every closure's noise model wrapped in
-  ``noiseModel.mEstimator.DCS``; for each the same ratio (its result + LM on the clean graph)
-  and, for GNC, precision and recall (weight < 0.5 is a rejection).
+``policies``. Per case (a shared planar file, or ``gen``: the generator's 1000-pose lawn mower,
+noisy measurements, sigma_R 0.01 rad, sigma_t 0.05 m, d 1 m, lc 0.5, seed 7) and per policy
+and fraction (``int(fraction x edges)`` wrong closures, groups of 5, seed 1; on shared files
+:func:`~rlpgo_gtsam.add_outliers` around the clean optimum, certified + LM 100):
+``robust_initialize``'s precision and recall; the closures it names doubtful (how many of them
+are wrong, of the wrong ones it kept); the chi2 of its values refined by LM 100 on the
+outlier-free graph over that graph's optimum; its seconds and "x clean", over the clean
+default's (certified + LM30 on the outlier-free graph, the faster of two runs right before
+the row). The robust path runs in a forked process, twice: the second call's seconds are the
+row's (warm, as the clean default is; the first call in a forked child also pays for the
+pages it touches that the parent owns), the first call's are kept as ``first_call_s``. Then
+the anchors, each in a forked process capped at ``--anchor-timeout`` seconds, from the
+certified estimate of all edges: GTSAM's ``GncLMOptimizer`` (TLS, the odometry chain known
+inliers; precision and recall of weights < 0.5) and GTSAM's LM with every closure under the
+DCS m-estimator, each scored by the same chi2 ratio. ``--anchor-timeout 0`` leaves the
+anchors out, ``--robust-timeout 0`` the robust path. ``--clean all`` first runs every shared
+file and the clean generated graph without wrong closures (nothing must be rejected).
+``--append`` adds the rows to those of the results file of the same name.
 
-"x clean" divides by the clean default measured right before each row (the faster of two
-runs, in this process). The robust path's seconds are its second call in its forked process,
-warm as the clean default is: a first call in a forked child also pays for touching pages
-the parent owns (about 0.1 s on MIT, 65% of the call); that first call's seconds are kept as
-``first_call_s`` (robust_policies_v10 and later; before, the row's seconds were the first
-call's). ``--anchor-timeout 0`` leaves the anchors out (their columns empty). What a user
-meets, the two commands as processes, is ``benchmarks/robust_commands.py``'s.
+``commands``. The two commands a user types, each a process (wall seconds from the fork to
+the exit): ``rlpgo-init CLEAN.g2o -o OUT`` and ``rlpgo-init --robust BAD.g2o -o OUT`` on
+``policies``' graphs (the same seeds, written as g2o with the clean graph's values), medians
+of ``--repeats`` runs, alternating; "x clean" is the robust command's median over the clean
+one's. Each load of ``--loads`` gives a row: ``idle``, or ``busy``: one CPU-bound process
+beside both commands. The robust command's "rejected N of M" is kept as a check that it ran.
 
-``--clean all`` first runs every shared file and the clean generated graph without wrong
-closures: the robust path must reject nothing. Rows are checkpointed to
-``benchmarks/results/<name>.json`` as they finish; the table goes to ``<name>.md``.
+``3d``. SE-Sync's seven 3D files clean: the rejections of ``robust_initialize`` (0 expected),
+its chi2 against the clean default's (``staged_initialize``), both in CPU seconds. Then wrong
+closures (``add_outliers3d`` around the clean optimum, seed 1; ``gen``: ``generate3d`` with
+1000 poses, sigma_R 0.05 rad, sigma_t 0.1 m, d 1 m, lc 0.5, noisy measurements, seed 7):
+precision, recall, the result + LM30 on the outlier-free graph over its optimum, CPU seconds
+over the clean default's.
+
+``noise``. The generator's graphs as rotation noise grows: per dimension, sigma_R, spacing d,
+policy and seed, ``--n`` poses (sigma_t 0.05 m, lc 0.5, noisy measurements) with
+``--fraction`` wrong closures, and the same graph without them (same seed: the wrong closures
+come after it): precision, recall, chi2 ratio (its values + LM 100 on the outlier-free graph
+over the clean default + LM 100), seconds; on the clean twin, how many closures it rejected.
 """
 
 from __future__ import annotations
@@ -40,40 +59,47 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
+import re
 import sys
+import tempfile
 import time
 from pathlib import Path
 
-import gtsam
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.common import DATASETS, RESULTS  # noqa: E402
-from rlpgo_gtsam import PoseGraph2D, generate, make_initializer, read_g2o, refine  # noqa: E402
-from rlpgo_gtsam.graph import odometry_edges  # noqa: E402
-from rlpgo_gtsam.robust import robust_initialize  # noqa: E402
-from rlpgo_gtsam.solvers import solver_params  # noqa: E402
-from rlpgo_gtsam.synthetic import add_outliers  # noqa: E402
+from benchmarks import harness  # noqa: E402
+from benchmarks.harness import RESULTS, scores  # noqa: E402
 
-FILES = ["M3500", "M3500A", "M3500B", "M3500C", "Intel", "MIT", "City10K", "FR079"]
-GEN = (1000, 0.01, 0.05, 1.0, 0.5)
-SEED = 1
+GEN = (1000, 0.01, 0.05, 1.0, 0.5)  # n, sigma_R, sigma_t, d, lc of the planar ``gen`` case
+GEN_3D = (1000, 0.05, 0.1, 1.0, 0.5)
+SIGMA_T, LC = 0.05, 0.5  # of the ``noise`` graphs
+SEED = 1  # of the wrong closures added to a shared file
+_REJECTED = re.compile(r"rejected (\d+) of (\d+) loop closures")
 
+
+# --- the cases ----------------------------------------------------------------------------------
 
 def clean_case(name: str):
-    """(graph, values, optimum values, optimum chi2) of an outlier-free case."""
+    """(graph, values, optimum values, optimum chi2) of an outlier-free planar case: a shared
+    file or ``gen``; the optimum is certified + LM 100."""
+    from rlpgo_gtsam import extract_pose_graph, generate, make_initializer, refine
+
     if name == "gen":
         sample = generate(*GEN, np.random.default_rng(7), noisy_measurements=True)
         graph, values = sample.graph, sample.initial
     else:
-        graph, values = read_g2o(DATASETS / f"{name}.g2o")
-    g = PoseGraph2D.from_gtsam(graph, values)
+        graph, values = harness.read_graph(harness.shared_file(name))
+    g = extract_pose_graph(graph, values)
     best = refine(graph, make_initializer("certified").run(g).values, "lm", 100, pose_graph=g)
     return graph, values, best.values, best.chi2
 
 
-def corrupted(name, graph, optimum, fraction, mode):
+def corrupted(name: str, graph, optimum, fraction: float, mode: str):
+    """(graph with wrong closures, their factor indices) of a planar case."""
+    from rlpgo_gtsam import add_outliers, generate
+
     if name == "gen":
         sample = generate(*GEN, np.random.default_rng(7), noisy_measurements=True,
                           outliers=fraction, outlier_mode=mode)
@@ -82,166 +108,133 @@ def corrupted(name, graph, optimum, fraction, mode):
 
 
 def clean_default_seconds(graph, values) -> float:
+    """Wall seconds of the clean default: certified + LM30."""
+    from rlpgo_gtsam import extract_pose_graph, make_initializer, refine
+
     began = time.perf_counter()
-    g = PoseGraph2D.from_gtsam(graph, values)
+    g = extract_pose_graph(graph, values)
     refine(graph, make_initializer("certified").run(g).values, "lm", 30, pose_graph=g)
     return time.perf_counter() - began
 
 
-def scores(rejected, wrong) -> tuple[float, float]:
-    rejected, wrong = set(rejected), set(wrong)
-    hit = len(rejected & wrong)
-    return (hit / len(rejected) if rejected else 1.0), (hit / len(wrong) if wrong else 1.0)
+def ratio(clean_graph, values, optimum_chi2: float) -> float | None:
+    """chi2 of LM 100 on the outlier-free graph from ``values``, over its optimum."""
+    from rlpgo_gtsam import refine
+
+    return None if values is None else refine(clean_graph, values, "lm", 100).chi2 / optimum_chi2
 
 
-def _anchor(kind, graph, values, queue):
+# --- policies -----------------------------------------------------------------------------------
+
+def _in_child(kind: str, graph, values, queue) -> None:
+    import gtsam
+
+    from rlpgo_gtsam import extract_pose_graph, make_initializer, robust_initialize
+    from rlpgo_gtsam.graph import odometry_edges
+    from rlpgo_gtsam.solvers import solver_params
+
     if kind == "robust":
-        # twice: the first call in a forked child pays for the pages it touches that the
-        # parent owns (copy on write; MIT, 5% random: 0.23 s against 0.14 s for the second,
-        # the same decisions), which the clean default it is divided by, timed warm in the
-        # parent, does not; the second call's seconds are the row's, the first's are kept
-        first = robust_initialize(graph, values)
+        first = robust_initialize(graph, values)  # pays for the parent's pages (docstring)
         result = robust_initialize(graph, values)
         if result.rejected != first.rejected:
             raise SystemExit("the robust path decided differently on a second call")
         queue.put((result.values, (result.rejected, len(result.ambiguous), result.seconds,
                                    first.seconds, [k for k, _ in result.doubtful])))
         return
-    g = PoseGraph2D.from_gtsam(graph, values)
+    g = extract_pose_graph(graph, values)
     start = make_initializer("certified").run(g).values
     chain = odometry_edges(g)
-    factors = [k for k in range(graph.size()) if isinstance(graph.at(k), gtsam.BetweenFactorPose2)]
+    between = [k for k in range(graph.size())
+               if isinstance(graph.at(k), gtsam.BetweenFactorPose2 | gtsam.BetweenFactorPose3)]
+    params = solver_params("lm", 100)
     if kind == "gnc":
-        params = gtsam.GncLMParams(solver_params("lm", 100))
-        params.setLossType(gtsam.GncLossType.TLS)
-        params.setKnownInliers([factors[e] for e in np.flatnonzero(chain).tolist()])
-        optimizer = gtsam.GncLMOptimizer(graph, start, params)
-        optimizer.setInlierCostThresholdsAtProbability(0.9999)
-        result = optimizer.optimize()
-        weights = np.asarray(optimizer.getWeights(), float).ravel()
-        queue.put((result, [k for k in factors if weights[k] < 0.5]))
+        known = [between[e] for e in np.flatnonzero(chain).tolist()]
+        result, rejected = harness.gnc(graph, start, known, params)
+        queue.put((result, sorted(set(rejected) & set(between))))
     else:
-        robust = gtsam.NonlinearFactorGraph()
-        for e, k in enumerate(factors):
-            factor = graph.at(k)
-            model = factor.noiseModel()
-            if not chain[e]:
-                model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.DCS(1.0),
-                                                       model)
-            i, j = factor.keys()
-            robust.add(gtsam.BetweenFactorPose2(i, j, factor.measured(), model))
-        robust.add(gtsam.PriorFactorPose2(int(g.keys[g.anchor]), start.atPose2(
-            int(g.keys[g.anchor])), gtsam.noiseModel.Isotropic.Sigma(3, 1e-8)))
-        result = gtsam.LevenbergMarquardtOptimizer(robust, start,
-                                                   solver_params("lm", 100)).optimize()
-        queue.put((result, None))
+        closures = [between[e] for e in np.flatnonzero(~chain).tolist()]
+        queue.put((harness.dcs(graph, start, closures, params), None))
 
 
-def run_anchor(kind, graph, values, timeout):
-    """(values or None, rejected or None, seconds, status) of an anchor in a forked process."""
+def in_child(kind: str, graph, values, timeout: float):
+    """(values or None, extra or None, seconds, status) of ``kind`` in a forked process."""
     context = multiprocessing.get_context("fork")
     queue = context.Queue()
     began = time.perf_counter()
-    process = context.Process(target=_anchor, args=(kind, graph, values, queue))
+    process = context.Process(target=_in_child, args=(kind, graph, values, queue))
     process.start()
     try:
-        result, rejected = queue.get(timeout=timeout)
+        result, extra = queue.get(timeout=timeout)
         status = "ok"
     except Exception:  # noqa: BLE001 - a timeout or a crash of the child
-        result, rejected, status = None, None, f"no result in {timeout:g} s"
+        result, extra, status = None, None, f"no result in {timeout:g} s"
     process.join(1)
     if process.is_alive():
         process.kill()
-    return result, rejected, time.perf_counter() - began, status
+    return result, extra, time.perf_counter() - began, status
 
 
-def ratio(clean_graph, values, optimum_chi2):
-    if values is None:
-        return None
-    return refine(clean_graph, values, "lm", 100).chi2 / optimum_chi2
+def _clean_row(name: str) -> dict:
+    from rlpgo_gtsam import robust_initialize
+
+    graph, values, _, best = clean_case(name)
+    result = robust_initialize(graph, values)
+    return {"case": name, "mode": "clean", "fraction": 0.0, "wrong": 0,
+            "rejected": len(result.rejected), "robust_chi2": result.chi2, "optimum_chi2": best,
+            "seconds": result.seconds, "clean_default_s": clean_default_seconds(graph, values)}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--cases", default="gen,MIT,Intel,FR079,M3500,City10K")
-    parser.add_argument("--modes", default="random,local,group,localgroup")
-    parser.add_argument("--fractions", default="0.05,0.1,0.2,0.3")
-    parser.add_argument("--clean", default="all", choices=["all", "none"])
-    parser.add_argument("--anchor-timeout", type=float, default=60.0)
-    parser.add_argument("--robust-timeout", type=float, default=300.0)
-    parser.add_argument("--name", default="robust_policies")
-    args = parser.parse_args()
-    out = RESULTS / f"{args.name}.json"
-    rows: list[dict] = []
+def _policy_row(name: str, case, fraction: float, mode: str, args) -> dict:
+    graph, values, optimum, best = case
+    bad, wrong = corrupted(name, graph, optimum, fraction, mode)
+    # the clean default beside each row (the faster of two runs): a load that comes and goes
+    # over the run is then in both figures of a ratio
+    row = {"case": name, "mode": mode, "fraction": fraction, "wrong": len(wrong),
+           "clean_default_s": min(clean_default_seconds(graph, values) for _ in range(2))}
+    if args.robust_timeout > 0:
+        found, extra, seconds, status = in_child("robust", bad, values, args.robust_timeout)
+        row |= {"status": status, "seconds": seconds}
+        if extra is not None:
+            rejected, ambiguous, seconds, first_s, doubtful = extra
+            precision, recall = scores(rejected, wrong)
+            row |= {"rejected": len(rejected), "precision": precision, "recall": recall,
+                    "ratio": ratio(graph, found, best), "seconds": seconds,
+                    "first_call_s": first_s, "ambiguous": ambiguous,
+                    "doubtful": len(doubtful), "doubtful_wrong": len(set(doubtful) & set(wrong)),
+                    "kept_wrong": len(set(wrong) - set(rejected))}
+    for kind in ("gnc", "dcs") if args.anchor_timeout > 0 else ():
+        values_a, rejected_a, seconds_a, status = in_child(kind, bad, values, args.anchor_timeout)
+        row[f"{kind}_ratio"] = ratio(graph, values_a, best)
+        row[f"{kind}_s"], row[f"{kind}_status"] = seconds_a, status
+        if rejected_a is not None:
+            row[f"{kind}_precision"], row[f"{kind}_recall"] = scores(rejected_a, wrong)
+    return row
 
-    def save():
-        out.write_text(json.dumps({"rows": rows, "args": vars(args)}, indent=1))
-        (RESULTS / f"{args.name}.md").write_text(table(rows))
 
+def policies(args, rows: list[dict], save) -> None:
     if args.clean == "all":
-        for name in [*FILES, "gen"]:
-            graph, values, _, best = clean_case(name)
-            result = robust_initialize(graph, values)
-            row = {"case": name, "mode": "clean", "fraction": 0.0, "wrong": 0,
-                   "rejected": len(result.rejected), "robust_chi2": result.chi2,
-                   "optimum_chi2": best, "seconds": result.seconds,
-                   "clean_default_s": clean_default_seconds(graph, values)}
-            rows.append(row)
-            print(row, flush=True)
+        for name in [*harness.FILES_2D, "gen"]:
+            rows.append(_clean_row(name))
+            print(rows[-1], flush=True)
             save()
     for name in args.cases.split(","):
-        graph, values, optimum, best = clean_case(name)
+        case = clean_case(name)
         for fraction in map(float, args.fractions.split(",")):
             for mode in args.modes.split(","):
-                bad, wrong = corrupted(name, graph, optimum, fraction, mode)
-                # the clean default beside each row (the faster of two runs): a load that
-                # comes and goes over the run is then in both figures of a ratio
-                reference_s = min(clean_default_seconds(graph, values) for _ in range(2))
-                # the robust path in a forked process too, capped (a row that runs past
-                # --robust-timeout is recorded as such)
-                found, extra, seconds, status = run_anchor("robust", bad, values,
-                                                           args.robust_timeout)
-                row = {"case": name, "mode": mode, "fraction": fraction, "wrong": len(wrong),
-                       "clean_default_s": reference_s, "status": status, "seconds": seconds}
-                if extra is not None:
-                    rejected, ambiguous, seconds, first_s, doubtful = extra
-                    precision, recall = scores(rejected, wrong)
-                    row |= {"rejected": len(rejected), "precision": precision,
-                            "recall": recall, "ratio": ratio(graph, found, best),
-                            "seconds": seconds, "first_call_s": first_s,
-                            "ambiguous": ambiguous, "doubtful": len(doubtful),
-                            "doubtful_wrong": len(set(doubtful) & set(wrong)),
-                            "kept_wrong": len(set(wrong) - set(rejected))}
-                for kind in ("gnc", "dcs") if args.anchor_timeout > 0 else ():
-                    values_a, rejected_a, seconds_a, status = run_anchor(
-                        kind, bad, values, args.anchor_timeout)
-                    row[f"{kind}_ratio"] = ratio(graph, values_a, best)
-                    row[f"{kind}_s"], row[f"{kind}_status"] = seconds_a, status
-                    if rejected_a is not None:
-                        row[f"{kind}_precision"], row[f"{kind}_recall"] = scores(rejected_a, wrong)
-                rows.append(row)
-                print({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()},
-                      flush=True)
+                rows.append(_policy_row(name, case, fraction, mode, args))
+                print({k: (round(v, 4) if isinstance(v, float) else v)
+                       for k, v in rows[-1].items()}, flush=True)
                 save()
 
 
-def _f(value, digits=3):
+def _f(value, digits: int = 3) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
-def _doubtful(row: dict) -> str:
-    """``N (W of K)``: the doubtful closures, the wrong ones among them, the wrong ones kept
-    (rows from before stop 35 have none)."""
-    if "doubtful" not in row:
-        return "-"
-    return f"{row['doubtful']} ({row['doubtful_wrong']} of {row['kept_wrong']})"
-
-
-def table(rows: list[dict]) -> str:
+def policies_table(rows: list[dict]) -> str:
     lines = ["| case | policy | fraction | wrong | rejected | precision | recall | chi2 ratio "
              "| s | x clean | doubtful (wrong, of kept wrong) | GNC ratio | GNC P/R | GNC s | "
-             "DCS ratio | DCS s |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "DCS ratio | DCS s |", "|---" * 16 + "|"]
     for r in rows:
         if r["mode"] == "clean":
             lines.append(f"| {r['case']} | clean | 0 | 0 | {r['rejected']} | - | - | "
@@ -250,22 +243,279 @@ def table(rows: list[dict]) -> str:
             continue
         gnc_pr = (f"{r['gnc_precision']:.2f}/{r['gnc_recall']:.2f}"
                   if "gnc_precision" in r else r.get("gnc_status", "-"))
-        anchors = {k: r.get(k) for k in ("gnc_ratio", "gnc_s", "dcs_ratio", "dcs_s")}
-        gnc_s, dcs_s = (_f(anchors[k], 1) for k in ("gnc_s", "dcs_s"))
-        if "precision" not in r:  # the robust path ran past its cap
-            lines.append(
-                f"| {r['case']} | {r['mode']} | {r['fraction']:g} | {r['wrong']} | "
-                f"{r['status']} | - | - | - | {r['seconds']:.1f} | - | - | "
-                f"{_f(anchors['gnc_ratio'], 4)} | {gnc_pr} | {gnc_s} | "
-                f"{_f(anchors['dcs_ratio'], 4)} | {dcs_s} |")
+        anchors = (f"{_f(r.get('gnc_ratio'), 4)} | {gnc_pr} | {_f(r.get('gnc_s'), 1)} | "
+                   f"{_f(r.get('dcs_ratio'), 4)} | {_f(r.get('dcs_s'), 1)}")
+        start = f"| {r['case']} | {r['mode']} | {r['fraction']:g} | {r['wrong']} |"
+        if "precision" not in r:  # the robust path left out, or past its cap
+            lines.append(f"{start} {r.get('status', '-')} | - | - | - | "
+                         f"{_f(r.get('seconds'), 1)} | - | - | {anchors} |")
             continue
-        lines.append(
-            f"| {r['case']} | {r['mode']} | {r['fraction']:g} | {r['wrong']} | {r['rejected']} "
-            f"| {r['precision']:.3f} | {r['recall']:.3f} | {_f(r['ratio'], 4)} | "
-            f"{r['seconds']:.1f} | {r['seconds'] / r['clean_default_s']:.1f} | "
-            f"{_doubtful(r)} | {_f(anchors['gnc_ratio'], 4)} | {gnc_pr} | {gnc_s} | "
-            f"{_f(anchors['dcs_ratio'], 4)} | {dcs_s} |")
+        doubtful = f"{r['doubtful']} ({r['doubtful_wrong']} of {r['kept_wrong']})"
+        lines.append(f"{start} {r['rejected']} | {r['precision']:.3f} | {r['recall']:.3f} | "
+                     f"{_f(r['ratio'], 4)} | {r['seconds']:.1f} | "
+                     f"{r['seconds'] / r['clean_default_s']:.1f} | {doubtful} | {anchors} |")
     return "\n".join(lines) + "\n"
+
+
+# --- commands -----------------------------------------------------------------------------------
+
+def _timed_command(command: list[str], out: Path) -> tuple[float, str]:
+    out.unlink(missing_ok=True)
+    done = harness.run(command, 600.0)
+    if done.failure is not None or done.seconds is None:
+        raise SystemExit(f"{' '.join(command)}: {done.failure}")
+    return done.seconds, done.stdout
+
+
+def _command_row(init: str, clean: Path, bad: Path, out: Path, repeats: int, load: str) -> dict:
+    """The two commands ``repeats`` times each, alternating, under ``load``."""
+    if load not in ("idle", "busy"):
+        raise SystemExit(f"--loads: idle or busy, not {load!r}")
+    clean_s, robust_s, said = [], [], ""
+    with harness.competing(load == "busy"):
+        for repeat in range(repeats):
+            for which in ("clean", "robust") if repeat % 2 == 0 else ("robust", "clean"):
+                if which == "clean":
+                    clean_s.append(_timed_command([init, str(clean), "-o", str(out)], out)[0])
+                else:
+                    seconds, said = _timed_command([init, "--robust", str(bad), "-o", str(out)],
+                                                   out)
+                    robust_s.append(seconds)
+    found = _REJECTED.search(said)
+    row = {"load": load, "rejected": int(found.group(1)) if found else None,
+           "clean_s": harness.median(clean_s), "robust_s": harness.median(robust_s),
+           "clean_all": clean_s, "robust_all": robust_s}
+    return row | {"x_clean": row["robust_s"] / row["clean_s"]}
+
+
+def commands(args, rows: list[dict], save) -> None:
+    from rlpgo_gtsam import write_g2o
+
+    init = harness.command_path("rlpgo-init")
+    with tempfile.TemporaryDirectory(prefix="rlpgo_robust_commands_") as folder:
+        work, out = Path(folder), Path(folder) / "out.g2o"
+        for name in args.cases.split(","):
+            graph, values, optimum, _ = clean_case(name)
+            clean = work / f"{name}.g2o"
+            write_g2o(clean, graph, values)
+            for fraction in map(float, args.fractions.split(",")):
+                for mode in args.modes.split(","):
+                    bad_graph, wrong = corrupted(name, graph, optimum, fraction, mode)
+                    bad = work / f"{name}_{mode}_{fraction}.g2o"
+                    write_g2o(bad, bad_graph, values)  # policies' start: the clean values
+                    for load in args.loads.split(","):
+                        rows.append({"case": name, "mode": mode, "fraction": fraction,
+                                     "wrong": len(wrong)}
+                                    | _command_row(init, clean, bad, out, args.repeats, load))
+                        print(json.dumps(rows[-1]), flush=True)
+                        save()
+
+
+def commands_table(rows: list[dict]) -> str:
+    lines = ["Wall seconds of whole processes, medians.", "",
+             "| case | policy | fraction | load | wrong | rejected | clean command s | "
+             "--robust command s | x clean |", "|---" * 9 + "|"]
+    lines += [f"| {r['case']} | {r['mode']} | {r['fraction']:g} | {r['load']} | {r['wrong']} | "
+              f"{r['rejected']} | {r['clean_s']:.2f} | {r['robust_s']:.2f} | "
+              f"{r['x_clean']:.2f} |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+# --- 3d -----------------------------------------------------------------------------------------
+
+def clean_case_3d(name: str):
+    """(graph, values, clean default's chi2 and CPU seconds, optimum values and chi2)."""
+    from rlpgo_gtsam import refine, staged_initialize
+    from rlpgo_gtsam.solvers import solver_params
+    from rlpgo_gtsam.synthetic import generate3d
+
+    if name == "gen":
+        sample = generate3d(*GEN_3D, np.random.default_rng(7), noisy_measurements=True)
+        graph, values = sample.graph, sample.initial
+    else:
+        graph, values = harness.read_graph(harness.shared_file(name))
+    began = time.process_time()
+    default = staged_initialize(graph, values)
+    seconds = time.process_time() - began
+    params = solver_params("lm", 200)
+    params.setRelativeErrorTol(1e-12)
+    best = refine(graph, default.values, params)
+    return graph, values, default.best.refined_chi2, seconds, best.values, best.chi2
+
+
+def _robust_cpu(graph, values):
+    from rlpgo_gtsam import robust_initialize
+
+    began = time.process_time()
+    result = robust_initialize(graph, values)
+    return result, time.process_time() - began
+
+
+def spatial(args, rows: dict[str, list[dict]], save) -> None:
+    from rlpgo_gtsam import refine
+    from rlpgo_gtsam.synthetic import add_outliers3d, generate3d
+
+    for name in [] if args.clean == "none" else args.clean.split(","):
+        graph, values, default_chi2, default_s, _, _ = clean_case_3d(name)
+        result, seconds = _robust_cpu(graph, values)
+        rows["clean"].append({
+            "case": name, "rejected": len(result.rejected), "robust_chi2": result.chi2,
+            "default_chi2": default_chi2, "relative": result.chi2 / default_chi2 - 1.0,
+            "robust_s": seconds, "default_s": default_s, "x_default": seconds / default_s,
+            "stopped": result.stopped, "steps": [step.record() for step in result.steps]})
+        save()
+    for name in [c for c in args.cases.split(",") if c]:
+        graph, values, _, default_s, optimum, optimum_chi2 = clean_case_3d(name)
+        for mode in args.modes.split(","):
+            for fraction in map(float, args.fractions.split(",")):
+                if name == "gen":
+                    sample = generate3d(*GEN_3D, np.random.default_rng(7),
+                                        noisy_measurements=True, outliers=fraction,
+                                        outlier_mode=mode)
+                    bad, wrong = sample.graph, sample.outlier_edges
+                else:
+                    bad, wrong = add_outliers3d(graph, optimum, fraction,
+                                                np.random.default_rng(SEED), mode)
+                result, seconds = _robust_cpu(bad, values)
+                precision, recall = scores(result.rejected, wrong)
+                after = refine(graph, result.values, "lm", 30).chi2
+                rows["wrong"].append({
+                    "case": name, "mode": mode, "fraction": fraction, "wrong": len(wrong),
+                    "rejected": len(result.rejected), "precision": precision, "recall": recall,
+                    "clean_chi2_after_lm30": after, "optimum_chi2": optimum_chi2,
+                    "ratio": after / optimum_chi2, "robust_s": seconds, "default_s": default_s,
+                    "x_default": seconds / default_s, "stopped": result.stopped,
+                    "steps": [step.record() for step in result.steps]})
+                save()
+
+
+def spatial_table(rows: dict[str, list[dict]]) -> str:
+    lines = ["| file | rejected | robust chi2 | clean default chi2 | relative | robust CPU s | "
+             "default CPU s | x default |", "|---" * 8 + "|"]
+    lines += [f"| {r['case']} | {r['rejected']} | {r['robust_chi2']:.6g} | "
+              f"{r['default_chi2']:.6g} | {r['relative']:+.1e} | {r['robust_s']:.2f} | "
+              f"{r['default_s']:.2f} | {r['x_default']:.1f} |" for r in rows["clean"]]
+    lines += ["", "| case | mode | wrong | rejected | precision | recall | chi2 + LM30 on clean "
+              "/ optimum | robust CPU s | default CPU s | x default |", "|---" * 10 + "|"]
+    lines += [f"| {r['case']} | {r['mode']} | {r['wrong']} ({r['fraction']:.0%}) | "
+              f"{r['rejected']} | {r['precision']:.4f} | {r['recall']:.4f} | {r['ratio']:.4f} "
+              f"| {r['robust_s']:.2f} | {r['default_s']:.2f} | {r['x_default']:.1f} |"
+              for r in rows["wrong"]]
+    return "\n".join(lines) + "\n"
+
+
+# --- noise --------------------------------------------------------------------------------------
+
+def noise_graph(dim: int, n: int, sigma_r: float, d: float, seed: int, **outliers):
+    """The ``noise`` subcommand's generated graph (``outliers``: its wrong closures)."""
+    from rlpgo_gtsam import generate
+    from rlpgo_gtsam.synthetic import generate3d
+
+    make = generate if dim == 2 else generate3d
+    return make(n, sigma_r, SIGMA_T, d, LC, np.random.default_rng(seed),
+                noisy_measurements=True, **outliers)
+
+
+def noise(args, rows: list[dict], save) -> None:
+    from rlpgo_gtsam import extract_pose_graph, refine, robust_initialize, staged_initialize
+
+    for dim in map(int, args.dims.split(",")):
+        for sigma in map(float, args.sigmas.split(",")):
+            for d in map(float, args.spacings.split(",")):
+                for seed in map(int, args.seeds.split(",")):
+                    clean = noise_graph(dim, args.n, sigma, d, seed)
+                    start = staged_initialize(clean.graph, clean.initial).values
+                    best = refine(clean.graph, start, "lm", 100,
+                                  pose_graph=extract_pose_graph(clean.graph, clean.initial)).chi2
+                    clean_rejected = len(robust_initialize(clean.graph, clean.initial).rejected)
+                    for mode in args.modes.split(","):
+                        bad = noise_graph(dim, args.n, sigma, d, seed, outliers=args.fraction,
+                                          outlier_mode=mode)
+                        result = robust_initialize(bad.graph, bad.initial)
+                        precision, recall = scores(result.rejected, bad.outlier_edges)
+                        rows.append({
+                            "dim": dim, "sigma_r": sigma, "d": d, "mode": mode, "seed": seed,
+                            "wrong": len(bad.outlier_edges), "rejected": len(result.rejected),
+                            "precision": precision, "recall": recall,
+                            "ratio": refine(clean.graph, result.values, "lm", 100).chi2 / best,
+                            "seconds": result.seconds, "clean_rejected": clean_rejected,
+                            "doubtful": len(result.doubtful)})
+                        print(noise_table(rows[-1:]).splitlines()[-1], flush=True)
+                        save()
+
+
+def noise_table(rows: list[dict]) -> str:
+    lines = ["| dim | sigma_R | d | policy | seed | wrong | rejected | precision | recall | "
+             "chi2 ratio | s | clean graph: rejected |", "|---" * 12 + "|"]
+    lines += [f"| {r['dim']} | {r['sigma_r']:g} | {r['d']:g} | {r['mode']} | {r['seed']} | "
+              f"{r['wrong']} | {r['rejected']} | {r['precision']:.3f} | {r['recall']:.3f} | "
+              f"{r['ratio']:.4f} | {r['seconds']:.2f} | {r['clean_rejected']} |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+# --- the command line ---------------------------------------------------------------------------
+
+POLICIES = "random,local,group,localgroup"
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("policies", help="Vertigo's policies, the robust path and the anchors")
+    p.add_argument("--cases", default="gen,MIT,Intel,FR079,M3500,City10K")
+    p.add_argument("--modes", default=POLICIES)
+    p.add_argument("--fractions", default="0.05,0.1,0.2,0.3")
+    p.add_argument("--clean", default="all", choices=["all", "none"])
+    p.add_argument("--anchor-timeout", type=float, default=60.0, help="0: no anchors")
+    p.add_argument("--robust-timeout", type=float, default=300.0, help="0: no robust path")
+    p.add_argument("--append", action="store_true",
+                   help="add the rows to those of the results file of the same name")
+    p.set_defaults(name="robust_policies")
+    c = sub.add_parser("commands", help="rlpgo-init --robust against rlpgo-init, processes")
+    c.add_argument("--cases", default="MIT,Intel,FR079,gen")
+    c.add_argument("--modes", default=POLICIES)
+    c.add_argument("--fractions", default="0.05,0.1,0.2")
+    c.add_argument("--repeats", type=int, default=3)
+    c.add_argument("--loads", default="idle")
+    c.set_defaults(name="robust_commands")
+    s = sub.add_parser("3d", help="SE-Sync's 3D files, clean and with wrong closures")
+    s.add_argument("--clean", default=",".join(harness.FILES_3D))
+    s.add_argument("--cases", default="sphere2500,torus3D,gen")
+    s.add_argument("--modes", default="random,uniform")
+    s.add_argument("--fractions", default="0.05,0.1")
+    s.set_defaults(name="robust3d")
+    n = sub.add_parser("noise", help="generated graphs as the rotation noise grows")
+    n.add_argument("--dims", default="2,3")
+    n.add_argument("--sigmas", default="0.05,0.1,0.2,0.3")
+    n.add_argument("--spacings", default="1,3")
+    n.add_argument("--modes", default=POLICIES)
+    n.add_argument("--fraction", type=float, default=0.1)
+    n.add_argument("--seeds", default="1,2,3")
+    n.add_argument("--n", type=int, default=300)
+    n.set_defaults(name="robust_noise")
+    for each in (p, c, s, n):
+        each.add_argument("--name", default=each.get_default("name"), help="results file name")
+    return parser
+
+
+def main() -> None:
+    args = _parser().parse_args()
+    command = harness.command_line()
+    rows: list[dict] | dict[str, list[dict]] = []
+    if getattr(args, "append", False) and (RESULTS / f"{args.name}.json").is_file():
+        earlier = json.loads((RESULTS / f"{args.name}.json").read_text())
+        rows, command = earlier["rows"], f"{earlier['command']} && {command}"
+    run, table = {"policies": (policies, policies_table), "commands": (commands, commands_table),
+                  "3d": (spatial, spatial_table), "noise": (noise, noise_table)}[args.command]
+    if args.command == "3d":
+        rows = {"clean": [], "wrong": []}
+
+    def save() -> None:
+        harness.write_result(args.name, command, {"rows": rows}, table(rows))
+
+    run(args, rows, save)
+    save()
+    print(table(rows))
 
 
 if __name__ == "__main__":

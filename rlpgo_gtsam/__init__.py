@@ -1,7 +1,12 @@
 """rlpgo_gtsam: better initial guesses for pose-graph optimization in GTSAM.
 
 The default is :func:`staged_initialize`: certify with the SE(d) synchronization relaxation
-(planar or 3D graphs), then refine. Every name loads its module on first use: reading
+(planar or 3D graphs), then refine. Every call takes ``Pose2`` and ``Pose3`` graphs alike:
+:func:`extract_pose_graph` makes a :data:`PoseGraph` whose ``group`` (:data:`SE2`,
+:data:`SE3`, :mod:`rlpgo_gtsam.groups`) says what differs, and
+``make_initializer(name).initialize(graph, values)`` works on both for every method that
+has both (:func:`initializer_names` with a group lists them). Every name loads its module
+on first use: reading
 graphs, the classical initializers, the default and the robust path load GTSAM, numpy and
 scipy only; the agent's names (``RLInitializer``, ``PoseGraphEnv``, ``EnvConfig``,
 ``PRESETS``) load torch or gymnasium from :mod:`rlpgo_gtsam.rl` where they need them. The
@@ -22,8 +27,8 @@ __version__ = "0.1.0"
 _WHERE = {
     "TrajectoryErrors": "rlpgo_gtsam.accuracy",
     "trajectory_errors": "rlpgo_gtsam.accuracy",
-    "Certificate": "rlpgo_gtsam.certified",
-    "Status": "rlpgo_gtsam.certified",
+    "Certificate": "rlpgo_gtsam.relaxation.certificate",
+    "Status": "rlpgo_gtsam.relaxation.certificate",
     "G2oFormatError": "rlpgo_gtsam.errors",
     "GraphError": "rlpgo_gtsam.errors",
     "InformationWarning": "rlpgo_gtsam.errors",
@@ -32,18 +37,20 @@ _WHERE = {
     "OutputError": "rlpgo_gtsam.errors",
     "RlpgoError": "rlpgo_gtsam.errors",
     "SolverError": "rlpgo_gtsam.errors",
-    "read_g2o": "rlpgo_gtsam.g2o",
-    "read_g2o_lines": "rlpgo_gtsam.g2o",
-    "write_g2o": "rlpgo_gtsam.g2o",
-    "read_g2o3d": "rlpgo_gtsam.g2o3d",
-    "write_g2o3d": "rlpgo_gtsam.g2o3d",
-    "read_pose_graph": "rlpgo_gtsam.dimension",
-    "write_pose_graph": "rlpgo_gtsam.dimension",
+    "read_g2o": "rlpgo_gtsam.io",
+    "read_g2o_lines": "rlpgo_gtsam.io",
+    "write_g2o": "rlpgo_gtsam.io",
+    "g2o_text": "rlpgo_gtsam.io",
+    "file_group": "rlpgo_gtsam.io",
     "PoseGraph2D": "rlpgo_gtsam.graph",
     "chi2": "rlpgo_gtsam.graph",
     "rotation_weights": "rlpgo_gtsam.graph",
-    "PoseGraph3D": "rlpgo_gtsam.graph3d",
-    "extract_pose_graph": "rlpgo_gtsam.graph3d",
+    "Group": "rlpgo_gtsam.groups",
+    "SE2": "rlpgo_gtsam.groups",
+    "SE3": "rlpgo_gtsam.groups",
+    "PoseGraph3D": "rlpgo_gtsam.graph",
+    "PoseGraph": "rlpgo_gtsam.graph",
+    "extract_pose_graph": "rlpgo_gtsam.graph",
     "CertifiedInitializer": "rlpgo_gtsam.initializers",
     "ChordalInitializer": "rlpgo_gtsam.initializers",
     "FastSyncInitializer": "rlpgo_gtsam.initializers",
@@ -51,7 +58,8 @@ _WHERE = {
     "Initializer": "rlpgo_gtsam.initializers",
     "LagoInitializer": "rlpgo_gtsam.initializers",
     "OdometryInitializer": "rlpgo_gtsam.initializers",
-    "OrientationInitializer": "rlpgo_gtsam.initializers",
+    "RotationInitializer": "rlpgo_gtsam.initializers",
+    "InitializePose3": "rlpgo_gtsam.initializers",
     "ShonanInitializer": "rlpgo_gtsam.initializers",
     "initializer_names": "rlpgo_gtsam.initializers",
     "make_initializer": "rlpgo_gtsam.initializers",
@@ -73,12 +81,18 @@ _WHERE = {
     "SyntheticGraph": "rlpgo_gtsam.synthetic",
     "add_outliers": "rlpgo_gtsam.synthetic",
     "generate": "rlpgo_gtsam.synthetic",
-    "poses_with_orientations": "rlpgo_gtsam.translations",
+    "poses_with_rotations": "rlpgo_gtsam.translations",
     "solve_translations": "rlpgo_gtsam.translations",
 }
 
 
+# Modules reached as attributes (``rlpgo_gtsam.groups.SE3``).
+_SUBMODULES = ("groups", "initializers")
+
+
 def __getattr__(name: str) -> Any:
+    if name in _SUBMODULES:
+        return importlib.import_module(f"rlpgo_gtsam.{name}")
     if name in _WHERE:
         value = getattr(importlib.import_module(_WHERE[name]), name)
         globals()[name] = value
@@ -87,7 +101,7 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_WHERE))
+    return sorted(set(globals()) | set(_WHERE) | set(_SUBMODULES))
 
 
 __all__ = [
@@ -112,10 +126,16 @@ __all__ = [
     "MethodResult",
     "ModelError",
     "OdometryInitializer",
-    "OrientationInitializer",
+    "RotationInitializer",
+    "InitializePose3",
     "OutputError",
     "PoseGraph2D",
     "PoseGraph3D",
+    "PoseGraph",
+    "Group",
+    "SE2",
+    "SE3",
+    "groups",
     "PoseGraphEnv",
     "RLInitializer",
     "RefineResult",
@@ -133,17 +153,15 @@ __all__ = [
     "generate",
     "initializer_names",
     "make_initializer",
-    "poses_with_orientations",
+    "poses_with_rotations",
+    "file_group",
+    "g2o_text",
     "read_g2o",
     "read_g2o_lines",
-    "read_g2o3d",
-    "read_pose_graph",
     "refine",
     "register",
     "rotation_weights",
     "solve_translations",
     "trajectory_errors",
     "write_g2o",
-    "write_g2o3d",
-    "write_pose_graph",
 ]

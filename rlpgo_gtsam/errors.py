@@ -56,7 +56,7 @@ class ModelError(RlpgoError):
 
 class InformationWarning(UserWarning):
     """A file's information matrices were read in a changed form, by a documented rule (the
-    3D reader's: :func:`rlpgo_gtsam.graph3d.information_rule_3d`); the message names the file,
+    3D reader's: :func:`rlpgo_gtsam.information.information_rule_3d`); the message names the file,
     how many edges and the first one's line."""
 
 

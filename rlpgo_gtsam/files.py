@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 from rlpgo_gtsam.errors import OutputError
@@ -86,7 +87,7 @@ def _is_stream(path: Path) -> bool:
         ("/dev/", "/proc/"))
 
 
-def write_together(items: list[tuple[str | os.PathLike[str], bytes]]) -> None:
+def write_together(items: Sequence[tuple[str | os.PathLike[str], bytes]]) -> None:
     """Write several files so that either every regular file is replaced or none is.
 
     Every regular file's data is first written and synced to a temporary file beside it;

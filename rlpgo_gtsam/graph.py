@@ -1,64 +1,110 @@
-"""Numpy arrays of a planar pose graph, extracted once from GTSAM's graph and values.
+"""Numpy arrays of a pose graph, extracted once from GTSAM's graph and values.
 
-This is the one module that inspects GTSAM factor types. Everything downstream (rotation
-maths, the rollout, the initializers) works on a :class:`PoseGraph2D` and hands results back
-as :class:`gtsam.Values`.
+This is the one module that turns GTSAM factors into arrays. Everything downstream (rotation
+maths, the rollout, the initializers) works on a :class:`PoseGraph2D` or a
+:class:`PoseGraph3D` and hands results back as :class:`gtsam.Values`. Both carry their group
+(:mod:`rlpgo_gtsam.groups`: ``SE2``, ``SE3``), which says what differs between them;
+:func:`extract_pose_graph` extracts either, by what the graph holds.
 
 What the arrays keep of GTSAM's meaning:
 
-- every ``BetweenFactorPose2`` with a Gaussian noise model (unit, isotropic, diagonal or full)
-  becomes an edge with its full 3x3 information;
-- a ``PriorFactorPose2`` with a constrained noise model (a g2o ``FIX`` line) holds its pose:
+- every between factor (``BetweenFactorPose2`` / ``BetweenFactorPose3``) with a Gaussian
+  noise model (unit, isotropic, diagonal or full) becomes an edge with its full information
+  (3x3, or 6x6 in GTSAM's tangent order: rotation first);
+- a prior factor with a constrained noise model (a g2o ``FIX`` line) holds its pose:
   every initializer leaves that pose at the prior's value;
-- a ``PriorFactorPose2`` with a Gaussian noise model is a soft prior: the initializers use it
+- a prior factor with a Gaussian noise model is a soft prior: the initializers use it
   for the gauge only, while :func:`chi2` and :func:`~rlpgo_gtsam.solvers.refine` evaluate it
   as GTSAM does;
-- anything else (robust noise models, other factor types, keys without a Pose2 value) is a
-  :class:`~rlpgo_gtsam.errors.GraphError` that names it.
+- anything else (robust noise models, other factor types, keys without a pose value of the
+  graph's group) is a :class:`~rlpgo_gtsam.errors.GraphError` that names it.
+
+Poses are arrays, one per row: planar ``(n, 3)`` ``(x, y, theta)``, 3D ``(n, 3, 4)``
+``[R | t]``; :func:`edge_chi2` and :func:`edge_errors` take either. The information rules
+are :mod:`rlpgo_gtsam.information`'s.
 """
 
 from __future__ import annotations
 
 import functools
-import itertools
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, ClassVar
 
 import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
-from rlpgo_gtsam.se2 import between, logmap
+from rlpgo_gtsam.groups import SE2, SE3, Group, graph_group, pose3_arrays
+from rlpgo_gtsam.information import printed_of, sort_factors
+from rlpgo_gtsam.se3 import pose_matrices
 
 __all__ = [
+    "PoseGraph",
     "PoseGraph2D",
+    "PoseGraph3D",
+    "extract_pose_graph",
     "chi2",
     "edge_chi2",
     "edge_errors",
     "rotation_weights",
+    "translation_weights",
     "odometry_edges",
-    "information_problem",
-    "information_problems",
-    "INFORMATION_RANGE",
-    "MAX_CONDITION",
     "disconnection",
     "component_labels",
     "format_ranges",
     "PoseArrays",
-    "Factors",
-    "sort_factors",
-    "factor_information",
     "poses_of_values",
+    "pose2_inserter",
 ]
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
 class PoseArrays:
-    """What the planar and the 3D pose graph's arrays share: ``keys`` (n,) and ``edges``
-    (m, 2), their counts, and the connectivity check."""
+    """What every pose graph's arrays hold, whatever its group; poses indexed 0..n-1.
 
+    Attributes:
+        keys: (n,) GTSAM keys of the poses, sorted; index ``k`` is pose ``keys[k]``.
+        edges: (m, 2) pose indices (i, j) of each between factor, in graph order.
+        information: (m, dof, dof) information matrix of each measurement, in GTSAM's
+            tangent order (planar x, y, theta; 3D rotation first).
+        anchor: index of the pose that fixes the gauge: the first hard prior's pose, else the
+            first soft prior's, else index 0.
+        fixed: (k,) indices of the poses held by hard (constrained) priors.
+        graph: the GTSAM graph the arrays came from (costs are evaluated on it).
+        cache: what the numeric steps derive from these arrays alone and keep for the next
+            call on the same graph (the chordal rotations, the translation step's system);
+            the arrays are never changed in place, and a graph made from another
+            (``dataclasses.replace``) starts with an empty one.
+        group: the pose group (the class's: :data:`~rlpgo_gtsam.groups.SE2` or
+            :data:`~rlpgo_gtsam.groups.SE3`); ``dimension`` is its.
+    """
+
+    group: ClassVar[Group]
     keys: np.ndarray
     edges: np.ndarray
+    information: np.ndarray
+    anchor: int
+    fixed: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
+    cache: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    @property
+    def dimension(self) -> int:
+        """2 or 3: the group's."""
+        return self.group.dimension
+
+    @property
+    def factor_graph(self) -> gtsam.NonlinearFactorGraph:
+        """``graph``, which costs are evaluated on.
+
+        Raises:
+            GraphError: arrays made without a GTSAM graph.
+        """
+        if self.graph is None:
+            raise GraphError("the pose graph's arrays were made without a GTSAM graph")
+        return self.graph
 
     @property
     def num_poses(self) -> int:
@@ -80,42 +126,25 @@ class PoseArrays:
             raise GraphError(disconnection(self.keys, self.keys[self.edges]))
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class PoseGraph2D(PoseArrays):
-    """The measurements of a planar pose graph as arrays; poses indexed 0..n-1.
+    """The measurements of a planar pose graph as arrays (with :class:`PoseArrays`'
+    ``keys``, ``edges``, ``information`` (m, 3, 3), ``anchor``, ``fixed``, ``graph``,
+    ``cache``).
 
     Attributes:
-        keys: (n,) GTSAM keys of the poses, sorted; index ``k`` is pose ``keys[k]``.
         poses: (n, 3) x, y, theta of each pose in the values the graph came with.
-        edges: (m, 2) pose indices (i, j) of each between factor, in graph order.
         measured: (m, 3) dx, dy, dtheta of each measurement (pose j in the frame of pose i).
-        information: (m, 3, 3) information matrix of each measurement (x, y, theta order).
-        anchor: index of the pose that fixes the gauge: the first hard prior's pose, else the
-            first soft prior's, else index 0.
-        fixed: (k,) indices of the poses held by hard (constrained) priors.
-        fixed_poses: (k, 3) the poses those priors hold.
+        fixed_poses: (k, 3) the poses the hard priors hold.
         anchor_pose: (3,) where the initializers put the anchor: its prior's value if it has
             one, else its pose in ``values``.
-        graph: the GTSAM graph the arrays came from (costs are evaluated on it).
-        cache: what the numeric steps derive from these arrays alone and keep for the next
-            call on the same graph (the chordal orientations, the translation step's
-            system); the arrays are never changed in place, and a graph made from another
-            (``dataclasses.replace``) starts with an empty one.
-        dimension: 2 (the class's; :class:`~rlpgo_gtsam.graph3d.PoseGraph3D`'s is 3).
     """
 
-    dimension: ClassVar[int] = 2
-    keys: np.ndarray
+    group: ClassVar[Group] = SE2
     poses: np.ndarray
-    edges: np.ndarray
     measured: np.ndarray
-    information: np.ndarray
-    anchor: int
-    fixed: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     fixed_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     anchor_pose: np.ndarray | None = None
-    graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
-    cache: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def held(self) -> tuple[np.ndarray, np.ndarray]:
@@ -140,8 +169,7 @@ class PoseGraph2D(PoseArrays):
             poses = poses_of_values(values, keys.tolist())
         except RuntimeError as error:
             raise GraphError(f"values hold something other than Pose2: {error}") from None
-        factors = sort_factors(graph, index, gtsam.BetweenFactorPose2, gtsam.PriorFactorPose2,
-                               _pose_array, 3, "planar")
+        factors = sort_factors(graph, index, SE2, _pose_array)
         hard = factors.hard
         anchor, anchor_pose = factors.anchor
         result = cls(
@@ -158,6 +186,23 @@ class PoseGraph2D(PoseArrays):
         )
         result.check_connected()
         return result
+
+    def rotation_weights(self) -> np.ndarray:
+        """The weight of each edge's rotation error, the one convention of every initializer.
+
+        It is the conditional rotational information ``information[2, 2]``: the precision of
+        the angle with the translation error held at zero (what the g2o/GTSAM cost charges
+        for an angle error alone). SE-Sync's kappa is the same entry.
+        """
+        return self.information[:, 2, 2]
+
+    def translation_weights(self) -> np.ndarray:
+        """SE-Sync's tau for d = 2: ``2 / tr(Sigma_t)`` = ``2 det(info_tt) / tr(info_tt)``
+        of the 2x2 translational block (0 where that block is 0)."""
+        info = self.information
+        trace = info[:, 0, 0] + info[:, 1, 1]
+        det = info[:, 0, 0] * info[:, 1, 1] - info[:, 0, 1] * info[:, 1, 0]
+        return np.divide(2.0 * det, trace, out=np.zeros_like(trace), where=trace > 0)
 
     def to_values(self, poses: np.ndarray) -> gtsam.Values:
         """GTSAM values of the given (n, 3) poses under this graph's keys."""
@@ -192,17 +237,178 @@ def _insert_names_pose2() -> bool:
     return True
 
 
-def rotation_weights(pose_graph: PoseGraph2D) -> np.ndarray:
-    """The weight of each edge's rotation error, the one convention of every initializer.
+@dataclass(frozen=True, eq=False, kw_only=True)
+class PoseGraph3D(PoseArrays):
+    """The measurements of a 3D pose graph as arrays (with :class:`PoseArrays`' ``keys``,
+    ``edges``, ``information`` (m, 6, 6), ``anchor``, ``fixed``, ``graph``, ``cache``).
 
-    It is the conditional rotational information ``information[2, 2]``: the precision of
-    the angle with the translation error held at zero (what the g2o/GTSAM cost charges for
-    an angle error alone). SE-Sync's kappa is the same entry.
+    Attributes:
+        rotations: (n, 3, 3) rotation of each pose in the values the graph came with.
+        translations: (n, 3) position of each pose in those values.
+        measured_rotations: (m, 3, 3) rotation of pose j in the frame of pose i, measured.
+        measured_translations: (m, 3) position of pose j in the frame of pose i, measured.
+        fixed_rotations, fixed_translations: (k, 3, 3) and (k, 3), the poses the hard
+            priors hold.
+        anchor_rotation, anchor_translation: where the initializers put the anchor: its
+            prior's value if it has one, else its pose in ``values``.
+        printed: the printed matrix (6, 6) of each information that GTSAM's model holds as
+            a partial Cholesky factor of an indefinite printed matrix
+            (:func:`~rlpgo_gtsam.information.printed_informations`), keyed by that
+            information's bytes: the relaxation weighs such an edge by it (:attr:`weighed`).
+            Keyed by content, so that a graph made from this one by ``dataclasses.replace``
+            with some of its edges (the robust path's subgraphs) keeps it.
     """
-    return pose_graph.information[:, 2, 2]
+
+    group: ClassVar[Group] = SE3
+    rotations: np.ndarray
+    translations: np.ndarray
+    measured_rotations: np.ndarray
+    measured_translations: np.ndarray
+    fixed_rotations: np.ndarray
+    fixed_translations: np.ndarray
+    anchor_rotation: np.ndarray
+    anchor_translation: np.ndarray
+    printed: dict[bytes, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
+
+    @cached_property
+    def weighed(self) -> np.ndarray:
+        """(m, 6, 6) the information the relaxation's weights come from: each edge's
+        ``information``, or its printed matrix where it has one (``printed``)."""
+        if not self.printed:
+            return self.information
+        return np.array([self.printed.get(matrix.tobytes(), matrix)
+                         for matrix in self.information]).reshape(-1, 6, 6)
+
+    @cached_property
+    def poses(self) -> np.ndarray:
+        """(n, 3, 4) ``[R | t]`` of each pose in the values the graph came with."""
+        return pose_matrices(self.rotations, self.translations)
+
+    @cached_property
+    def held(self) -> tuple[np.ndarray, np.ndarray]:
+        """Indices and poses (k, 3, 4) the initializers keep: the anchor first, then every
+        other hard-prior pose. Made once per graph, read only (the certified initializer
+        read it three times: 0.07 ms of tinyGrid3D's run)."""
+        mask = self.fixed != self.anchor
+        held = (np.concatenate([[self.anchor], self.fixed[mask]]).astype(np.int64),
+                pose_matrices(
+                    np.concatenate([self.anchor_rotation[None], self.fixed_rotations[mask]]),
+                    np.vstack([self.anchor_translation[None], self.fixed_translations[mask]])))
+        for array in held:
+            array.setflags(write=False)
+        return held
+
+    @classmethod
+    def from_gtsam(cls, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, *,
+                   check_information: bool = True) -> PoseGraph3D:
+        """Extract the arrays; the graph must be connected and made of Pose3 factors only.
+
+        Each edge's information must pass
+        :func:`~rlpgo_gtsam.information.information_problem_6`, or be GTSAM's model of a
+        printed matrix that :func:`~rlpgo_gtsam.information.information_rule_3d` keeps as
+        printed
+        (indefinite through the rotation-translation coupling alone): ``gtsam.readG2o``
+        turns cubicle's 5021 such matrices into partial Cholesky factors (Eigen's stops at
+        the indefinite pivot and GTSAM keeps it) whose information has a condition number
+        near 1e16; chi2 is that model's, and the relaxation's weights come from the printed
+        matrix it was made from (:func:`~rlpgo_gtsam.information.printed_informations`,
+        kept in ``printed``), as
+        SE-Sync reads the file. What
+        the 3D reader makes always passes.
+        ``check_information=False`` accepts any information a Gaussian model holds (finite,
+        positive semidefinite).
+
+        Raises:
+            GraphError: a factor other than BetweenFactorPose3 / PriorFactorPose3, a noise
+                model that is not Gaussian, an unusable information matrix, a key without a
+                Pose3 value, or a graph that is not connected.
+        """
+        keys = np.array(sorted(values.keys()), dtype=np.uint64)
+        index = {int(key): k for k, key in enumerate(keys)}
+        try:
+            rotations, translations = _poses(values, keys.tolist())
+        except RuntimeError as error:
+            raise GraphError(f"values hold something other than Pose3: "
+                             f"{' '.join(str(error).split())}") from None
+        factors = sort_factors(graph, index, SE3, lambda pose: pose, False)
+        information = np.array(factors.information).reshape(-1, 6, 6)
+        printed = printed_of(graph, information, check_information)
+        hard = factors.hard
+        anchor, anchor_prior = factors.anchor
+        fixed_r, fixed_t = pose3_arrays([pose for _, pose in hard])
+        measured_r, measured_t = pose3_arrays(factors.measured)
+        if anchor_prior is None:
+            anchor_r, anchor_t = rotations[anchor], translations[anchor]
+        else:
+            anchor_r, anchor_t = anchor_prior.rotation().matrix(), anchor_prior.translation()
+        result = cls(
+            keys=keys, rotations=rotations, translations=translations,
+            edges=np.array(factors.edges, dtype=np.int64), measured_rotations=measured_r,
+            measured_translations=measured_t, information=information,
+            anchor=anchor, fixed=np.array([k for k, _ in hard], dtype=np.int64),
+            fixed_rotations=fixed_r, fixed_translations=fixed_t,
+            anchor_rotation=np.asarray(anchor_r, float),
+            anchor_translation=np.asarray(anchor_t, float), graph=graph,
+            printed=printed,
+        )
+        result.check_connected()
+        return result
+
+    def rotation_weights(self) -> np.ndarray:
+        """SE-Sync's kappa for d = 3: ``3 / (2 tr(Sigma_R))``, ``Sigma_R`` the inverse of the
+        3x3 rotational block of the information (as SE-Sync's ``read_g2o_file``; of
+        :attr:`weighed`: the printed matrix where GTSAM's model is a partial factor of it)."""
+        return 3.0 / (2.0 * np.trace(np.linalg.inv(self.weighed[:, :3, :3]),
+                                     axis1=1, axis2=2))
+
+    def translation_weights(self) -> np.ndarray:
+        """SE-Sync's tau for d = 3: ``3 / tr(Sigma_t)``, ``Sigma_t`` the inverse of the 3x3
+        translational block of the information (of :attr:`weighed`)."""
+        return 3.0 / np.trace(np.linalg.inv(self.weighed[:, 3:, 3:]), axis1=1, axis2=2)
+
+    def to_values(self, poses: np.ndarray) -> gtsam.Values:
+        """GTSAM values of the given (n, 3, 4) ``[R | t]`` poses under this graph's keys."""
+        values = gtsam.Values()
+        insert = values.insert  # pose3= passes over insert's other overloads
+        pose3, rot3 = gtsam.Pose3, gtsam.Rot3
+        for key, pose in zip(self.keys.tolist(), np.asarray(poses, float), strict=True):
+            insert(key, pose3=pose3(rot3(pose[:, :3]), pose[:, 3]))
+        return values
+
+    def poses_of(self, values: gtsam.Values) -> np.ndarray:
+        """(n, 3, 4) ``[R | t]`` of ``values`` in this graph's order."""
+        return pose_matrices(*_poses(values, self.keys.tolist()))
 
 
-def odometry_edges(pose_graph: PoseGraph2D) -> np.ndarray:
+PoseGraph = PoseGraph2D | PoseGraph3D
+_GRAPH_OF_GROUP: dict[Group, type[PoseGraph2D] | type[PoseGraph3D]] = {
+    SE2: PoseGraph2D, SE3: PoseGraph3D}
+
+
+def extract_pose_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> PoseGraph:
+    """The one extraction of a pose graph of either group, by what it holds
+    (:func:`~rlpgo_gtsam.groups.graph_group`): :class:`PoseGraph2D` or :class:`PoseGraph3D`.
+    A graph mixing both is the chosen one's ``GraphError``."""
+    return _GRAPH_OF_GROUP[graph_group(graph)].from_gtsam(graph, values)
+
+
+def _poses(values: gtsam.Values, keys: list[int]) -> tuple[np.ndarray, np.ndarray]:
+    return pose3_arrays([values.atPose3(key) for key in keys])
+
+
+def rotation_weights(pose_graph: PoseGraph) -> np.ndarray:
+    """(m,) the weight of each edge's rotation error (the graph's
+    :meth:`~PoseGraph2D.rotation_weights`)."""
+    return pose_graph.rotation_weights()
+
+
+def translation_weights(pose_graph: PoseGraph) -> np.ndarray:
+    """(m,) the weight of each edge's translation error in the relaxation (the graph's
+    :meth:`~PoseGraph2D.translation_weights`)."""
+    return pose_graph.translation_weights()
+
+
+def odometry_edges(pose_graph: PoseGraph) -> np.ndarray:
     """(m,) bool: the odometry chain, found from the graph itself: every edge between poses
     adjacent in sorted-key order, completed to span the graph.
 
@@ -239,273 +445,6 @@ def odometry_edges(pose_graph: PoseGraph2D) -> np.ndarray:
     return chain
 
 
-# The information matrices every method can use, measured on generated graphs whose edges
-# all carry one information: eigenvalues from 1e-20 to 1e20 and a condition number up to 1e9
-# were certified and refined; 1e-30 and 1e200 (overflow in the squares) failed, and so did a
-# condition number of 1e10 (GTSAM's linear solves find the system indeterminate).
-INFORMATION_RANGE = (1e-20, 1e20)
-MAX_CONDITION = 1e9
-
-
-def information_problem(information: np.ndarray, size: int = 3,
-                        max_condition: float = MAX_CONDITION) -> str | None:
-    """Why an edge's ``size`` x ``size`` information matrix (3 in 2D, 6 in 3D) cannot be
-    used, or None if it can.
-
-    It must be symmetric positive definite with eigenvalues in :data:`INFORMATION_RANGE`
-    and a condition number at most ``max_condition`` (the planar rule's
-    :data:`MAX_CONDITION`; 3D graphs have their own, :mod:`rlpgo_gtsam.graph3d`).
-    """
-    matrix = np.asarray(information, dtype=float)
-    if matrix.shape != (size, size):
-        return f"information matrix is not a finite {size}x{size} matrix"
-    return information_problems(matrix[None], max_condition)[0]
-
-
-def information_problems(matrices: np.ndarray,
-                         max_condition: float = MAX_CONDITION) -> list[str | None]:
-    """:func:`information_problem` for a stack of (k, s, s) matrices at once (one batched
-    eigenvalue computation: extraction checks every edge)."""
-    matrices = np.asarray(matrices, dtype=float)
-    size = matrices.shape[-1]
-    problems: list[str | None] = [None] * len(matrices)
-    finite = np.all(np.isfinite(matrices), axis=(1, 2))
-    transposed = np.transpose(matrices, (0, 2, 1))
-    with np.errstate(all="ignore"):
-        symmetric = np.all(np.abs(matrices - transposed) <= 1e-9 * np.abs(transposed),
-                           axis=(1, 2))
-        eigenvalues = np.zeros((len(matrices), size))
-        usable = finite & symmetric
-        eigenvalues[usable] = np.linalg.eigvalsh(matrices[usable])
-        low, high = INFORMATION_RANGE
-        bad = ~usable | ~(eigenvalues[:, 0] > 0) | (eigenvalues[:, 0] < low) | \
-            (eigenvalues[:, -1] > high) | (eigenvalues[:, -1] > max_condition * eigenvalues[:, 0])
-    for k in np.flatnonzero(bad).tolist():
-        smallest, largest = eigenvalues[k, 0], eigenvalues[k, -1]
-        if not finite[k]:
-            problems[k] = f"information matrix is not a finite {size}x{size} matrix"
-        elif not symmetric[k]:
-            problems[k] = "information matrix is not symmetric"
-        elif not smallest > 0:
-            problems[k] = "information matrix is not positive definite"
-        elif smallest < low or largest > high:
-            problems[k] = (f"information matrix has eigenvalues {smallest:.3g} .. "
-                           f"{largest:.3g}, outside the usable {low:g} .. {high:g}")
-        else:
-            problems[k] = (f"information matrix is too ill-conditioned (condition number "
-                           f"{largest / smallest:.3g} > {max_condition:g}): an axis is all "
-                           "but unmeasured")
-    return problems
-
-
-@dataclass(eq=False)
-class Factors:
-    """A graph's factors sorted by :func:`sort_factors`.
-
-    Attributes:
-        edges: (i, j) pose indices of each between factor, in graph order.
-        measured: each between factor's measurement, as the caller's ``pose`` reads it.
-        information: each between factor's information matrix.
-        hard: (index, prior) of each prior with a constrained noise model (a FIX).
-        soft: (index, prior) of each prior with a Gaussian noise model.
-    """
-
-    edges: list[tuple[int, int]] = field(default_factory=list)
-    measured: list[Any] = field(default_factory=list)
-    information: list[np.ndarray] = field(default_factory=list)
-    hard: list[tuple[int, Any]] = field(default_factory=list)
-    soft: list[tuple[int, Any]] = field(default_factory=list)
-
-    @property
-    def anchor(self) -> tuple[int, Any]:
-        """(index, prior) of the pose that fixes the gauge: the first hard prior's, else the
-        first soft prior's, else (0, None)."""
-        return (self.hard or self.soft or [(0, None)])[0]
-
-
-def sort_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int], between: type,
-                 prior: type, pose: Callable[[Any], Any], size: int, kind: str,
-                 check_information: bool = True,
-                 max_condition: float = MAX_CONDITION) -> Factors:
-    """The factors of ``graph`` as edges, hard and soft priors, in graph order (the one walk
-    of both pose graphs' extraction).
-
-    ``index`` maps a key to its pose index; ``between`` and ``prior`` are the factor classes
-    (``BetweenFactorPose2``, ``PriorFactorPose2`` or their Pose3 siblings); ``pose`` reads a
-    measurement or a prior; ``size`` is the information's (3 or 6); ``check_information``
-    as :func:`factor_information` for the edges (a soft prior's is always checked).
-
-    Raises:
-        GraphError: a factor of another class, a key without a value, a noise model the
-            initializers cannot use (:func:`factor_information`), or no between factor.
-    """
-    fast = _sort_usable_factors(graph, index, between, prior, pose, size, check_information,
-                                max_condition)
-    if fast is not None:
-        return fast
-    factors = Factors()
-    names: list[str] = []
-
-    def refuse(message: str) -> GraphError:
-        # the edges' information is checked in one batch; an edge before this factor whose
-        # information is refused is still the error reported, as in a factor-by-factor walk
-        _check_information(factors.information, names, size, check_information,
-                           max_condition)
-        return GraphError(message)
-
-    for position in range(graph.size()):
-        factor = graph.at(position)
-        if factor is None:
-            continue
-        if isinstance(factor, between):
-            i, j = factor.keys()
-            for key in (i, j):
-                if key not in index:
-                    raise refuse(f"between factor {i}-{j}: key {key} has no value")
-            name = f"between factor {i}-{j}"
-            information = _gaussian_information(factor, name, refuse)
-            factors.edges.append((index[i], index[j]))
-            factors.measured.append(pose(factor.measured()))
-            factors.information.append(information)
-            names.append(name)
-        elif isinstance(factor, prior):
-            key = factor.keys()[0]
-            if key not in index:
-                raise refuse(f"prior factor on key {key}: the key has no value")
-            entry = (index[key], pose(factor.prior()))
-            if isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
-                factors.hard.append(entry)
-            else:
-                _check_information(factors.information, names, size, check_information,
-                                   max_condition)
-                factor_information(factor, f"prior factor on key {key}", size,
-                                   max_condition=max_condition)
-                factors.soft.append(entry)
-        else:
-            raise refuse(
-                f"unsupported factor {type(factor).__name__}: a {kind} pose graph holds "
-                f"{between.__name__} and {prior.__name__} factors only"
-            )
-    _check_information(factors.information, names, size, check_information, max_condition)
-    if not factors.edges:
-        raise GraphError(f"the graph has no {between.__name__} factors")
-    return factors
-
-
-def _sort_usable_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int],
-                         between: type, prior: type, pose: Callable[[Any], Any], size: int,
-                         check_information: bool, max_condition: float) -> Factors | None:
-    """:func:`sort_factors` of a graph it accepts, with each GTSAM accessor mapped over all
-    factors at once and each shared noise model asked for its information once (City10K's
-    20687 edges: 3 times faster than a factor at a time); None at anything the factor-by-factor
-    walk must judge (a factor of another class or a subclass, a key without a value, a
-    noise model or information it refuses, no between factor): that walk then raises the
-    error it would have raised."""
-    factors = list(map(graph.at, range(graph.size())))
-    kinds = list(map(type, factors))
-    if kinds.count(between) + kinds.count(prior) + kinds.count(type(None)) != len(kinds):
-        return None
-    edges = [factor for factor, kind in zip(factors, kinds, strict=True) if kind is between]
-    if not edges:
-        return None
-    edge_keys = list(itertools.chain.from_iterable(map(between.keys, edges)))
-    if len(edge_keys) != 2 * len(edges) or not all(map(index.__contains__, edge_keys)):
-        return None
-    models = list(map(between.noiseModel, edges))
-    distinct = {id(model): model for model in models}  # held: each id stays its model's
-    gaussian, constrained = gtsam.noiseModel.Gaussian, gtsam.noiseModel.Constrained
-    if not all(isinstance(model, gaussian) and not isinstance(model, constrained)
-               for model in distinct.values()):
-        return None
-    information = {key: model.information() for key, model in distinct.items()}
-    stack = np.array([information[id(model)] for model in models]).reshape(-1, size, size)
-    if check_information:
-        if any(problem is not None for problem in information_problems(stack, max_condition)):
-            return None
-    elif not _semidefinite(stack).all():
-        return None
-    sorted_factors = Factors(information=list(stack))
-    positions = list(map(index.__getitem__, edge_keys))
-    sorted_factors.edges = list(zip(positions[0::2], positions[1::2], strict=True))
-    sorted_factors.measured = list(map(pose, map(between.measured, edges)))
-    for factor, kind in zip(factors, kinds, strict=True):
-        if kind is not prior:
-            continue
-        key = factor.keys()[0]
-        if key not in index:
-            return None
-        entry = (index[key], pose(factor.prior()))
-        if isinstance(factor.noiseModel(), constrained):
-            sorted_factors.hard.append(entry)
-            continue
-        try:
-            factor_information(factor, f"prior factor on key {key}", size,
-                               max_condition=max_condition)
-        except GraphError:
-            return None
-        sorted_factors.soft.append(entry)
-    return sorted_factors
-
-
-def _check_information(informations: list[np.ndarray], names: list[str], size: int,
-                       check: bool, max_condition: float = MAX_CONDITION) -> None:
-    """Raise the error of the first of the edges' information matrices that
-    :func:`factor_information` would refuse (all checked at once)."""
-    if not informations:
-        return
-    stack = np.array(informations).reshape(-1, size, size)
-    if check:
-        problems = information_problems(stack, max_condition)
-        first = next((k for k, problem in enumerate(problems) if problem is not None), None)
-        if first is not None:
-            raise GraphError(f"{names[first]}: {problems[first]}")
-        return
-    bad = np.flatnonzero(~_semidefinite(stack))
-    if len(bad):
-        raise GraphError(f"{names[bad[0]]}: information matrix is not finite and positive "
-                         "semidefinite")
-
-
-def _semidefinite(stack: np.ndarray) -> np.ndarray:
-    """(k,) whether each matrix is finite and positive semidefinite (to round-off)."""
-    finite = np.all(np.isfinite(stack), axis=(1, 2))
-    result = finite.copy()
-    if finite.any():
-        smallest = np.linalg.eigvalsh(stack[finite])[:, 0]
-        result[finite] = smallest >= -1e-12 * np.abs(stack[finite]).max(axis=(1, 2))
-    return result
-
-
-def _gaussian_information(factor, name: str, refuse: Callable[[str], Exception] = GraphError
-                          ) -> np.ndarray:
-    """The information of ``factor``'s noise model, which must be Gaussian and not
-    constrained (``refuse(message)`` makes the error)."""
-    model = factor.noiseModel()
-    if not isinstance(model, gtsam.noiseModel.Gaussian):
-        raise refuse(
-            f"{name} has a {type(model).__name__} noise model; the initializers need Gaussian "
-            "models (wrap the graph's robust models after initialization)"
-        )
-    if isinstance(model, gtsam.noiseModel.Constrained):
-        raise refuse(f"{name} has a constrained noise model; only priors may be hard")
-    return model.information()
-
-
-def factor_information(factor, name: str, size: int = 3, check: bool = True,
-                       max_condition: float = MAX_CONDITION) -> np.ndarray:
-    """The information of ``factor``'s Gaussian, not constrained, noise model (``name`` in
-    the errors): usable by :func:`information_problem` at ``size`` and ``max_condition``,
-    or with ``check=False`` only finite and positive semidefinite.
-
-    Raises:
-        GraphError: a model that is not Gaussian (robust models), a constrained one, or
-            information the rule refuses.
-    """
-    information = _gaussian_information(factor, name)
-    _check_information([information], [name], size, check, max_condition)
-    return information
-
-
 def poses_of_values(values: gtsam.Values, keys: list[int]) -> np.ndarray:
     """(n, 3) x, y, theta of ``values`` at ``keys``, in that order: where ``keys`` are all
     of ``values``' keys in ascending order and every value a Pose2, GTSAM's own
@@ -537,19 +476,16 @@ def chi2(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> float:
         raise GraphError(f"cannot evaluate the graph: {' '.join(str(error).split())}") from None
 
 
-def edge_chi2(pose_graph: PoseGraph2D, poses: np.ndarray) -> np.ndarray:
-    """(m,) each edge's chi2 at ``poses`` (n, 3), as GTSAM's BetweenFactorPose2 charges it:
-    ``e^T Lambda e`` with ``e`` from :func:`edge_errors`."""
-    error = edge_errors(pose_graph, poses)
-    return np.einsum("ea,eab,eb->e", error, pose_graph.information, error)
+def edge_chi2(pose_graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
+    """(m,) each edge's chi2 at ``poses`` ((n, 3) or (n, 3, 4)), as GTSAM's between factor
+    charges it: ``e^T Lambda e`` with ``e`` from :func:`edge_errors`."""
+    return pose_graph.group.edge_chi2(pose_graph, poses)
 
 
-def edge_errors(pose_graph: PoseGraph2D, poses: np.ndarray) -> np.ndarray:
-    """(m, 3) each edge's error at ``poses`` (n, 3), GTSAM's BetweenFactorPose2's:
-    ``e = Logmap(measured^-1 (X_i^-1 X_j))``."""
-    g = pose_graph
-    relative = between(poses[g.edges[:, 0]], poses[g.edges[:, 1]])
-    return logmap(between(g.measured, relative))
+def edge_errors(pose_graph: PoseGraph, poses: np.ndarray) -> np.ndarray:
+    """(m, dof) each edge's error at ``poses``, GTSAM's between factor's:
+    ``e = Logmap(measured^-1 (X_i^-1 X_j))`` (3D: rotation first)."""
+    return pose_graph.group.edge_errors(pose_graph, poses)
 
 
 def disconnection(keys: Iterable[int] | np.ndarray,

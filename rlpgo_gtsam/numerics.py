@@ -72,7 +72,7 @@ def bounded_threads() -> Iterator[None]:
     """BLAS and OpenMP pools limited to :func:`_thread_limit` threads inside the block; a
     block inside another of the same thread leaves them as the outer one set them
     (threadpoolctl's limit and restore took 0.06 ms CPU a call: ``Certified3D.run`` and the
-    ``synchronize3d`` inside it paid it twice on every graph).
+    ``synchronize`` inside it paid it twice on every graph).
 
     Each library's pool is read and set through threadpoolctl's per-library controllers
     (the libraries found once), and put back as it was on the way out: what

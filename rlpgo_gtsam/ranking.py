@@ -1,5 +1,5 @@
-"""Side-by-side comparison of initializers, each followed by the same GTSAM refinement; a
-planar graph's methods or a 3D graph's, by the extraction it is given."""
+"""Side-by-side comparison of initializers, each followed by the same GTSAM refinement, on a
+planar or a 3D graph."""
 
 from __future__ import annotations
 
@@ -13,16 +13,18 @@ from typing import TYPE_CHECKING, Any
 import gtsam
 import numpy as np
 
-from rlpgo_gtsam.dimension import extract_pose_graph, make_initializer_for
 from rlpgo_gtsam.errors import RlpgoError, one_line
-from rlpgo_gtsam.initializers import InitResult
+from rlpgo_gtsam.graph import extract_pose_graph
+from rlpgo_gtsam.initializers import InitResult, make_initializer, start_names
 from rlpgo_gtsam.solvers import RefineResult, refine
 
 if TYPE_CHECKING:
-    from rlpgo_gtsam.graph3d import AnyPoseGraph
+    from rlpgo_gtsam.graph import PoseGraph
+    from rlpgo_gtsam.groups import Group
 
 __all__ = ["MethodResult", "compare_methods", "best_of", "tied_best", "run_method",
            "initialize_row", "refine_row", "refine_until", "start_from", "line_progress_options",
+           "comparison_methods",
            "FROM_BEST", "TIE_RELATIVE", "ITERATION_PER_CHI2", "FITS_MARGIN",
            "usable_rows", "ties"]
 
@@ -102,7 +104,7 @@ class MethodResult:
 
 
 def initialize_row(
-    pose_graph: AnyPoseGraph,
+    pose_graph: PoseGraph,
     method: str,
     solver: str | None = "lm",
     dataset: str = "graph",
@@ -114,8 +116,7 @@ def initialize_row(
     row = MethodResult(dataset, pose_graph.num_poses, pose_graph.num_edges, method, None, solver)
     began = time.perf_counter()
     try:
-        row.init = make_initializer_for(pose_graph, method, **(options or {})).run(pose_graph,
-                                                                                  start)
+        row.init = make_initializer(method, **(options or {})).run(pose_graph, start)
     except RlpgoError as error:
         row.failure = str(error)
     except (RuntimeError, ArithmeticError, ValueError, np.linalg.LinAlgError) as error:
@@ -130,7 +131,7 @@ def initialize_row(
 def refine_row(
     row: MethodResult,
     graph: gtsam.NonlinearFactorGraph,
-    pose_graph: AnyPoseGraph,
+    pose_graph: PoseGraph,
     iters: int = 30,
     deadline: float | None = None,
     progress: Callable[[str], None] | None = None,
@@ -169,7 +170,7 @@ def refine_until(
     solver: str,
     iters: int,
     deadline: float,
-    pose_graph: AnyPoseGraph | None = None,
+    pose_graph: PoseGraph | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> tuple[RefineResult, str | None]:
     """:func:`~rlpgo_gtsam.solvers.refine` in chunks that end by ``deadline``
@@ -227,7 +228,7 @@ def refine_until(
 
 def run_method(
     graph: gtsam.NonlinearFactorGraph,
-    pose_graph: AnyPoseGraph,
+    pose_graph: PoseGraph,
     method: str,
     solver: str | None = "lm",
     iters: int = 30,
@@ -249,15 +250,24 @@ def run_method(
     return refine_row(row, graph, pose_graph, iters, deadline)
 
 
-def start_from(row: MethodResult, pose_graph: AnyPoseGraph) -> InitResult:
+def start_from(row: MethodResult, pose_graph: PoseGraph) -> InitResult:
     """``row``'s refined result as a start for another initializer (its seconds not
-    charged again: the row already counts them)."""
-    poses = pose_graph.poses_of(row.refined)
-    if pose_graph.dimension == 3:
-        from rlpgo_gtsam.initializers3d import pose_matrices  # loaded with the 3D graph
+    charged again: the row already counts them).
 
-        poses = pose_matrices(*poses)
-    return InitResult(row.method, row.refined, poses, row.refined_chi2, 0.0)
+    Raises:
+        RlpgoError: a row without a refined result.
+    """
+    if row.refined is None or row.refined_chi2 is None:
+        raise RlpgoError(f"{row.method} has no refined result to start from")
+    return InitResult(row.method, row.refined, pose_graph.poses_of(row.refined),
+                      row.refined_chi2, 0.0)
+
+
+def comparison_methods(group: Group) -> list[str]:
+    """Every method that takes ``group``'s graphs and starts from none, the certified
+    relaxation first (ties go to the earlier row): a 3D file's comparison rows."""
+    names = start_names(group)
+    return ["certified", *(name for name in names if name != "certified")]
 
 
 # Methods that, in a comparison, start from the lowest refined chi2 of the rows before them
@@ -283,16 +293,15 @@ def compare_methods(
     iters: int = 30,
     dataset: str = "graph",
     options: dict[str, dict[str, Any]] | None = None,
-    pose_graph: AnyPoseGraph | None = None,
+    pose_graph: PoseGraph | None = None,
     start_from_best: Collection[str] = FROM_BEST,
     on_row: Callable[[MethodResult], None] | None = None,
 ) -> list[MethodResult]:
     """Run each named initializer on one extraction of the graph, then ``refine`` each guess.
 
     Args:
-        methods: initializer names (``rl@chordal`` names a start): the planar registry's
-            for a planar graph, :data:`~rlpgo_gtsam.initializers3d.INITIALIZERS_3D`'s for a
-            3D one.
+        methods: initializer names (``rl@chordal`` names a start), each one that takes the
+            graph's group (:func:`~rlpgo_gtsam.initializers.initializer_names`).
         solver: "lm", "gn", or None for no refinement.
         options: per base method name, options for its factory (``{"rl": {"episodes": 4}}``).
         pose_graph: the graph's extraction, if the caller has it.
@@ -363,8 +372,8 @@ def best_of(results: list[MethodResult]) -> MethodResult:
 def tied_best(results: list[MethodResult]) -> list[MethodResult]:
     """The rows tied for the lowest finite refined chi2 (within a relative
     :data:`TIE_RELATIVE`), in their order; empty if no row has one."""
-    finite = usable_rows(results)
+    finite = [(r, r.refined_chi2) for r in usable_rows(results) if r.refined_chi2 is not None]
     if not finite:
         return []
-    lowest = min(r.refined_chi2 for r in finite)
-    return [r for r in finite if ties(r.refined_chi2, lowest)]
+    lowest = min(chi2 for _, chi2 in finite)
+    return [r for r, chi2 in finite if ties(chi2, lowest)]

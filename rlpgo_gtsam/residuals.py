@@ -14,36 +14,27 @@ from typing import TYPE_CHECKING
 import gtsam
 import numpy as np
 
-from rlpgo_gtsam.graph import edge_chi2
-
 if TYPE_CHECKING:
-    from rlpgo_gtsam.graph3d import AnyPoseGraph
+    from rlpgo_gtsam.graph import PoseGraph
 
-__all__ = ["outlier_suspicion", "variance_factor", "SUSPICION_CHI2", "SUSPICION_CHI2_3D"]
+__all__ = ["outlier_suspicion", "variance_factor"]
 
-# Per-edge chi2 above these has probability 0.001 under Gaussian noise: 3 dof (planar
-# edges) and 6 dof (3D edges).
-SUSPICION_CHI2 = 16.266
-SUSPICION_CHI2_3D = 22.458
+# the chance that Gaussian noise lifts an edge's chi2 above its group's suspicion_chi2
 _SUSPICION_P = 0.001
 
 
-def outlier_suspicion(pose_graph: AnyPoseGraph, values: gtsam.Values) -> str | None:
+def outlier_suspicion(pose_graph: PoseGraph, values: gtsam.Values) -> str | None:
     """A one-line hint when ``values`` (a refined result) fits the edges with a heavier tail
     than Gaussian noise allows; None when the residuals look Gaussian.
 
-    Each edge's chi2 (3 dof; 6 on a 3D graph) is compared with :data:`SUSPICION_CHI2`
-    (:data:`SUSPICION_CHI2_3D`), which Gaussian noise exceeds with probability 0.001. The
+    Each edge's chi2 (the group's dof: 3 planar, 6 in 3D) is compared with the group's
+    ``suspicion_chi2``, which Gaussian noise exceeds with probability 0.001. The
     hint fires when more edges exceed it than a Gaussian model makes plausible (its expected
     count plus four standard deviations, and at least three edges).
     """
     g = pose_graph
-    if g.dimension == 3:
-        from rlpgo_gtsam.graph3d import edge_chi2 as edge_chi2_3d  # a 3D graph's module
-
-        residuals, bound = edge_chi2_3d(g, *g.poses_of(values)), SUSPICION_CHI2_3D
-    else:
-        residuals, bound = edge_chi2(g, g.poses_of(values)), SUSPICION_CHI2
+    residuals = g.group.edge_chi2(g, g.poses_of(values))
+    bound = g.group.suspicion_chi2
     high = residuals > bound
     count, expected = int(high.sum()), _SUSPICION_P * g.num_edges
     if count < 3 or count <= expected + 4.0 * math.sqrt(expected):
@@ -55,14 +46,14 @@ def outlier_suspicion(pose_graph: AnyPoseGraph, values: gtsam.Values) -> str | N
             "try --robust")
 
 
-def variance_factor(pose_graph: AnyPoseGraph, chi2_value: float | None,
+def variance_factor(pose_graph: PoseGraph, chi2_value: float | None,
                     edges: int | None = None) -> float | None:
     """``chi2_value`` over its degrees of freedom, ``dof (edges - poses + held)`` (dof 3
     planar, 6 in 3D; ``edges``: the edges it was taken on, all of the graph's by default;
     held: the anchor and the FIXed poses): about 1 where the covariances state the noise,
     above 1 where they understate it (docs/robust.md); None without a chi2 or without a
     redundant measurement."""
-    dof = 3 if pose_graph.dimension == 2 else 6
+    dof = pose_graph.group.dof
     edges = pose_graph.num_edges if edges is None else edges
     redundancy = dof * (edges - pose_graph.num_poses + len(pose_graph.held[0]))
     return None if chi2_value is None or redundancy <= 0 else chi2_value / redundancy

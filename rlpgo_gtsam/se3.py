@@ -26,6 +26,7 @@ __all__ = [
     "adjoint",
     "project_to_so3",
     "rotation_angles",
+    "pose_matrices",
 ]
 
 _SMALL = 1e-10  # below this angle GTSAM's Pose3 Logmap returns the translation as is
@@ -138,6 +139,11 @@ def log_so3(rotations: np.ndarray) -> np.ndarray:
 def rotation_angles(rotations: np.ndarray) -> np.ndarray:
     """(k,) angles in [0, pi] of (k, 3, 3) rotations: ``|Log(R)|``."""
     return np.linalg.norm(log_so3(rotations), axis=1)
+
+
+def pose_matrices(rotations: np.ndarray, translations: np.ndarray) -> np.ndarray:
+    """(n, 3, 4) ``[R | t]`` of each pose: the packed form of a 3D graph's poses."""
+    return np.concatenate([rotations, translations[:, :, None]], axis=2)
 
 
 def compose(r_a: np.ndarray, t_a: np.ndarray, r_b: np.ndarray,

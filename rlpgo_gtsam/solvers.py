@@ -11,11 +11,11 @@ from typing import TYPE_CHECKING
 import gtsam
 
 from rlpgo_gtsam.errors import SolverError, one_line
-from rlpgo_gtsam.graph import chi2
-from rlpgo_gtsam.graph3d import extract_pose_graph
+from rlpgo_gtsam.graph import chi2, extract_pose_graph
+from rlpgo_gtsam.groups import GROUPS
 
 if TYPE_CHECKING:
-    from rlpgo_gtsam.graph3d import AnyPoseGraph
+    from rlpgo_gtsam.graph import PoseGraph
 
 __all__ = ["RefineResult", "refine", "solver_params", "gauge_prior", "SOLVERS"]
 
@@ -57,12 +57,15 @@ def solver_params(solver: str = "lm", iters: int = 30, tolerance: float = _TOLER
         raise SolverError(f"unknown solver '{solver}'; choose one of {', '.join(SOLVERS)}")
     if iters < 0:
         raise SolverError(f"iteration cap must be >= 0, got {iters}")
-    params = gtsam.GaussNewtonParams() if solver == "gn" else gtsam.LevenbergMarquardtParams()
+    params: Params
+    if solver == "gn":
+        params = gtsam.GaussNewtonParams()
+    else:
+        params = gtsam.LevenbergMarquardtParams()
+        params.setlambdaUpperBound(_LM_LAMBDA_MAX)
     params.setMaxIterations(iters)
     params.setRelativeErrorTol(tolerance)
     params.setAbsoluteErrorTol(tolerance)
-    if solver == "lm":
-        params.setlambdaUpperBound(_LM_LAMBDA_MAX)
     return params
 
 
@@ -71,7 +74,7 @@ def refine(
     values: gtsam.Values,
     solver: str | Params = "lm",
     iters: int = 30,
-    pose_graph: AnyPoseGraph | None = None,
+    pose_graph: PoseGraph | None = None,
     on_iteration: Callable[[int, float], None] | None = None,
     *,
     tolerance: float = _TOLERANCE,
@@ -106,7 +109,7 @@ def refine(
     Raises:
         SolverError: an unknown solver name or a negative iteration cap.
         GraphError: a graph the package cannot work on (see
-            :func:`~rlpgo_gtsam.graph3d.extract_pose_graph`).
+            :func:`~rlpgo_gtsam.graph.extract_pose_graph`).
     """
     params = solver if isinstance(solver, Params) else solver_params(solver, iters, tolerance)
     name = "GN" if isinstance(params, gtsam.GaussNewtonParams) else "LM"
@@ -126,10 +129,11 @@ def refine(
         after_iteration[k] = value
 
     caller_hook = params.iterationHook  # the caller's params get their own hook back
-    params.iterationHook = lambda k, _before, after: record(k, 2.0 * after)
-    failure, optimizer = None, None
+    params.iterationHook = lambda k, _before, after: record(int(k), 2.0 * float(after))
+    failure: str | None = None
+    optimizer: gtsam.GaussNewtonOptimizer | gtsam.LevenbergMarquardtOptimizer | None = None
     try:
-        if name == "GN":
+        if isinstance(params, gtsam.GaussNewtonParams):
             optimizer = gtsam.GaussNewtonOptimizer(optimized, values, params)
         else:
             optimizer = gtsam.LevenbergMarquardtOptimizer(optimized, values, params)
@@ -168,25 +172,23 @@ def _iterate_through_increases(optimizer, iters: int, tolerance: float,
         previous = current
 
 
-def gauge_prior(pose_graph: AnyPoseGraph, values: gtsam.Values,
+def gauge_prior(pose_graph: PoseGraph, values: gtsam.Values,
                 sigma: float) -> gtsam.NonlinearFactor:
-    """A prior holding the anchor at its pose in ``values``, isotropic ``sigma``: a
-    ``PriorFactorPose2`` or, for a 3D graph, a ``PriorFactorPose3``."""
+    """A prior holding the anchor at its pose in ``values``, isotropic ``sigma``: the graph's
+    group's prior factor (``PriorFactorPose2`` or ``PriorFactorPose3``)."""
     key = int(pose_graph.keys[pose_graph.anchor])
-    if pose_graph.dimension == 3:
-        return gtsam.PriorFactorPose3(key, values.atPose3(key),
-                                      gtsam.noiseModel.Isotropic.Sigma(6, sigma))
-    return gtsam.PriorFactorPose2(key, values.atPose2(key),
-                                  gtsam.noiseModel.Isotropic.Sigma(3, sigma))
+    group = pose_graph.group
+    return group.prior_factor(key, group.pose_at(values, key),
+                              gtsam.noiseModel.Isotropic.Sigma(group.dof, sigma))
 
 
-def _has_prior(graph: gtsam.NonlinearFactorGraph, pose_graph: AnyPoseGraph) -> bool:
+def _has_prior(graph: gtsam.NonlinearFactorGraph, pose_graph: PoseGraph) -> bool:
     """Whether ``graph`` holds a Pose2 or Pose3 prior. Where ``pose_graph`` is the extraction
     of this very graph and found as many edges as the graph has factors, every factor is an
     edge and the answer needs no walk over the factors (0.04-0.06 s on City10K, once per
     refinement: six times in a comparison)."""
     if pose_graph.graph is graph and graph.size() == pose_graph.num_edges:
         return False
-    return any(isinstance(graph.at(i), gtsam.PriorFactorPose2 | gtsam.PriorFactorPose3)
-               for i in range(graph.size()))
+    priors = tuple(group.prior_factor for group in GROUPS)
+    return any(isinstance(graph.at(i), priors) for i in range(graph.size()))
 

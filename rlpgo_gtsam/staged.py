@@ -1,7 +1,8 @@
 """Certify, else search: the staged default of ``rlpgo-init`` (``--method auto``).
 
-On a planar graph or a 3D one alike (dispatched on what the graph holds, extracted once:
-:func:`~rlpgo_gtsam.graph3d.extract_pose_graph`); the stages are that dimension's methods.
+On a planar graph or a 3D one alike (extracted once:
+:func:`~rlpgo_gtsam.graph.extract_pose_graph`); the stages are methods that take the graph's
+group.
 
 1. ``certified``: the SE(d) synchronization relaxation + GTSAM refinement. If its
    certificate holds, the rounded estimate is the global optimum of the relaxation's cost
@@ -24,8 +25,8 @@ On a planar graph or a 3D one alike (dispatched on what the graph holds, extract
        0.5, 3  1336.61  158 s   +122%    2.6 s   FAILED   14.2 s   +0.24%  14.4 s
 
    No search lowered the best refined chi2 on any of the six; Shonan from random starts
-   (38-98 s), LAGO and fastSync did not either; issue 20 reports the same on the 21 arena
-   graphs and the hold-outs. The searches stay reachable: ``searches=SEARCHES`` here
+   (38-98 s), LAGO and fastSync did not either; nor did any on the 21 arena graphs and
+   the hold-outs. The searches stay reachable: ``searches=SEARCHES`` here
    (:data:`SEARCHES_3D` on a 3D graph: the agent is planar), ``--method all`` or a
    method's own name (``--method rl``) on the command line.
 3. With ``searches``, each runs refined the same way, cheapest first; the lowest refined
@@ -53,15 +54,17 @@ from typing import TYPE_CHECKING, Any
 
 import gtsam
 
-from rlpgo_gtsam.dimension import check_method_for, extract_pose_graph
 from rlpgo_gtsam.errors import RlpgoError
-from rlpgo_gtsam.initializers import InitResult
+from rlpgo_gtsam.graph import extract_pose_graph
+from rlpgo_gtsam.groups import SE3
+from rlpgo_gtsam.initializers import InitResult, check_method, initializer_names
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.ranking import MethodResult, best_of, initialize_row, refine_row, start_from
 from rlpgo_gtsam.residuals import outlier_suspicion
 
 if TYPE_CHECKING:
-    from rlpgo_gtsam.graph3d import AnyPoseGraph
+    from rlpgo_gtsam.graph import PoseGraph
+    from rlpgo_gtsam.relaxation import Certificate
 
 __all__ = ["StagedResult", "staged_initialize", "DEFAULT_BUDGET_S", "DEFAULT_SEARCHES",
            "SEARCHES", "SEARCHES_3D", "REFINE_RESERVE"]
@@ -69,8 +72,9 @@ __all__ = ["StagedResult", "staged_initialize", "DEFAULT_BUDGET_S", "DEFAULT_SEA
 DEFAULT_BUDGET_S = 120.0
 # The searches after a failed certificate, cheapest first: (method, starts from the best?)
 SEARCHES = (("chordal", False), ("shonan", True), ("rl", True))
-# The same on a 3D graph: the agent is planar.
-SEARCHES_3D = (("chordal", False), ("shonan", True))
+# The same on a 3D graph: those that take it (the agent is planar).
+SEARCHES_3D = tuple((method, best) for method, best in SEARCHES
+                    if method in initializer_names(SE3))
 # The default's searches: none (see the module docstring for the measurement).
 DEFAULT_SEARCHES: tuple[tuple[str, bool], ...] = ()
 # The share of the budget kept for the refinement after the certified stage.
@@ -84,7 +88,8 @@ class StagedResult:
     """What :func:`staged_initialize` did.
 
     Attributes:
-        rows: one row per stage that ran, in order (``MethodResult``).
+        rows: one row per stage that ran, in order (``MethodResult``); the first is the
+            certified stage, whose certificate is :attr:`certificate`.
         reasons: per row, why that stage ran.
         best: the row whose refined result is handed over.
         certified: whether the relaxation's certificate held.
@@ -106,6 +111,13 @@ class StagedResult:
     hint: str | None = None
 
     @property
+    def certificate(self) -> Certificate | None:
+        """The certified stage's certificate (whether the relaxation was exact, its bounds,
+        how the staircase ended); None where that stage failed."""
+        row = next((row for row in self.rows if row.method == "certified"), None)
+        return None if row is None or row.init is None else row.init.certificate
+
+    @property
     def values(self) -> gtsam.Values:
         """The refined guess of the best stage."""
         if self.best is None or self.best.refined is None:
@@ -123,7 +135,7 @@ def staged_initialize(
     budget_s: float = DEFAULT_BUDGET_S,
     options: dict[str, dict[str, Any]] | None = None,
     dataset: str = "graph",
-    pose_graph: AnyPoseGraph | None = None,
+    pose_graph: PoseGraph | None = None,
     on_stage: Callable[[MethodResult, str], None] | None = None,
     searches: Sequence[tuple[str, bool]] = DEFAULT_SEARCHES,
 ) -> StagedResult:
@@ -151,7 +163,7 @@ def staged_initialize(
     deadline = began + budget_s
     g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
     for method, _ in searches:
-        check_method_for(g.dimension, method)
+        check_method(method, g.group)
     options = options or {}
     run = StagedResult()
     cuts: list[str] = []
@@ -171,7 +183,7 @@ def staged_initialize(
 
     first = stage("certified", "certified", "first: certify",
                   _certified_options(options.get("certified"), budget_s * (1.0 - REFINE_RESERVE)))
-    certificate = None if first.init is None else first.init.certificate
+    certificate = run.certificate
     run.certified = bool(certificate is not None and certificate.certified and
                          first.failure is None)
     if run.certified:

@@ -70,8 +70,9 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import RlpgoError
-from rlpgo_gtsam.graph import MAX_CONDITION, PoseGraph2D, odometry_edges
-from rlpgo_gtsam.graph3d import PoseGraph3D
+from rlpgo_gtsam.graph import PoseGraph2D, PoseGraph3D, odometry_edges
+from rlpgo_gtsam.information import MAX_CONDITION
+from rlpgo_gtsam.robust.noise import scaled_informations, with_informations
 
 __all__ = ["SyntheticGraph", "generate", "generate3d", "add_outliers", "add_outliers3d",
            "scaled_informations", "with_informations", "OUTLIER_MODES", "VERTIGO_MODES",
@@ -323,7 +324,7 @@ def add_outliers3d(
     mode: str = OUTLIER_MODES[0],
     group_size: int = GROUP_SIZE,
 ) -> tuple[gtsam.NonlinearFactorGraph, list[int]]:
-    """:func:`add_outliers` for a 3D graph (what :class:`~rlpgo_gtsam.graph3d.PoseGraph3D`
+    """:func:`add_outliers` for a 3D graph (what :class:`~rlpgo_gtsam.graph.PoseGraph3D`
     accepts): the same pairs and policies, ``BetweenFactorPose3`` closures measured as the
     module docstring says. Raises as :func:`add_outliers` does."""
     _check_outliers(fraction, mode, group_size)
@@ -344,33 +345,6 @@ def add_outliers3d(
 
     return _add_wrong_closures(graph, g, g.translations, g.measured_translations, fraction, rng,
                                mode, group_size, gtsam.BetweenFactorPose3, measure)
-
-
-def scaled_informations(graph: gtsam.NonlinearFactorGraph,
-                        factor: float) -> gtsam.NonlinearFactorGraph:
-    """``graph`` with every between factor's (``BetweenFactorPose2``, ``BetweenFactorPose3``)
-    information multiplied by ``factor``: its covariance divided by it, the noise understated
-    ``factor`` times (an optimistic front end's covariances) for ``factor > 1``. The same
-    factors, measurements and order; other factors as they are."""
-    between = (gtsam.BetweenFactorPose2, gtsam.BetweenFactorPose3)
-    return with_informations(graph, {
-        k: factor * graph.at(k).noiseModel().information() for k in range(graph.size())
-        if isinstance(graph.at(k), between)})
-
-
-def with_informations(graph: gtsam.NonlinearFactorGraph,
-                      informations: dict[int, np.ndarray]) -> gtsam.NonlinearFactorGraph:
-    """``graph`` with the between factor at each index of ``informations`` given that
-    information (a Gaussian noise model), its keys and measurement kept; the other factors,
-    and the order, as they are."""
-    replaced = gtsam.NonlinearFactorGraph()
-    for k in range(graph.size()):
-        f = graph.at(k)
-        if k in informations:
-            f = type(f)(f.keys()[0], f.keys()[1], f.measured(),
-                        gtsam.noiseModel.Gaussian.Information(informations[k]))
-        replaced.add(f)
-    return replaced
 
 
 def _add_wrong_closures(graph: gtsam.NonlinearFactorGraph, g: PoseGraph2D | PoseGraph3D,

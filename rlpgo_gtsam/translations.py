@@ -1,56 +1,158 @@
-"""The LAGO-style translation step: positions that best fit the edges, orientations fixed."""
+"""The translation step: positions that minimize GTSAM's cost of the edges for fixed rotations.
+
+With the rotations fixed, an edge's error ``e = Logmap(measured^-1 X_i^-1 X_j)`` has a fixed
+rotation part ``e_R`` and a translation part linear in the positions: planar
+``e_t = R~^T (R_i^T (t_j - t_i) - t~)``, spatial ``e_t = V(e_R)^-1 R~^T (R_i^T (t_j - t_i) -
+t~)`` (GTSAM's Pose3 Logmap). So ``e^T Lambda e = ||W (e_t + Lambda_tt^-1 Lambda_tR e_R)||^2
++ const`` (``W^T W = Lambda_tt``) is minimized exactly by one sparse linear solve: the full
+information is kept, rotation-translation correlations included. Held poses (the anchor,
+FIXed poses) keep their positions; soft priors are not used (refinement honours them).
+
+Rotations are the group's: planar angles (n,), spatial matrices (n, 3, 3). The same names
+serve both: :func:`poses_with_rotations`, :func:`solve_translations` and
+:class:`TranslationStep` (``TranslationStep(pose_graph)`` makes the step of the graph's
+group).
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from rlpgo_gtsam.graph import PoseGraph2D, edge_chi2
-from rlpgo_gtsam.linear import PairwiseSystem
+from rlpgo_gtsam.errors import SolverError
+from rlpgo_gtsam.graph import PoseGraph, PoseGraph2D, PoseGraph3D, edge_chi2
+from rlpgo_gtsam.groups import SE2, SE3, Group
+from rlpgo_gtsam.linear import PairwiseSystem, solve_block_pairwise, solve_isotropic
 from rlpgo_gtsam.se2 import rotation_matrices, wrap
+from rlpgo_gtsam.se3 import inverse_left_jacobians, log_so3
 
-__all__ = ["solve_translations", "poses_with_orientations", "whitened_system", "SystemParts",
-           "TranslationStep"]
+__all__ = ["solve_translations", "poses_with_rotations", "translation_system", "TranslationStep",
+           "SystemParts", "TranslationSystem"]
+
+# The translation step at fixed rotations: (m, d, d) blocks A_e and (m, d) b_e of the whitened
+# residuals A_e (t_j - t_i) - b_e, and solve(weights) -> (n, d) positions.
+TranslationSystem = tuple[np.ndarray, np.ndarray, Callable[[np.ndarray | None], np.ndarray]]
 
 
-def poses_with_orientations(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray:
-    """Poses (n, 3): the orientations ``theta`` in the anchor's gauge, positions solved.
+def poses_with_rotations(pose_graph: PoseGraph, rotations: np.ndarray) -> np.ndarray:
+    """Poses ((n, 3) or (n, 3, 4)): ``rotations`` in the anchor's gauge, positions solved.
 
-    ``theta`` is rotated as a whole so that the anchor gets its angle; every held pose (the
-    anchor, FIXed poses) keeps its angle and position; the others get positions from
+    The rotations are turned as a whole so that the anchor gets its rotation; every held pose
+    (the anchor, FIXed poses) keeps its rotation and position; the others get positions from
     :func:`solve_translations`.
     """
-    held, held_poses = pose_graph.held
-    theta = np.asarray(theta, dtype=float)
-    theta = wrap(theta - theta[held[0]] + held_poses[0, 2])
-    theta[held] = held_poses[:, 2]
-    positions = solve_translations(pose_graph, theta)
-    return np.column_stack([positions, theta])
+    step = TranslationStep.shared(pose_graph)
+    aligned = step.aligned(np.asarray(rotations, dtype=float))
+    return pose_graph.group.with_positions(aligned, step.positions(aligned, gauge=False))
 
 
-def solve_translations(pose_graph: PoseGraph2D, theta: np.ndarray) -> np.ndarray:
-    """Positions (n, 2) minimizing the edges' cost with the orientations ``theta`` fixed.
-
-    Each edge contributes its error in the measurement's frame,
-    ``e_t = R~_ij^T (R_i^T (t_j - t_i) - t~_ij)``, weighted by its full information:
-    with the angle error ``e_theta`` fixed, ``[e_t, e_theta]^T Lambda [e_t, e_theta]`` is
-    ``||W (e_t + Lambda_tt^-1 Lambda_t,theta e_theta)||^2 + const`` with ``W^T W = Lambda_tt``,
-    so xy and x/y-theta correlations are both kept. Held poses (the anchor, FIXed poses)
-    keep their positions; soft priors are not used (refinement honours them).
+def solve_translations(pose_graph: PoseGraph, rotations: np.ndarray) -> np.ndarray:
+    """Positions (n, d) minimizing the edges' cost with ``rotations`` fixed (used as given).
 
     The graph's :meth:`TranslationStep.shared` step solves it: a second call on the same
-    graph (another initializer of a comparison) reuses its system, and its factorization
-    where the translation information is isotropic.
+    graph (another initializer of a comparison) reuses its system, and in 2D its
+    factorization where the translation information is isotropic.
     """
-    return TranslationStep.shared(pose_graph).positions(np.asarray(theta, dtype=float),
-                                                         gauge=False)
+    return TranslationStep.shared(pose_graph).positions(np.asarray(rotations, dtype=float),
+                                                        gauge=False)
+
+
+def translation_system(pose_graph: PoseGraph, rotations: np.ndarray) -> TranslationSystem:
+    """The translation step's whitened residuals at ``rotations`` and their weighted solve
+    (:meth:`TranslationStep.solve_weighted`; held poses keep their positions), from a step
+    of its own (the robust path's GNC weighs the residuals anew at each iteration)."""
+    step = TranslationStep(pose_graph)
+    a_j, b = step.whitened(rotations)
+    return a_j, b, lambda weights: step.solve_weighted(a_j, b, weights)
+
+
+class TranslationStep:
+    """The translation step for many rotations of one graph: positions and their chi2.
+
+    ``TranslationStep(pose_graph)`` makes the step of the graph's group. It keeps what does
+    not depend on the rotations (whitening factors, the planar
+    :class:`~rlpgo_gtsam.linear.PairwiseSystem` with its sparsity pattern and ordering): a
+    training reward on the real cost solves it at every step. :meth:`chi2` is the chi2 of the
+    graph's edges at the solved positions, which is GTSAM's chi2 of
+    ``poses_with_rotations(rotations)`` on a graph without soft priors (a soft prior on the
+    anchor adds nothing either: the anchor sits at its value), summed by
+    :func:`~rlpgo_gtsam.graph.edge_chi2`.
+    """
+
+    pose_graph: Any
+    held: np.ndarray
+    held_rotations: np.ndarray
+    held_positions: np.ndarray
+
+    def __new__(cls, pose_graph: PoseGraph, *args: Any, **kwargs: Any) -> TranslationStep:
+        if cls is TranslationStep:
+            cls = _STEPS[pose_graph.group]
+        return super().__new__(cls)
+
+    def __init__(self, pose_graph: PoseGraph) -> None:
+        self.pose_graph = pose_graph
+        self.held, held_poses = pose_graph.held
+        self.held_rotations = np.ascontiguousarray(pose_graph.group.rotations(held_poses))
+        self.held_positions = np.ascontiguousarray(pose_graph.group.translations(held_poses))
+
+    @classmethod
+    def shared(cls, pose_graph: PoseGraph) -> TranslationStep:
+        """The step the graph keeps (``pose_graph.cache``) for every translation step on it."""
+        step = pose_graph.cache.get("translation_step")
+        if step is None:
+            step = pose_graph.cache["translation_step"] = _STEPS[pose_graph.group].of(pose_graph)
+        return step
+
+    @classmethod
+    def of(cls, pose_graph: Any) -> TranslationStep:
+        """The step :meth:`shared` keeps (the planar one may reuse its factorization)."""
+        return cls(pose_graph)
+
+    def whitened(self, rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The residuals ``A_e (t_j - t_i) - b_e`` at ``rotations`` (whitened, d dof:
+        ``W (e_t + Lambda_tt^-1 Lambda_tR e_R)``): (m, d, d) blocks ``A_e``, (m, d) ``b_e``."""
+        raise NotImplementedError
+
+    def positions(self, rotations: np.ndarray, gauge: bool = True) -> np.ndarray:
+        """(n, d) positions of least cost for ``rotations``; ``gauge``: turn the rotations
+        as a whole so that the anchor gets its rotation first (as :meth:`solve`)."""
+        raise NotImplementedError
+
+    def solve_weighted(self, a_j: np.ndarray, b: np.ndarray,
+                       weights: np.ndarray | None) -> np.ndarray:
+        """(n, d) positions of least weighted cost of the residuals :meth:`whitened` gave
+        (held poses keep theirs; edges weighted at or below
+        :data:`~rlpgo_gtsam.linear.WEIGHT_FLOOR` are left out)."""
+        raise NotImplementedError
+
+    def in_gauge(self, rotations: np.ndarray) -> np.ndarray:
+        """``rotations`` turned as a whole so that the anchor gets its rotation."""
+        raise NotImplementedError
+
+    def aligned(self, rotations: np.ndarray) -> np.ndarray:
+        """:meth:`in_gauge`, every held pose at its own rotation."""
+        raise NotImplementedError
+
+    def chi2(self, rotations: np.ndarray) -> float:
+        """The edges' chi2 at the positions of least cost for ``rotations``."""
+        return self.solve(rotations)[1]
+
+    def solve(self, rotations: np.ndarray) -> tuple[np.ndarray, float]:
+        """Both at once: (n, d) positions of least cost for ``rotations`` (in the anchor's
+        gauge) and the edges' chi2 there."""
+        rotations = self.in_gauge(rotations)
+        positions = self.positions(rotations, gauge=False)
+        poses = self.pose_graph.group.with_positions(rotations, positions)
+        return positions, float(edge_chi2(self.pose_graph, poses).sum())
 
 
 @dataclass(frozen=True, eq=False)
 class SystemParts:
-    """What the translation step's whitened system takes from the edges alone, not from the
-    orientations (see :func:`whitened_system`).
+    """What the planar translation step's whitened system takes from the edges alone, not
+    from the orientations.
 
     Attributes:
         w: (m, 2, 2) upper factors, ``W^T W = Lambda_tt``.
@@ -76,79 +178,111 @@ class SystemParts:
                    t_meas=np.einsum("eab,eb->ea", r_meas_t, pose_graph.measured[:, :2]))
 
 
-def whitened_system(pose_graph: PoseGraph2D, theta: np.ndarray,
-                    parts: SystemParts | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The translation step's residuals ``A_e (t_j - t_i) - b_e`` at the orientations
-    ``theta`` (see :func:`solve_translations`): (m, 2, 2) blocks ``A_e``, (m, 2) ``b_e`` and
-    (m,) the angle errors. ``parts`` (:meth:`SystemParts.of`) saves recomputing what does
-    not depend on ``theta``."""
-    g = pose_graph
-    parts = parts if parts is not None else SystemParts.of(g)
-    i, j = g.edges[:, 0], g.edges[:, 1]
-    e_theta = wrap(theta[j] - theta[i] - g.measured[:, 2])
-    a_j = parts.w @ (parts.r_meas_t @ np.transpose(rotation_matrices(theta[i]), (0, 2, 1)))
-    b = np.einsum("eab,eb->ea", parts.w, parts.t_meas - parts.shift_per_rad * e_theta[:, None])
-    return a_j, b, e_theta
-
-
-class TranslationStep:
-    """The translation step for many orientations of one graph: positions and their chi2.
-
-    A training reward on the real cost solves it at every step: this class keeps what does
-    not depend on the orientations (whitening factors, the
-    :class:`~rlpgo_gtsam.linear.PairwiseSystem` with its sparsity pattern and ordering).
-    :meth:`chi2` is the chi2 of the graph's edges at the solved positions, which is GTSAM's
-    chi2 of ``poses_with_orientations(theta)`` on a graph without soft priors (a soft prior
-    on the anchor adds nothing either: the anchor sits at its value), summed by
-    :func:`~rlpgo_gtsam.graph.edge_chi2`.
-    """
+class _PlanarStep(TranslationStep):
+    """The step of a planar graph: angles (n,), one sparse solve of 2-vectors."""
 
     def __init__(self, pose_graph: PoseGraph2D, parts: SystemParts | None = None,
                  system: PairwiseSystem | None = None) -> None:
-        self.pose_graph = pose_graph
+        super().__init__(pose_graph)
         self.parts = parts if parts is not None else SystemParts.of(pose_graph)
-        held, held_poses = pose_graph.held
-        self.held, self.held_xy = held, held_poses[:, :2]
         self.system = system if system is not None else PairwiseSystem(
-            pose_graph.num_poses, pose_graph.edges, held)
+            pose_graph.num_poses, pose_graph.edges, self.held)
 
     @classmethod
-    def shared(cls, pose_graph: PoseGraph2D) -> TranslationStep:
-        """The step whose parts and system the graph keeps (``pose_graph.cache``) for every
-        translation step on it. Where each edge's translation information is a multiple of
-        the identity (M3500, City10K, generated graphs), the normal matrix does not depend
-        on the orientations, and its first factorization serves every later solve
+    def of(cls, pose_graph: Any) -> TranslationStep:
+        """Where each edge's translation information is a multiple of the identity (M3500,
+        City10K, generated graphs), the normal matrix does not depend on the orientations,
+        and its first factorization serves every later solve
         (``PairwiseSystem(fixed_matrix=True)``): a comparison's lago, chordal, Shonan and
         certified rows factorize once between them."""
-        cached = pose_graph.cache.get("translation_step")
-        if cached is None:
-            info = pose_graph.information
-            isotropic = bool((info[:, 0, 0] == info[:, 1, 1]).all()
-                             and (info[:, 0, 1] == 0).all() and (info[:, 1, 0] == 0).all())
-            cached = (SystemParts.of(pose_graph),
-                      PairwiseSystem(pose_graph.num_poses, pose_graph.edges,
-                                     pose_graph.held[0], fixed_matrix=isotropic))
-            pose_graph.cache["translation_step"] = cached
-        return cls(pose_graph, *cached)
+        info = pose_graph.information
+        isotropic = bool((info[:, 0, 0] == info[:, 1, 1]).all()
+                         and (info[:, 0, 1] == 0).all() and (info[:, 1, 0] == 0).all())
+        return cls(pose_graph, SystemParts.of(pose_graph),
+                   PairwiseSystem(pose_graph.num_poses, pose_graph.edges, pose_graph.held[0],
+                                  fixed_matrix=isotropic))
 
-    def positions(self, theta: np.ndarray, gauge: bool = True) -> np.ndarray:
-        """(n, 2) positions of least cost for the orientations ``theta``; ``gauge``: rotate
-        ``theta`` as a whole so that the anchor gets its angle first (as :meth:`solve`)."""
+    def whitened(self, rotations):
+        g, parts, theta = self.pose_graph, self.parts, rotations
+        i, j = g.edges[:, 0], g.edges[:, 1]
+        e_theta = wrap(theta[j] - theta[i] - g.measured[:, 2])
+        a_j = parts.w @ (parts.r_meas_t @ np.transpose(rotation_matrices(theta[i]), (0, 2, 1)))
+        b = np.einsum("eab,eb->ea", parts.w,
+                      parts.t_meas - parts.shift_per_rad * e_theta[:, None])
+        return a_j, b
+
+    def positions(self, rotations, gauge=True):
         if gauge:
-            theta = self._in_gauge(theta)
-        a, b, _ = whitened_system(self.pose_graph, theta, self.parts)
-        return self.system.solve(-a, a, b, self.held_xy)
+            rotations = self.in_gauge(rotations)
+        a, b = self.whitened(rotations)
+        return self.system.solve(-a, a, b, self.held_positions)
 
-    def chi2(self, theta: np.ndarray) -> float:
-        """The edges' chi2 at the positions of least cost for ``theta``."""
-        return self.solve(theta)[1]
+    def solve_weighted(self, a_j, b, weights):
+        return self.system.solve(-a_j, a_j, b, self.held_positions, weights)
 
-    def solve(self, theta: np.ndarray) -> tuple[np.ndarray, float]:
-        """Both at once: (n, 2) positions of least cost and the edges' chi2 there."""
-        theta = self._in_gauge(theta)
-        xy = self.positions(theta, gauge=False)
-        return xy, float(edge_chi2(self.pose_graph, np.column_stack([xy, theta])).sum())
+    def in_gauge(self, rotations):
+        theta = np.asarray(rotations, dtype=float)
+        return theta - theta[self.held[0]] + self.held_rotations[0]
 
-    def _in_gauge(self, theta: np.ndarray) -> np.ndarray:
-        theta = np.asarray(theta, dtype=float)
-        return theta - theta[self.held[0]] + self.pose_graph.held[1][0, 2]  # the anchor's angle
+    def aligned(self, rotations):
+        theta = wrap(rotations - rotations[self.held[0]] + self.held_rotations[0])
+        theta[self.held] = self.held_rotations
+        return theta
+
+
+class _SpatialStep(TranslationStep):
+    """The step of a 3D graph: rotations (n, 3, 3), by conjugate gradients where the edges'
+    weights are nearly isotropic (:func:`~rlpgo_gtsam.linear.solve_isotropic`), else one
+    sparse (or, small, dense) solve of 3-vectors."""
+
+    def __init__(self, pose_graph: PoseGraph3D) -> None:
+        super().__init__(pose_graph)
+        info = pose_graph.information
+        try:
+            lower = np.linalg.cholesky(info[:, 3:, 3:])
+        except np.linalg.LinAlgError:
+            raise SolverError("an edge's translational information is not positive "
+                              "definite") from None
+        self.w = np.transpose(lower, (0, 2, 1))  # W^T W = Lambda_tt
+        self.shift = np.linalg.solve(info[:, 3:, 3:], info[:, 3:, :3])  # Lambda_tt^-1 Lambda_tR
+        self.measured_t = np.transpose(pose_graph.measured_rotations, (0, 2, 1))  # R~^T
+
+    def whitened(self, rotations):
+        g = self.pose_graph
+        i, j = g.edges[:, 0], g.edges[:, 1]
+        turned_i = np.transpose(rotations[i], (0, 2, 1))  # R_i^T
+        error_r = log_so3(self.measured_t @ turned_i @ rotations[j])
+        v_inv = inverse_left_jacobians(error_r)
+        a_j = self.w @ v_inv @ self.measured_t @ turned_i
+        b = np.einsum("eab,eb->ea", self.w,
+                      np.einsum("eab,eb->ea", v_inv @ self.measured_t, g.measured_translations)
+                      - np.einsum("eab,eb->ea", self.shift, error_r))
+        return a_j, b
+
+    def positions(self, rotations, gauge=True):
+        if gauge:
+            rotations = self.in_gauge(rotations)
+        g = self.pose_graph
+        a_j, b = self.whitened(rotations)
+        positions = solve_isotropic(g.num_poses, g.edges, a_j, b, self.held,
+                                    self.held_positions)
+        if positions is None:
+            positions = self.solve_weighted(a_j, b, None)
+        return positions
+
+    def solve_weighted(self, a_j, b, weights):
+        g = self.pose_graph
+        return solve_block_pairwise(g.num_poses, g.edges, -a_j, a_j, b, self.held,
+                                    self.held_positions, weights)
+
+    def in_gauge(self, rotations):
+        rotations = np.asarray(rotations, dtype=float)
+        return self.held_rotations[0] @ rotations[self.held[0]].T @ rotations
+
+    def aligned(self, rotations):
+        turned = self.in_gauge(rotations)
+        turned[self.held] = self.held_rotations
+        return turned
+
+
+_STEPS: dict[Group, type[TranslationStep]] = {SE2: _PlanarStep, SE3: _SpatialStep}

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from click.testing import Result
 
-from rlpgo_gtsam.g2o import read_g2o
+from rlpgo_gtsam.io import read_g2o
 from rlpgo_gtsam.synthetic import SyntheticGraph, generate
 
 DATASETS = Path(
@@ -31,10 +31,10 @@ def dataset(name: str) -> Path:
 def hessian_products(monkeypatch) -> list[int]:
     """A one-element counter of the Hessian products the staircase's truncated CG takes,
     counted from here on (reset it by assigning ``[0]``)."""
-    import rlpgo_gtsam.staircase as staircase
+    import rlpgo_gtsam.relaxation.trust_region as trust_region
 
     products = [0]
-    truncated_cg = staircase.truncated_cg
+    truncated_cg = trust_region.truncated_cg
 
     def counted(grad, hess, pre, radius, *args):
         def product(v):
@@ -42,7 +42,7 @@ def hessian_products(monkeypatch) -> list[int]:
             return hess(v)
         return truncated_cg(grad, product, pre, radius, *args)
 
-    monkeypatch.setattr(staircase, "truncated_cg", counted)
+    monkeypatch.setattr(trust_region, "truncated_cg", counted)
     return products
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rlpgo_gtsam import GraphError, PoseGraph2D, generate, make_initializer, refine
-from rlpgo_gtsam.certified import certify, relaxation_cost, synchronize
+from rlpgo_gtsam.relaxation import certify, relaxation_cost, synchronize
 from rlpgo_gtsam.se2 import wrap
 
 

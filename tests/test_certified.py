@@ -12,10 +12,13 @@ from click.testing import CliRunner
 from rlpgo_cli.compare import main as compare_main
 from rlpgo_cli.init import main as init_main
 
-import rlpgo_gtsam.certified as certified
+import rlpgo_gtsam.relaxation.circles as circles
+import rlpgo_gtsam.relaxation.staircase as staircase
 from rlpgo_gtsam import PoseGraph2D, generate, write_g2o
-from rlpgo_gtsam.certified import Status, certify, descend, synchronize
-from rlpgo_gtsam.chordal import chordal_orientations
+from rlpgo_gtsam.chordal import chordal_rotations
+from rlpgo_gtsam.relaxation import Status, certify, descend, relaxation_cost, synchronize
+from rlpgo_gtsam.relaxation.trust_region import trust_region
+from rlpgo_gtsam.relaxation.verification import verify
 from rlpgo_gtsam.se2 import wrap
 
 
@@ -60,7 +63,7 @@ def test_an_exact_graph_ends_certified():
 def test_descend_is_the_staircase_first_rank_without_its_verification(heavy, iterations):
     # the same trust region from the same chordal start: rank 1 held, capped alike
     theta, certificate = synchronize(heavy, max_rank=1, max_iterations=iterations)
-    assert np.abs(wrap(descend(heavy, iterations) - theta)).max() < 1e-12
+    assert np.abs(wrap(descend(heavy, max_iterations=iterations) - theta)).max() < 1e-12
     assert certificate.rank == 1 and not certificate.certified  # a saddle there: no proof
 
 
@@ -115,11 +118,11 @@ def test_a_stalled_rank_is_verified_where_it_stands_and_its_bound_holds(heavy, m
     """A trust region that stops lowering the cost by 1% of n eta per 10 iterations ends its
     rank; the bound tr(Lambda) + n min(lambda_min, 0) computed there is a bound at any Y:
     it stays below the optimum the unstalled staircase reaches, and both verdicts agree."""
-    import rlpgo_gtsam.staircase as staircase
+    import rlpgo_gtsam.relaxation.trust_region as trust_region
 
     _, fully = synchronize(heavy)
     ranks: list[str] = []
-    monkeypatch.setattr(staircase, "STALL_FRACTION", 1e4)  # any slow rank stalls
+    monkeypatch.setattr(trust_region, "STALL_FRACTION", 1e4)  # any slow rank stalls
     _, stalled = synchronize(heavy, progress=ranks.append)
     assert any(line.startswith("rank 2: 10 iterations") for line in ranks)  # stalled there
     assert stalled.status == fully.status == Status.NOT_TIGHT
@@ -131,12 +134,12 @@ def test_the_rounded_estimate_is_polished_downhill_at_rank_one(heavy, monkeypatc
     relaxation cost is at most the plain rounding's (here 175 against 206, the relaxation's
     174), and it is a rank-1 critical point."""
     theta, polished = synchronize(heavy)
-    monkeypatch.setattr(certified, "polish", lambda problem, manifold, y, *args: y)
+    monkeypatch.setattr(staircase, "polish", lambda problem, manifold, y, *args: y)
     plain_theta, plain = synchronize(heavy)
     assert polished.rank == plain.rank > 1
     assert polished.estimate_cost < 0.9 * plain.estimate_cost
     assert polished.lower_bound == plain.lower_bound  # the staircase itself is unchanged
-    assert certified.relaxation_cost(heavy, theta) == pytest.approx(polished.estimate_cost)
+    assert relaxation_cost(heavy, theta) == pytest.approx(polished.estimate_cost)
     at_rank_one = certify(heavy, theta)  # Lambda at the polished z: a critical point
     assert at_rank_one.estimate_cost == pytest.approx(polished.estimate_cost)
 
@@ -153,7 +156,7 @@ def test_the_initializer_passes_its_time_limit_and_progress_on(heavy):
 
 def test_the_block_factor_solves_and_counts_the_shifted_schur_complement():
     graph = _graph(60, 0.5, 3)
-    problem = certified._Problem(graph)
+    problem = circles.PlanarProblem(graph)
     q = problem.apply(np.eye(problem.n, dtype=complex))
     shift = np.linspace(-2.0, 1.0, problem.n) * problem.scale * 1e-2
     dense = q + np.diag(shift)
@@ -166,10 +169,10 @@ def test_the_block_factor_solves_and_counts_the_shifted_schur_complement():
 def test_a_rejected_step_is_cut_from_the_recorded_cg_path_exactly(heavy):
     """After a rejected step the trust region takes the smaller radius's step from the last
     CG run's recorded path: bitwise what a new run would return, without Hessian products."""
-    from rlpgo_gtsam.staircase import _shortened, truncated_cg
+    from rlpgo_gtsam.relaxation.trust_region import _shortened, truncated_cg
 
-    problem, manifold = certified._Problem(heavy), certified._manifold()
-    y = np.exp(1j * chordal_orientations(heavy))[:, None]
+    problem, manifold = circles.PlanarProblem(heavy), circles.manifold()
+    y = np.exp(1j * chordal_rotations(heavy))[:, None]
     qy = problem.apply(y)
     lam = manifold.multipliers(y, qy)
     grad = 2.0 * (qy - manifold.times(lam, y))
@@ -210,10 +213,10 @@ def test_the_hessian_preconditioners_invert_the_hessian_and_refuse_a_saddle(heav
     Hessian (up to its shift); above rank 1 the factor of S + delta I is applied. Where the
     relaxation is not exact, rank 1's minimum is a saddle of the staircase: the tangent
     Hessian there is positive definite, S (lambda_min -1.7) is not."""
-    manifold = certified._manifold()
+    manifold = circles.manifold()
 
     def at_rank_one(graph):
-        problem = certified._Problem(graph)
+        problem = circles.PlanarProblem(graph)
         theta, _ = synchronize(graph, max_rank=1)
         y = np.exp(1j * theta)[:, None]
         lam = manifold.multipliers(y, problem.apply(y))
@@ -250,7 +253,7 @@ def test_long_runs_switch_to_the_hessian_preconditioner_and_need_fewer_products(
     products = hessian_products
     _, switched = synchronize(graph)
     with_switch, products[0] = products[0], 0
-    monkeypatch.setattr(certified, "_HESSIAN_PRECONDITIONER_AFTER", None)
+    monkeypatch.setattr(circles, "_HESSIAN_PRECONDITIONER_AFTER", None)
     _, plain = synchronize(graph)
     assert switched.certified and plain.certified
     assert with_switch < 0.5 * products[0]
@@ -260,7 +263,7 @@ def test_long_runs_switch_to_the_hessian_preconditioner_and_need_fewer_products(
 def test_a_failed_saddle_escape_is_reported(monkeypatch):
     # This graph needs rank 3; with no step halvings the escape to rank 2 cannot descend.
     graph = _graph(30, 2.0, 2)
-    monkeypatch.setattr(certified, "_ESCAPE_HALVINGS", 0)
+    monkeypatch.setattr(circles, "_ESCAPE_HALVINGS", 0)
     _, certificate = synchronize(graph, max_rank=2)
     _ended(certificate, Status.SADDLE_ESCAPE_FAILED)
     assert "saddle escape failed at rank 2" in certificate.describe()
@@ -268,8 +271,8 @@ def test_a_failed_saddle_escape_is_reported(monkeypatch):
 
 def test_an_unconverged_eigenvalue_is_reported_and_its_bound_stays_a_bound(monkeypatch, heavy):
     _, exact = synchronize(heavy, max_rank=1)  # the dense verification's lambda_min
-    monkeypatch.setattr(certified, "_DENSE_BELOW", 0)
-    monkeypatch.setattr(certified, "_ARPACK_OPTIONS", {"maxiter": 1, "ncv": 5})
+    monkeypatch.setattr(circles, "_DENSE_BELOW", 0)
+    monkeypatch.setattr(circles, "_ARPACK_OPTIONS", {"maxiter": 1, "ncv": 5})
     _, certificate = synchronize(heavy, max_rank=1)
     _ended(certificate, Status.EIGENVALUE_IMPRECISE)
     assert certificate.estimate_cost == exact.estimate_cost  # the same Y, verified otherwise
@@ -288,18 +291,18 @@ def test_certify_refuses_a_non_optimal_estimate(heavy):
                                                    (0.4, 1, "odometry")])
 def test_sparse_and_dense_verification_agree(monkeypatch, sigma_r, seed, point):
     graph = _graph(200, sigma_r, seed)
-    problem = certified._Problem(graph)
+    problem = circles.PlanarProblem(graph)
     eta = problem.tolerance(None)
     if point == "odometry":  # many negative eigenvalues
         y = np.exp(1j * graph.poses[:, 2])[:, None]
     else:  # a critical point at rank 1: the optimum, or a saddle with a few negative ones
-        start = np.exp(1j * chordal_orientations(graph))[:, None]
-        y, _ = certified._trust_region(problem, start, 300,
-                                       1e-9 * np.sqrt(problem.n) * problem.scale)
-    assert problem.n < certified._DENSE_BELOW
-    dense = certified._verify(problem, y, eta)
-    monkeypatch.setattr(certified, "_DENSE_BELOW", 0)
-    sparse = certified._verify(problem, y, eta)
+        start = np.exp(1j * chordal_rotations(graph))[:, None]
+        y, _ = trust_region(problem, circles.manifold(), start, 300,
+                            1e-9 * np.sqrt(problem.n) * problem.scale)
+    assert problem.n < circles._DENSE_BELOW
+    dense = verify(problem, circles.manifold(), y, eta)
+    monkeypatch.setattr(circles, "_DENSE_BELOW", 0)
+    sparse = verify(problem, circles.manifold(), y, eta)
     assert dense.certified is sparse.certified is (point == "optimum")
     assert not sparse.imprecise and sparse.trace == dense.trace
     # At an optimum lambda_min is 0 up to round-off: compared on the problem's scale.
@@ -318,7 +321,7 @@ def test_the_chordal_estimate_is_the_rank_one_optimum_of_an_exact_graph():
     def error(a, b):
         return np.abs(wrap(gauge_free(a) - gauge_free(b))).max()
 
-    chordal = chordal_orientations(graph)
+    chordal = chordal_rotations(graph)
     theta, certificate = synchronize(graph, max_rank=1)  # the staircase held at rank 1
     assert certificate.certified and certificate.rank == 1
     assert error(chordal, truth) < 1e-8 and error(theta, truth) < 1e-8
@@ -350,7 +353,7 @@ def test_both_commands_print_the_status_and_json_records_the_certificate_once(tm
 def test_truncated_cg_past_its_deadline_hands_over_one_descending_step():
     """The deadline bites between CG's iterations: one runs, and its step lowers the model
     (the trust region takes it if the cost agrees); without a deadline CG goes on."""
-    from rlpgo_gtsam.staircase import truncated_cg
+    from rlpgo_gtsam.relaxation.trust_region import truncated_cg
 
     rng = np.random.default_rng(0)
     a = rng.standard_normal((40, 40))
@@ -378,11 +381,11 @@ def test_the_verification_asks_its_hook_before_each_long_step_and_ends_on_time_u
     the eigen-solver's solves (with the solves so far), changes nothing, and raising
     TimeUp there ends the verification: the staircase's deadline inside its longest step
     (16 s of 34 on 200,000 poses)."""
-    from rlpgo_gtsam.staircase import TimeUp, verify
+    from rlpgo_gtsam.relaxation.verification import TimeUp
 
     graph = _graph(320, 0.4, 1)
-    problem, manifold = certified._Problem(graph), certified._manifold()
-    assert problem.n >= certified._DENSE_BELOW
+    problem, manifold = circles.PlanarProblem(graph), circles.manifold()
+    assert problem.n >= circles._DENSE_BELOW
     y = np.exp(1j * synchronize(graph, max_rank=1)[0])[:, None]
     eta = problem.tolerance(None)
     seen: list[int] = []

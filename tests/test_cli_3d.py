@@ -5,6 +5,7 @@ gtsam.readG2o reads them, weighed as SE-Sync reads them)."""
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 import subprocess
@@ -23,31 +24,39 @@ from rlpgo_cli.init import main as init_main
 from rlpgo_gtsam import (
     InformationWarning,
     RlpgoError,
-    g2o3d,
-    read_g2o3d,
+    read_g2o,
     staged_initialize,
     write_g2o,
 )
-from rlpgo_gtsam.dimension import COMPARISON_3D, METHODS_3D, g2o_dimension, read_pose_graph
-from rlpgo_gtsam.g2o3d import G2O_TO_GTSAM
-from rlpgo_gtsam.graph import information_problem
-from rlpgo_gtsam.graph3d import (
-    INDEFINITE,
-    LIFTED,
+from rlpgo_gtsam.graph import (
     PoseGraph3D,
     extract_pose_graph,
-    information_problem_6,
-    information_rule_3d,
-    printed_informations,
     rotation_weights,
     translation_weights,
 )
-from rlpgo_gtsam.initializers3d import INITIALIZERS_3D
+from rlpgo_gtsam.groups import SE2, SE3
+from rlpgo_gtsam.information import (
+    INDEFINITE,
+    LIFTED,
+    information_problem,
+    information_problem_6,
+    information_rule_3d,
+    printed_informations,
+)
+from rlpgo_gtsam.initializers import initializer_names, make_initializer
+from rlpgo_gtsam.io import file_group, write
+from rlpgo_gtsam.io.formats import G2O_TO_GTSAM, SPATIAL
+from rlpgo_gtsam.ranking import comparison_methods
 from rlpgo_gtsam.residuals import outlier_suspicion
 from rlpgo_gtsam.solvers import refine
 from rlpgo_gtsam.staged import SEARCHES, SEARCHES_3D
 from rlpgo_gtsam.synthetic import add_outliers, generate
 from tests.conftest import cli_error, cli_ok, dataset
+
+# the 3D method names (the registry's) and rlpgo-compare's 3D rows
+METHODS_3D = tuple(initializer_names(SE3))
+COMPARISON_3D = tuple(comparison_methods(SE3))
+INITIALIZERS_3D = {name: functools.partial(make_initializer, name) for name in METHODS_3D}
 
 # SE-Sync's rounded estimate + GTSAM LM30 on these files (datasets/3d/README.md)
 SESYNC_LM30 = {"tinyGrid3D": 18.6278, "smallGrid3D": 1035.85}
@@ -79,8 +88,8 @@ def assert_same_edges_3d(source: Path, output: Path) -> None:
     information to a relative 1e-12."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InformationWarning)
-        graph, _ = read_g2o3d(source)
-        written, _ = read_g2o3d(output)
+        graph, _ = read_g2o(source)
+        written, _ = read_g2o(output)
     assert written.size() == graph.size()
     for k in range(graph.size()):
         ours, theirs = written.at(k), graph.at(k)
@@ -108,7 +117,7 @@ def test_default_certifies_and_reaches_sesync_lm30(tmp_path, name):
     assert summary["method"] == "certified"
     assert float(summary["chi2"]) == pytest.approx(SESYNC_LM30[name], rel=1e-4)
     assert_same_edges_3d(source, output)
-    graph, values = read_g2o3d(output)  # the written guess is the reported one
+    graph, values = read_g2o(output)  # the written guess is the reported one
     assert 2 * graph.error(values) == pytest.approx(SESYNC_LM30[name], rel=1e-4)
 
 
@@ -140,7 +149,7 @@ def test_refine_none_writes_the_certified_guess(tmp_path):
     result = run_init(dataset("3d/tinyGrid3D.g2o"), "-o", output, "--refine", "none")
     cli_ok(result)
     guess = float(re.search(r"guess chi2 (\S+),", result.stdout)[1])
-    graph, values = read_g2o3d(output)
+    graph, values = read_g2o(output)
     assert 2 * graph.error(values) == pytest.approx(guess, rel=1e-5)
     assert guess > SESYNC_LM30["tinyGrid3D"]  # not refined
 
@@ -199,7 +208,7 @@ def test_budget_cuts_the_certified_stage_and_still_writes(tmp_path):
     assert "(the stages' share of --budget 0.001 s after reading smallGrid3D.g2o" in result.stdout
     assert "certificate: not certified" in result.stdout or \
         "time limit" in result.stdout.split("certificate: ")[1].splitlines()[0]
-    graph, values = read_g2o3d(output)
+    graph, values = read_g2o(output)
     assert np.isfinite(2 * graph.error(values))
 
 
@@ -233,7 +242,8 @@ def test_the_agent_and_planar_methods_are_one_line_on_3d(tmp_path):
     # a 3D name on a planar file: the same kind of line
     planar = dataset("MIT.g2o")
     message = cli_error(run_init(planar, "-o", output, "--method", "initialize_pose3"))
-    assert "unknown method 'initialize_pose3'" in message
+    assert message == (f"{planar} holds a planar pose graph: 'initialize_pose3' is a 3D method; "
+                       f"the planar methods are {', '.join(initializer_names(SE2))}")
     cli_error(run_init(source, "-o", output, "--method", "nonsense"), "nonsense", code=2)
     assert not output.exists()
 
@@ -294,18 +304,18 @@ def test_mixed_files_are_an_error_with_the_line(tmp_path):
 
 
 def test_dimension_is_told_by_the_first_pose_line(tmp_path):
-    assert g2o_dimension(dataset("3d/tinyGrid3D.g2o")) == 3
-    assert g2o_dimension(dataset("MIT.g2o")) == 2
+    assert file_group(dataset("3d/tinyGrid3D.g2o")).dimension == 3
+    assert file_group(dataset("MIT.g2o")).dimension == 2
     path = tmp_path / "g.g2o"
     tiny = dataset("3d/tinyGrid3D.g2o").read_text()
     path.write_text("# a comment\n\nFIX 0\n" + tiny)
-    assert g2o_dimension(path) == 3
-    graph, values = read_pose_graph(path)
+    assert file_group(path).dimension == 3
+    graph, values = read_g2o(path)
     assert isinstance(extract_pose_graph(graph, values), PoseGraph3D)
     path.write_text("FOO 1 2\n" + tiny)
-    assert g2o_dimension(path) == 2  # the planar reader names the unknown tag
+    assert file_group(path).dimension == 2  # the planar reader names the unknown tag
     with pytest.raises(RlpgoError, match=r":1: unknown tag 'FOO'"):
-        read_pose_graph(path)
+        read_g2o(path)
 
 
 def test_the_planar_names_of_the_3d_methods_are_the_registry_s():
@@ -320,8 +330,7 @@ _LOADED = ("import sys\n"
            "except SystemExit as stop:\n"
            "    assert not stop.code, stop.code\n"
            "print(' '.join(m for m in sys.modules if m.startswith('rlpgo_gtsam')))\n")
-_MODULES_3D = {"rlpgo_gtsam.g2o3d", "rlpgo_gtsam.initializers3d", "rlpgo_gtsam.certified3d",
-               "rlpgo_gtsam.chordal3d", "rlpgo_gtsam.translations3d"}
+_MODULES_3D = {"rlpgo_gtsam.relaxation.stiefel"}
 
 
 @pytest.mark.parametrize("name, loaded", [("MIT.g2o", False), ("3d/tinyGrid3D.g2o", True)])
@@ -330,7 +339,7 @@ def test_a_planar_command_loads_no_3d_module(tmp_path, name, loaded):
                            str(tmp_path / "out.g2o")], capture_output=True, text=True,
                           check=True, timeout=120)
     modules = set(done.stdout.splitlines()[-1].split())
-    assert "rlpgo_gtsam.dimension" in modules
+    assert "rlpgo_gtsam.io" in modules
     assert (_MODULES_3D <= modules) if loaded else not (_MODULES_3D & modules)
 
 
@@ -383,7 +392,7 @@ def test_compare_refuses_planar_options_on_3d_files(tmp_path):
 
 
 def test_staged_checks_searches_against_the_dimension():
-    graph, values = read_g2o3d(dataset("3d/tinyGrid3D.g2o"))
+    graph, values = read_g2o(dataset("3d/tinyGrid3D.g2o"))
     with pytest.raises(RlpgoError, match="'rl': the agent is planar"):
         staged_initialize(graph, values, searches=SEARCHES)
     run = staged_initialize(graph, values, searches=SEARCHES_3D)
@@ -394,7 +403,7 @@ def test_staged_checks_searches_against_the_dimension():
 def test_outlier_hint_on_a_corrupted_3d_graph():
     """smallGrid3D's residuals are Gaussian; with 20 loop closures turned by 90 degrees
     the refined result's are not, and the hint names the 6-dof bound."""
-    graph, values = read_g2o3d(dataset("3d/smallGrid3D.g2o"))
+    graph, values = read_g2o(dataset("3d/smallGrid3D.g2o"))
     g = PoseGraph3D.from_gtsam(graph, values)
     clean = refine(graph, INITIALIZERS_3D["certified"]().run(g).values, pose_graph=g)
     assert outlier_suspicion(g, clean.values) is None
@@ -425,7 +434,7 @@ def test_parking_garage_is_read_with_its_matrices_as_they_are():
     path = dataset("3d/parking-garage.g2o")
     with warnings.catch_warnings():
         warnings.simplefilter("error", InformationWarning)
-        graph, values = read_g2o3d(path)
+        graph, values = read_g2o(path)
     lines = path.read_text().splitlines()
     first_edge = next(n for n, line in enumerate(lines) if line.startswith("EDGE_SE3:QUAT"))
     worst = _file_information(lines[3594 - 1])
@@ -467,7 +476,7 @@ def test_cubicle_indefinite_matrices_are_read_as_gtsam_reads_them(tmp_path):
     assert indefinite.sum() == 40
     assert np.all(eigenvalues[indefinite, 0] < -1e-3 * eigenvalues[indefinite, -1])  # not 1e-5
     with pytest.warns(InformationWarning) as caught:
-        graph, values = read_g2o3d(path)
+        graph, values = read_g2o(path)
     [warning] = caught
     first = edges[int(np.flatnonzero(indefinite)[0])]
     assert str(warning.message) == (
@@ -502,7 +511,8 @@ def test_cubicle_indefinite_matrices_are_read_as_gtsam_reads_them(tmp_path):
                                    _sesync_weights(expected), strict=True):
             np.testing.assert_allclose(weights, wanted, rtol=1e-9)
     # both writers write the printed matrices of GTSAM's partial factors
-    assert g2o3d._text_fast(theirs, their_values) == g2o3d._text_careful(theirs, their_values)
+    assert write.text_fast(theirs, their_values, SPATIAL) == write.text_careful(
+        theirs, their_values, SPATIAL)
     result = run_init(path, "-o", tmp_path / "out.g2o", "--json", tmp_path / "run.json")
     cli_ok(result)
     assert result.stdout.startswith(f"note: {warning.message}\n")

@@ -3,7 +3,7 @@ import json
 from click.testing import CliRunner
 from rlpgo_cli.compare import main
 
-from rlpgo_gtsam import OrientationInitializer, SolverError, initializers, register, write_g2o
+from rlpgo_gtsam import RotationInitializer, SolverError, initializers, register, write_g2o
 from tests.conftest import cli_error, dataset
 
 RECORD_KEYS = {"dataset", "poses", "edges", "method", "init_chi2", "init_seconds", "solver",
@@ -54,8 +54,8 @@ def test_a_failing_method_is_reported_and_the_others_still_run(tmp_path, monkeyp
     """An initializer that raises (registered as users register theirs) is a FAILED row; the
     others still run and the run exits 1."""
 
-    class Failing(OrientationInitializer):
-        def orientations(self, pose_graph, start_theta=None):
+    class Failing(RotationInitializer):
+        def rotations(self, pose_graph, start=None):
             raise SolverError("indeterminate on purpose")
 
     monkeypatch.setattr(initializers, "_REGISTRY", dict(initializers._REGISTRY))

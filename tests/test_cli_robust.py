@@ -22,8 +22,8 @@ from rlpgo_cli.init import FALSE_REJECTIONS_DEFAULT
 from rlpgo_cli.init import main as init_main
 
 from rlpgo_gtsam import read_g2o, read_g2o_lines, refine
-from rlpgo_gtsam.g2o import edge_list_text, g2o_text_lines
-from rlpgo_gtsam.robust import DEFAULT_FALSE_REJECTION_RATE, robust_initialize
+from rlpgo_gtsam.io import edge_list_text, g2o_text_lines
+from rlpgo_gtsam.robust import RobustSettings, robust_initialize
 from rlpgo_gtsam.synthetic import generate
 from tests.conftest import assert_same_edges, cli_error, cli_ok
 
@@ -233,7 +233,7 @@ def test_false_rejections_reaches_the_robust_path(with_outliers, tmp_path):
     # the rate goes to robust_initialize as given (0: the false-rejection bar off, so the
     # verify step reports no unlikely fit) and into the record; --help's default is the
     # library's
-    assert FALSE_REJECTIONS_DEFAULT == DEFAULT_FALSE_REJECTION_RATE
+    assert FALSE_REJECTIONS_DEFAULT == RobustSettings().false_rejection_rate
     record = tmp_path / "r.json"
     result = _run(init_main, with_outliers.graph, "-o", tmp_path / "o.g2o", "--robust",
                   "--false-rejections", 0, "--json", record)
@@ -253,7 +253,8 @@ def test_the_record_names_the_false_rejection_rate_used_when_none_is_given(with_
     record = tmp_path / "r.json"
     cli_ok(_run(init_main, with_outliers.graph, "-o", tmp_path / "o.g2o", "--robust",
                 "--json", record))
-    assert json.loads(record.read_text())["false_rejection_rate"] == DEFAULT_FALSE_REJECTION_RATE
+    assert (json.loads(record.read_text())["false_rejection_rate"]
+            == RobustSettings().false_rejection_rate)
 
 
 def test_doubtful_closures_are_named_and_recorded(with_outliers, tmp_path):

@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 
 from rlpgo_gtsam import PoseGraph2D
-from rlpgo_gtsam.graph import odometry_edges
-from rlpgo_gtsam.graph3d import PoseGraph3D
+from rlpgo_gtsam.graph import PoseGraph3D, odometry_edges
+from rlpgo_gtsam.groups import group_of
 from rlpgo_gtsam.robust.consistency import ChainTree, pairwise_consistency
-from rlpgo_gtsam.robust.groups import group_of
 from rlpgo_gtsam.se2 import adjoint, compose, inverse
 from rlpgo_gtsam.se3 import exp_so3
 

@@ -28,7 +28,7 @@ from rlpgo_cli.compare import main
 from rlpgo_cli.init import main as init_main
 
 from rlpgo_gtsam.errors import G2oFormatError, OutputError
-from rlpgo_gtsam.g2o import MAX_LINE_BYTES, read_g2o, write_g2o
+from rlpgo_gtsam.io import MAX_LINE_BYTES, read_g2o, write_g2o
 from tests.conftest import assert_same_factors, cli_error, factor_rows
 
 INFO = "1 0 0 1 0 1"
@@ -169,9 +169,9 @@ CASES = [
     Case("fix_bad_id", insert(7, "FIX 0 x"), 7,
          "vertex id must be a non-negative integer, found 'x'"),
     # tags
-    Case("vertex_se3_quat", replace(1, "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1"), 1,
-         "VERTEX_SE3:QUAT: 3D graphs are not supported by the planar reader (read them with "
-         "rlpgo_gtsam.read_g2o3d or read_pose_graph)"),
+    # a 3D first pose line makes a 3D file: the planar lines after it are the error
+    Case("vertex_se3_quat", replace(1, "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1"), 2,
+         "VERTEX_SE2: a planar line in a 3D file (a file holds 2D or 3D lines, not both)"),
     Case("edge_se3_quat",
          replace(4, "EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 " + " ".join(["1", "0", "0", "0", "0", "0",
                                                                   "1", "0", "0", "0", "0",

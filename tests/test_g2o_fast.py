@@ -14,9 +14,11 @@ import gtsam
 import numpy as np
 import pytest
 
-from rlpgo_gtsam import g2o
+from rlpgo_gtsam import io
 from rlpgo_gtsam.errors import OutputError
 from rlpgo_gtsam.graph import PoseGraph2D
+from rlpgo_gtsam.io import formats, read, scan, write
+from rlpgo_gtsam.io.formats import PLANAR
 from rlpgo_gtsam.synthetic import generate
 from tests.conftest import DATASETS
 
@@ -40,8 +42,20 @@ def _rows(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[list
     return factors, poses
 
 
+def _text_fast(graph, values):
+    return write.text_fast(graph, values, PLANAR)
+
+
+def _text_careful(graph, values):
+    return write.text_careful(graph, values, PLANAR)
+
+
+def _text_of_extraction(graph, values, made):
+    return write.text_of_extraction(graph, values, made, PLANAR)
+
+
 def _careful_read(path: Path):
-    return g2o._build(path, g2o._read_table(path, fast=False), extract=True)
+    return read.build(path, read.read_table(path, PLANAR, fast=False), PLANAR, extract=True)
 
 
 def _assert_same_extraction(made: PoseGraph2D, graph: gtsam.NonlinearFactorGraph,
@@ -58,7 +72,7 @@ def _assert_same_extraction(made: PoseGraph2D, graph: gtsam.NonlinearFactorGraph
 
 
 def _assert_same_read(path: Path) -> None:
-    graph, values, lines, made = g2o.read_g2o_extracted(path)
+    graph, values, lines, made = io.read_g2o_extracted(path)
     graph2, values2, lines2, made2 = _careful_read(path)
     assert lines == lines2
     assert _rows(graph, values) == _rows(graph2, values2)
@@ -68,7 +82,7 @@ def _assert_same_read(path: Path) -> None:
 
 def _fast_scan_accepts(path: Path) -> bool:
     with path.open("rb") as handle:
-        return g2o._scan(handle) is not None
+        return scan.scan(handle, PLANAR) is not None
 
 
 @pytest.mark.parametrize("n, seed, noisy, fixed", [
@@ -83,22 +97,22 @@ def test_generated_graphs_read_and_write_the_same_both_ways(tmp_path, n, seed, n
             graph.add(gtsam.PriorFactorPose2(key, values.atPose2(key),
                                              gtsam.noiseModel.Constrained.All(3)))
     # _text_fast must take this graph, and write what the careful writer writes
-    written = g2o._text_fast(graph, values)
+    written = _text_fast(graph, values)
     assert written is not None
-    assert written == g2o._text_careful(graph, values)
+    assert written == _text_careful(graph, values)
     path = tmp_path / "g.g2o"
     path.write_text(written[0])
     assert _fast_scan_accepts(path)  # the speed comes from here: it must not fall back
     _assert_same_read(path)
     # what was read writes the same text again, on both paths
-    graph2, values2 = g2o.read_g2o(path)
-    assert g2o._text_fast(graph2, values2) == g2o._text_careful(graph2, values2) == written
+    graph2, values2 = io.read_g2o(path)
+    assert _text_fast(graph2, values2) == _text_careful(graph2, values2) == written
 
 
 def test_edge_only_file_chains_the_same_both_ways(tmp_path):
     sample = generate(300, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(4),
                       noisy_measurements=True)
-    text = g2o.g2o_text(sample.graph, sample.initial)
+    text = io.g2o_text(sample.graph, sample.initial)
     path = tmp_path / "edges.g2o"
     path.write_text("".join(line + "\n" for line in text.splitlines()
                             if line.startswith("EDGE_SE2")))
@@ -112,11 +126,11 @@ def test_datasets_read_and_write_the_same_both_ways(name):  # distinct informati
     if not path.exists():
         pytest.skip(f"{path} not found (set RLPGO_DATASETS)")
     _assert_same_read(path)
-    graph, values = g2o.read_g2o(path)
-    assert g2o._text_fast(graph, values) == g2o._text_careful(graph, values)
+    graph, values = io.read_g2o(path)
+    assert _text_fast(graph, values) == _text_careful(graph, values)
     # a graph from gtsam.readG2o: one noise model object per edge, no FIX
     graph, values = gtsam.readG2o(str(path), False)
-    assert g2o._text_fast(graph, values) == g2o._text_careful(graph, values)
+    assert _text_fast(graph, values) == _text_careful(graph, values)
 
 
 BASE = [
@@ -153,11 +167,11 @@ def test_a_file_across_chunks_keeps_its_line_numbers(tmp_path, monkeypatch):
     """Lines split over chunk boundaries (tiny chunks) still come back whole, numbered."""
     sample = generate(120, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(5))
     path = tmp_path / "g.g2o"
-    path.write_text("# header\n\n" + g2o.g2o_text(sample.graph, sample.initial))
-    whole = g2o.read_g2o_lines(path)
-    monkeypatch.setattr(g2o, "_CHUNK_BYTES", 97)
+    path.write_text("# header\n\n" + io.g2o_text(sample.graph, sample.initial))
+    whole = io.read_g2o_lines(path)
+    monkeypatch.setattr(scan, "_CHUNK_BYTES", 97)
     assert _fast_scan_accepts(path)
-    chunked = g2o.read_g2o_lines(path)
+    chunked = io.read_g2o_lines(path)
     assert chunked[2] == whole[2]
     assert _rows(*chunked[:2]) == _rows(*whole[:2])
     _assert_same_read(path)
@@ -171,14 +185,14 @@ def test_values_built_by_gtsam_are_the_values_inserted_one_by_one(tmp_path):
                       noisy_measurements=True)
     path = tmp_path / "g.g2o"
     path.write_text("\n".join(line.replace(" ", "\t", 2) if k % 7 == 0 else line
-                              for k, line in enumerate(g2o.g2o_text(sample.graph,
+                              for k, line in enumerate(io.g2o_text(sample.graph,
                                                                     sample.initial).splitlines()))
                     + "\n")
-    table = g2o._read_table(path, fast=True)
+    table = read.read_table(path, PLANAR)
     assert table.vertex_text is not None
     order = np.argsort(table.vertex_keys)
-    keys, poses = table.vertex_keys[order], table.vertex_poses[order]
-    values = g2o._values_by_gtsam(table.vertex_text, keys, poses)
+    keys, poses = table.vertex_keys[order], table.vertex_numbers[order]
+    values = formats._values_by_gtsam(table.vertex_text, keys, poses)
     if not hasattr(__import__("os"), "memfd_create"):
         assert values is None
         return
@@ -217,18 +231,18 @@ def test_gtsam_reads_every_number_the_checks_pass_as_float_does(tmp_path):
     lines += [f"EDGE_SE2 {k} {k + 1} 1 0 0 1 0 0 1 0 1" for k in range(n - 1)]
     path = tmp_path / "forms.g2o"
     path.write_text("\n".join(lines) + "\n")
-    table = g2o._read_table(path, fast=True)
+    table = read.read_table(path, PLANAR)
     assert table.vertex_text is not None  # the fast reader took every line
     if not hasattr(__import__("os"), "memfd_create"):
         pytest.skip("GTSAM's parser builds the values through a memfd (Linux) only")
     order = np.argsort(table.vertex_keys)
-    values = g2o._values_by_gtsam(table.vertex_text, table.vertex_keys[order],
-                                  table.vertex_poses[order])
+    values = formats._values_by_gtsam(table.vertex_text, table.vertex_keys[order],
+                                      table.vertex_numbers[order])
     assert values is not None and values.size() == n
     for k, line in enumerate(lines[:n]):
         x, y, theta = map(float, line.split()[2:])
-        read = values.atPose2(k).matrix().tobytes()
-        assert read == gtsam.Pose2(x, y, theta).matrix().tobytes(), line
+        built = values.atPose2(k).matrix().tobytes()
+        assert built == gtsam.Pose2(x, y, theta).matrix().tobytes(), line
 
 
 def test_the_reader_extracts_shuffled_ids_and_wrapped_angles_as_extraction_does(tmp_path):
@@ -239,7 +253,7 @@ def test_the_reader_extracts_shuffled_ids_and_wrapped_angles_as_extraction_does(
     rng = np.random.default_rng(8)
     ids = (rng.permutation(150) * 10 + 7).tolist()
     vertices, edges = [], []
-    for line in g2o.g2o_text(sample.graph, sample.initial).splitlines():
+    for line in io.g2o_text(sample.graph, sample.initial).splitlines():
         tag, *fields = line.split()
         if tag == "VERTEX_SE2":
             vertices.append(" ".join([tag, str(ids[int(fields[0])]), *fields[1:]]))
@@ -252,7 +266,7 @@ def test_the_reader_extracts_shuffled_ids_and_wrapped_angles_as_extraction_does(
     path.write_text("\n".join([*vertices, *edges, f"FIX {ids[40]} {ids[3]}", f"FIX {ids[9]}"])
                     + "\n")
     _assert_same_read(path)
-    graph, values, _, made = g2o.read_g2o_extracted(path)
+    graph, values, _, made = io.read_g2o_extracted(path)
     assert made.anchor == int(np.searchsorted(made.keys, ids[40])) and len(made.fixed) == 3
 
 
@@ -264,14 +278,14 @@ def test_text_from_the_extraction_is_the_walks_text(name):
     path = DATASETS / name
     if not path.exists():
         pytest.skip(f"{path} not found (set RLPGO_DATASETS)")
-    graph, values, _, made = g2o.read_g2o_extracted(path)
+    graph, values, _, made = io.read_g2o_extracted(path)
     moved = gtsam.Values()
     for key in values.keys():
         pose = values.atPose2(key)
         moved.insert(key, gtsam.Pose2(pose.x() + 0.1, pose.y() - 1e-7, pose.theta() + 3.0))
     for guess in (values, moved):
-        assert g2o._text_of_extraction(graph, guess, made) == g2o.g2o_text(graph, guess)
-    assert g2o._text_of_extraction(gtsam.NonlinearFactorGraph(graph), values, made) is None
+        assert _text_of_extraction(graph, guess, made) == io.g2o_text(graph, guess)
+    assert _text_of_extraction(gtsam.NonlinearFactorGraph(graph), values, made) is None
 
 
 def test_text_from_the_extraction_with_fix_and_a_soft_prior(tmp_path):
@@ -282,13 +296,33 @@ def test_text_from_the_extraction_with_fix_and_a_soft_prior(tmp_path):
         graph.add(gtsam.PriorFactorPose2(key, values.atPose2(key),
                                          gtsam.noiseModel.Constrained.All(3)))
     made = PoseGraph2D.from_gtsam(graph, values)
-    written = g2o.g2o_text(graph, values, made)
-    assert g2o._text_of_extraction(graph, values, made) == written == g2o.g2o_text(graph, values)
+    written = io.g2o_text(graph, values, made)
+    assert _text_of_extraction(graph, values, made) == written == io.g2o_text(graph, values)
     assert written.endswith("FIX 7 3 7\n")
     # a soft prior: a g2o file cannot hold it, with the extraction or without
     graph.add(gtsam.PriorFactorPose2(5, values.atPose2(5), gtsam.noiseModel.Isotropic.Sigma(3, 1)))
     made = PoseGraph2D.from_gtsam(graph, values)
-    assert g2o._text_of_extraction(graph, values, made) is None
+    assert _text_of_extraction(graph, values, made) is None
     for extraction in (None, made):
         with pytest.raises(OutputError, match="prior"):
-            g2o.g2o_text(graph, values, extraction)
+            io.g2o_text(graph, values, extraction)
+
+
+@pytest.mark.parametrize("name", ["MIT.g2o", "3d/smallGrid3D.g2o"])
+def test_a_pipe_is_read_once_as_its_file_reads(tmp_path, name):
+    """A FIFO (``<(cat file)``) can be read once: the reader finds the file's group and
+    reads its graph from the same stream, the careful reader's way."""
+    import os
+    import threading
+
+    path = DATASETS / name
+    if not path.exists():
+        pytest.skip(f"{path} not found (set RLPGO_DATASETS)")
+    fifo = tmp_path / "graph.g2o"
+    os.mkfifo(fifo)
+    writer = threading.Thread(target=fifo.write_bytes, args=(path.read_bytes(),), daemon=True)
+    writer.start()
+    graph, values, lines = io.read_g2o_lines(fifo)
+    writer.join(timeout=10)
+    assert (io.g2o_text(graph, values), lines) == (io.g2o_text(*io.read_g2o(path)),
+                                                   io.read_g2o_lines(path)[2])

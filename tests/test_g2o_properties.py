@@ -33,7 +33,7 @@ from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
 
 from rlpgo_gtsam.errors import G2oFormatError, OutputError
-from rlpgo_gtsam.g2o import g2o_text_lines, read_g2o, read_g2o_lines, write_g2o
+from rlpgo_gtsam.io import g2o_text_lines, read_g2o, read_g2o_lines, write_g2o
 
 READ_SECONDS = 2.0  # the most one read of these small files may take
 HANG_SECONDS = 20  # a read still running after this long is stopped and reported as a hang

@@ -31,7 +31,7 @@ from rlpgo_gtsam import (
     write_g2o,
 )
 from rlpgo_gtsam.files import write_together
-from rlpgo_gtsam.g2o import MAX_LINE_BYTES
+from rlpgo_gtsam.io import MAX_LINE_BYTES
 
 CHAIN = "".join(f"VERTEX_SE2 {k} {k}.0 0 0\n" for k in range(4))
 

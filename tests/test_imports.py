@@ -104,6 +104,6 @@ def test_reading_a_planar_file_loads_no_masked_arrays():
     from tests.conftest import dataset
 
     path = dataset("MIT.g2o")
-    loaded = _loaded_after(f"from rlpgo_gtsam.g2o import read_g2o_extracted\n"
+    loaded = _loaded_after(f"from rlpgo_gtsam.io import read_g2o_extracted\n"
                            f"read_g2o_extracted({str(path)!r})")
-    assert "rlpgo_gtsam.g2o" in loaded and "numpy.ma" not in loaded
+    assert "rlpgo_gtsam.io" in loaded and "numpy.ma" not in loaded

@@ -15,6 +15,7 @@ from rlpgo_gtsam import (
     register,
 )
 from rlpgo_gtsam.graph import component_labels
+from rlpgo_gtsam.groups import SE2, SE3
 from rlpgo_gtsam.initializers import OdometryInitializer
 from rlpgo_gtsam.se2 import wrap
 from tests.conftest import dataset
@@ -163,11 +164,12 @@ def test_edge_graphs_keep_each_edges_noise_with_one_model_per_value(name, models
     measured with the noise it gets from its own information (Intel: nearly every edge its
     own), a model made once per distinct value (M3500's 5453 edges: three)."""
     from rlpgo_gtsam.graph import rotation_weights
-    from rlpgo_gtsam.initializers import _edge_factors
+    from rlpgo_gtsam.initializers import _edge_factors, _shared_models
 
     g = PoseGraph2D.from_gtsam(*read_g2o(dataset(name)))
     weights = rotation_weights(g)
-    factors = _edge_factors(g, weights, lambda w: gtsam.noiseModel.Isotropic.Precision(3, w))
+    factors = _edge_factors(g, _shared_models(
+        weights, lambda w: gtsam.noiseModel.Isotropic.Precision(3, w)))
     assert len(factors) == g.num_edges
     for (i, j), z, w, factor in zip(g.edges.tolist(), g.measured, weights, factors,
                                     strict=True):
@@ -176,3 +178,78 @@ def test_edge_graphs_keep_each_edges_noise_with_one_model_per_value(name, models
         assert factor.equals(alone, 0.0)
     held = [factor.noiseModel() for factor in factors]  # alive: one wrapper per model
     assert len({id(model) for model in held}) == (models or len(np.unique(weights)))
+
+
+# --------------------------------------------------------------------------- both groups
+
+def _both_groups_graphs():
+    """A small generated planar graph and a 3D one, odometry noisy enough that the guess
+    from the vertices is far from the optimum."""
+    from rlpgo_gtsam.synthetic import generate3d
+
+    return {"planar": generate(60, 0.1, 0.05, 2.0, 0.5, np.random.default_rng(1),
+                               noisy_measurements=True),
+            "3D": generate3d(60, 0.1, 0.05, 2.0, 0.5, np.random.default_rng(1),
+                             noisy_measurements=True)}
+
+
+BOTH = [name for name in initializer_names(SE2) if name in initializer_names(SE3)]
+
+
+@pytest.mark.parametrize("kind", ["planar", "3D"])
+@pytest.mark.parametrize("name", BOTH)
+def test_every_initializer_of_both_groups_takes_pose2_and_pose3_graphs(name, kind):
+    """``make_initializer(name).initialize(graph, values)`` on a Pose2 and a Pose3 graph
+    alike: values of the graph's pose type, a finite chi2, and every method but the odometry
+    itself at most the odometry guess's chi2 (each minimizes a relaxation or a part of the
+    cost from a start that ignores the drifted vertices)."""
+    sample = _both_groups_graphs()[kind]
+    values = make_initializer(name).initialize(sample.graph, sample.initial)
+    pose = gtsam.Pose2 if kind == "planar" else gtsam.Pose3
+    assert values.size() == sample.initial.size()
+    assert all(isinstance(_pose_at(values, key, pose), pose) for key in values.keys())
+    found = chi2(sample.graph, values)
+    assert np.isfinite(found)
+    assert found <= chi2(sample.graph, make_initializer("odometry").initialize(
+        sample.graph, sample.initial))
+
+
+def _pose_at(values, key, pose):
+    return values.atPose2(key) if pose is gtsam.Pose2 else values.atPose3(key)
+
+
+def test_the_certified_guess_is_the_lowest_in_both_groups_and_carries_its_certificate():
+    from rlpgo_gtsam.graph import extract_pose_graph
+
+    for kind, sample in _both_groups_graphs().items():
+        g = extract_pose_graph(sample.graph, sample.initial)
+        results = {name: make_initializer(name).run(g) for name in BOTH}
+        certified = results["certified"]
+        assert certified.certificate.certified, (kind, certified.certificate.describe())
+        assert certified.poses.shape == ((60, 3) if kind == "planar" else (60, 3, 4))
+        assert certified.chi2 == min(result.chi2 for result in results.values()), kind
+
+
+def test_a_method_of_one_group_names_the_other_groups_methods():
+    samples = _both_groups_graphs()
+    with pytest.raises(RlpgoError, match=r"^'lago' is a planar method; the 3D methods are "
+                                         r"odometry, chordal"):
+        make_initializer("lago").initialize(samples["3D"].graph, samples["3D"].initial)
+    with pytest.raises(RlpgoError, match=r"^'initialize_pose3' is a 3D method; the planar "
+                                         r"methods are odometry, lago"):
+        make_initializer("initialize_pose3").initialize(samples["planar"].graph,
+                                                        samples["planar"].initial)
+    assert "rl" in initializer_names(SE2) and "rl" not in initializer_names(SE3)
+    assert "initialize_pose3" in initializer_names(SE3)
+    assert set(initializer_names()) == set(initializer_names(SE2)) | set(initializer_names(SE3))
+
+
+@pytest.mark.parametrize("kind", ["planar", "3D"])
+def test_the_staged_runs_certificate_is_its_certified_rows(kind):
+    from rlpgo_gtsam import staged_initialize
+
+    sample = _both_groups_graphs()[kind]
+    run = staged_initialize(sample.graph, sample.initial)
+    assert run.rows[0].method == "certified"
+    assert run.certificate is run.rows[0].init.certificate
+    assert run.certificate.certified == run.certified

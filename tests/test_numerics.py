@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from rlpgo_gtsam.graph import INFORMATION_RANGE, MAX_CONDITION, information_problem
+from rlpgo_gtsam.information import INFORMATION_RANGE, MAX_CONDITION, information_problem
 from rlpgo_gtsam.numerics import numeric_call
 
 _THREADS = """

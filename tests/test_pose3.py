@@ -9,16 +9,20 @@ import gtsam
 import numpy as np
 import pytest
 
+import rlpgo_gtsam.relaxation.stiefel as spatial
 from rlpgo_gtsam import se3
-from rlpgo_gtsam.certified import Status
-from rlpgo_gtsam.certified3d import certify3d, synchronize3d
-from rlpgo_gtsam.chordal3d import chordal_rotations
+from rlpgo_gtsam.chordal import chordal_rotations
 from rlpgo_gtsam.errors import G2oFormatError, GraphError, SolverError
-from rlpgo_gtsam.g2o3d import g2o3d_text, read_g2o3d, write_g2o3d
-from rlpgo_gtsam.graph import chi2
-from rlpgo_gtsam.graph3d import PoseGraph3D, edge_chi2
-from rlpgo_gtsam.initializers3d import INITIALIZERS_3D
-from rlpgo_gtsam.translations3d import DenseCholesky, poses_with_rotations
+from rlpgo_gtsam.graph import PoseGraph3D, chi2, edge_chi2
+from rlpgo_gtsam.groups import SE3
+from rlpgo_gtsam.initializers import initializer_names, make_initializer
+from rlpgo_gtsam.io import g2o_text, read_g2o, write_g2o
+from rlpgo_gtsam.linear import DenseCholesky
+from rlpgo_gtsam.relaxation import Status, certify, staircase, synchronize
+from rlpgo_gtsam.relaxation.blocks import polar_svd
+from rlpgo_gtsam.relaxation.newton import newton_point
+from rlpgo_gtsam.se3 import pose_matrices
+from rlpgo_gtsam.translations import TranslationStep, poses_with_rotations
 
 DATA = Path("/work/shared/datasets/3d")
 
@@ -105,7 +109,7 @@ def test_se3_against_gtsam():
 def test_edge_chi2_is_gtsam_error():
     graph, values, _, _ = _exact_graph(np.random.default_rng(2), noise=0.1)
     g = PoseGraph3D.from_gtsam(graph, values)
-    assert np.isclose(edge_chi2(g, g.rotations, g.translations).sum(), chi2(graph, values),
+    assert np.isclose(edge_chi2(g, g.poses).sum(), chi2(graph, values),
                       rtol=1e-12)
 
 
@@ -116,7 +120,7 @@ def test_reader_matches_gtsam(name):
     path = DATA / f"{name}.g2o"
     if not path.exists():
         pytest.skip(f"{path} absent")
-    graph, values = read_g2o3d(path)
+    graph, values = read_g2o(path)
     expected_graph, expected_values = gtsam.readG2o(str(path), True)
     assert graph.size() == expected_graph.size()
     for k in range(graph.size()):
@@ -136,12 +140,12 @@ def test_writer_round_trip(tmp_path):
     graph, values, _, _ = _exact_graph(np.random.default_rng(3), n=8, closures=3, noise=0.1)
     graph.add(gtsam.PriorFactorPose3(2, values.atPose3(2), gtsam.noiseModel.Constrained.All(6)))
     path = tmp_path / "g.g2o"
-    write_g2o3d(path, graph, values)
-    back, back_values = read_g2o3d(path)
+    write_g2o(path, graph, values)
+    back, back_values = read_g2o(path)
     for key in values.keys():  # 15 significant digits of a quaternion: equal to 1e-14
         assert np.allclose(back_values.atPose3(key).matrix(), values.atPose3(key).matrix(),
                            atol=1e-14)
-    assert g2o3d_text(back, back_values).count("\n") == path.read_text().count("\n")
+    assert g2o_text(back, back_values).count("\n") == path.read_text().count("\n")
     assert np.isclose(chi2(back, back_values), chi2(graph, values), rtol=1e-12)
     assert isinstance(back.at(back.size() - 1), gtsam.PriorFactorPose3)
 
@@ -174,7 +178,7 @@ def test_reader_errors_name_the_line(tmp_path, lines, line, reason):
     path = tmp_path / "bad.g2o"
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(G2oFormatError) as caught:
-        read_g2o3d(path)
+        read_g2o(path)
     assert str(caught.value).startswith(f"{path}:{line}: ")
     assert reason in str(caught.value)
 
@@ -184,7 +188,7 @@ def test_reader_normalizes_quaternions_and_chains_odometry(tmp_path):
     path.write_text("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 2 " + _INFO + "\n"
                     "EDGE_SE3:QUAT 1 2 0 1 0 0 0 0.7071067811865476 0.7071067811865476 "
                     + _INFO + "\n")
-    graph, values = read_g2o3d(path)
+    graph, values = read_g2o(path)
     assert np.allclose(graph.at(0).measured().rotation().matrix(), np.eye(3))
     assert np.allclose(values.atPose3(2).translation(), [1, 1, 0])
     assert np.isclose(chi2(graph, values), 0.0, atol=1e-20)
@@ -197,12 +201,12 @@ def test_fix_and_priors_are_honoured(tmp_path):
     path = tmp_path / "g.g2o"
     graph.add(gtsam.PriorFactorPose3(3, values.atPose3(3), gtsam.noiseModel.Constrained.All(6)))
     graph.add(gtsam.PriorFactorPose3(7, values.atPose3(7), gtsam.noiseModel.Constrained.All(6)))
-    write_g2o3d(path, graph, values)
-    graph, values = read_g2o3d(path)
+    write_g2o(path, graph, values)
+    graph, values = read_g2o(path)
     g = PoseGraph3D.from_gtsam(graph, values)
     assert g.anchor == 3 and g.fixed.tolist() == [3, 7]
-    for name, factory in INITIALIZERS_3D.items():
-        result = factory().run(g)
+    for name in initializer_names(SE3):
+        result = make_initializer(name).run(g)
         for key in (3, 7):
             assert np.allclose(result.values.atPose3(key).matrix(),
                                values.atPose3(key).matrix(), atol=1e-9), name
@@ -213,7 +217,7 @@ def test_fix_and_priors_are_honoured(tmp_path):
     soft.add(gtsam.PriorFactorPose3(5, prior, gtsam.noiseModel.Isotropic.Sigma(6, 0.1)))
     g = PoseGraph3D.from_gtsam(soft, values)
     assert g.anchor == 5 and len(g.fixed) == 0
-    result = INITIALIZERS_3D["chordal"]().run(g)
+    result = make_initializer("chordal").run(g)
     assert np.allclose(result.values.atPose3(5).matrix(), prior.matrix(), atol=1e-12)
 
 
@@ -240,23 +244,22 @@ def test_rounding_at_rank_3_keeps_the_blocks_as_the_svd_route_would():
     """At rank 3 with every block a rotation the rounding returns ``X_i^T``; the rank-3 SVD
     route (taken here with a zero column) gives the same rotations once the anchor is turned
     back; a block with a negative determinant sends rank 3 to the SVD route as well."""
-    import rlpgo_gtsam.certified3d as certified3d
 
     graph, values = gtsam.readG2o(str(DATA / "smallGrid3D.g2o"), True)
     g = PoseGraph3D.from_gtsam(graph, values)
-    rotations, certificate = synchronize3d(g)
+    rotations, certificate = synchronize(g)
     assert certificate.rank == 3
-    x = certified3d._stack(rotations)
+    x = spatial._stack(rotations)
 
     def anchored(r):
         return r[g.anchor].T @ r
 
-    kept = certified3d._round(x)
+    kept = spatial._round(x)
     assert np.array_equal(kept, rotations)
-    svd = certified3d._round(np.hstack([x, np.zeros((len(x), 1))]))
+    svd = spatial._round(np.hstack([x, np.zeros((len(x), 1))]))
     assert np.allclose(anchored(kept), anchored(svd), rtol=0, atol=1e-14)
     x[3:6] = np.diag([1.0, 1.0, -1.0]) @ x[3:6]  # block 1 reflected
-    mixed = certified3d._round(x)
+    mixed = spatial._round(x)
     assert np.allclose(np.linalg.det(mixed), 1.0)
     assert np.allclose(anchored(mixed)[2:], anchored(svd)[2:], rtol=0, atol=1e-12)
 
@@ -265,7 +268,6 @@ def test_the_dense_chordal_through_the_connection_laplacian_is_the_pairwise_one(
     """The certified relaxation's small graphs hand their connection Laplacian to the chordal
     estimate: the same rotations as the pairwise normal equations, held poses kept; a
     matrix whose factor fails (here all zeros) hands over to the pairwise solve."""
-    import rlpgo_gtsam.certified3d as certified3d
 
     graph, values, _, _ = _exact_graph(np.random.default_rng(4), n=12, closures=4, noise=0.3)
     graph.add(gtsam.PriorFactorPose3(3, values.atPose3(3), gtsam.noiseModel.Constrained.All(6)))
@@ -274,13 +276,13 @@ def test_the_dense_chordal_through_the_connection_laplacian_is_the_pairwise_one(
                                  for name in ("tinyGrid3D", "smallGrid3D")]
     for graph, values in cases:
         g = PoseGraph3D.from_gtsam(graph, values)
-        connection = certified3d._Problem(g).connection
+        connection = spatial.SpatialProblem(g).connection
         assert connection is not None
         pairwise = chordal_rotations(g)
         dense = chordal_rotations(g, connection)
         assert np.allclose(dense, pairwise, rtol=0, atol=1e-12)
-        held, held_r, _ = g.held
-        assert np.array_equal(dense[held], held_r)
+        held, held_poses = g.held
+        assert np.array_equal(dense[held], held_poses[:, :, :3])
         assert np.array_equal(chordal_rotations(g, np.zeros_like(connection)), pairwise)
 
 
@@ -289,39 +291,37 @@ def test_certified_recovers_an_exact_graph_and_refuses_a_wrong_estimate():
                                                           closures=25)
     g = PoseGraph3D.from_gtsam(graph, values)
     start = rotations @ _rotations(np.random.default_rng(8), g.num_poses, 0.3)
-    found, certificate = synchronize3d(g, start, gradient_tolerance=1e-12)
+    found, certificate = synchronize(g, start, gradient_tolerance=1e-12)
     assert certificate.status == Status.CERTIFIED, certificate.describe()
     assert certificate.describe().startswith("certified optimal")
-    found, positions = poses_with_rotations(g, found)
+    poses = poses_with_rotations(g, found)
+    found, positions = poses[:, :, :3], poses[:, :, 3]
     assert np.allclose(found, rotations, atol=1e-8)
     assert np.allclose(positions, translations, atol=1e-8)
-    wrong = certify3d(g, start)
+    wrong = certify(g, start)
     assert not wrong.certified and wrong.status == Status.NOT_OPTIMAL
     assert wrong.suboptimality_bound > 0
 
 
 def test_certified_on_a_noisy_graph_is_certified_and_refined_by_gtsam():
     graph, values, _, _ = _exact_graph(np.random.default_rng(9), n=50, closures=20, noise=0.05)
-    result = INITIALIZERS_3D["certified"]().run(PoseGraph3D.from_gtsam(graph, values))
+    result = make_initializer("certified").run(PoseGraph3D.from_gtsam(graph, values))
     assert result.certificate.certified, result.certificate.describe()
     assert result.poses.shape == (50, 3, 4)
-    chordal = INITIALIZERS_3D["chordal"]().run(PoseGraph3D.from_gtsam(graph, values))
+    chordal = make_initializer("chordal").run(PoseGraph3D.from_gtsam(graph, values))
     assert result.chi2 <= chordal.chi2 * 1.5
 
 
 @pytest.mark.parametrize("case", ["tinyGrid3D", "generated"])
 def test_the_dense_path_of_small_graphs_agrees_with_the_sparse_one(monkeypatch, case):
     """Below the dense sizes (Q of rows < dense_below, normal equations of fewer unknowns
-    than translations3d's threshold) the relaxation, the chordal estimate and the
+    than the linear solver's threshold) the relaxation, the chordal estimate and the
     translation step are solved densely: the same certificate and estimate as the sparse
     path, to round-off (both from the trust region: Newton's start is left out here, see
     the next test)."""
-    import dataclasses
+    import rlpgo_gtsam.linear as linear
 
-    import rlpgo_gtsam.certified3d as certified3d
-    import rlpgo_gtsam.translations3d as translations3d
-
-    monkeypatch.setattr(certified3d, "_NEWTON_BELOW", 0)
+    monkeypatch.setattr(spatial, "_NEWTON_BELOW", 0)
 
     if case == "tinyGrid3D":
         graph, values = gtsam.readG2o(str(DATA / "tinyGrid3D.g2o"), True)
@@ -329,16 +329,15 @@ def test_the_dense_path_of_small_graphs_agrees_with_the_sparse_one(monkeypatch, 
         graph, values, _, _ = _exact_graph(np.random.default_rng(3), n=40, closures=20,
                                            noise=0.05)
     g = PoseGraph3D.from_gtsam(graph, values)
-    assert 3 * g.num_poses < certified3d._STIEFEL.dense_below
-    assert 3 * (g.num_poses - 1) < translations3d._DENSE_BELOW
-    assert certified3d._Problem(g).dense
-    dense = INITIALIZERS_3D["certified"]().run(g)
-    monkeypatch.setattr(certified3d, "_STIEFEL",
-                        dataclasses.replace(certified3d._STIEFEL, dense_below=0))
-    monkeypatch.setattr(certified3d, "_DENSE_Q_BELOW", 0)
-    monkeypatch.setattr(translations3d, "_DENSE_BELOW", 0)
-    assert not certified3d._Problem(g).dense
-    sparse = INITIALIZERS_3D["certified"]().run(g)
+    assert 3 * g.num_poses < spatial.manifold().dense_below
+    assert 3 * (g.num_poses - 1) < linear._DENSE_BELOW
+    assert spatial.SpatialProblem(g).dense
+    dense = make_initializer("certified").run(g)
+    monkeypatch.setattr(spatial, "_DENSE_BELOW", 0)
+    monkeypatch.setattr(spatial, "_DENSE_Q_BELOW", 0)
+    monkeypatch.setattr(linear, "_DENSE_BELOW", 0)
+    assert not spatial.SpatialProblem(g).dense
+    sparse = make_initializer("certified").run(g)
     a, b = dense.certificate, sparse.certificate
     assert a.status == b.status == Status.CERTIFIED and a.rank == b.rank == 3
     scale = abs(b.estimate_cost)
@@ -359,13 +358,12 @@ def test_skew_is_the_cross_product_and_vee_inverts_it():
 @pytest.mark.parametrize("case", ["tinyGrid3D", "generated", "exact"])
 def test_newtons_start_on_small_graphs_reaches_the_trust_regions_optimum(monkeypatch, case):
     """Below ``_NEWTON_BELOW`` rows the staircase starts from Newton's point
-    (:func:`certified3d._newton`): the same certificate as the trust region alone, whose
+    (:func:`~rlpgo_gtsam.relaxation.newton.newton_point`): the same certificate as the
+    trust region alone, whose
     rotations (run to a gradient 1e-6 times its default tolerance) agree to 1e-9; S is
     verified there without the trust region, which would take no iteration (the same
     rotations and certificate to the bit as the staircase run from that point); an exact
     graph is recovered."""
-    import rlpgo_gtsam.certified3d as certified3d
-    from rlpgo_gtsam import staircase
 
     rng = np.random.default_rng(3)
     if case == "tinyGrid3D":
@@ -374,7 +372,7 @@ def test_newtons_start_on_small_graphs_reaches_the_trust_regions_optimum(monkeyp
         graph, values, truth, _ = _exact_graph(rng, n=40, closures=20,
                                                noise=0.05 if case == "generated" else 0.0)
     g = PoseGraph3D.from_gtsam(graph, values)
-    assert 3 * g.num_poses < certified3d._NEWTON_BELOW
+    assert 3 * g.num_poses < spatial._NEWTON_BELOW
     iterations = []
     trust_region = staircase.trust_region
 
@@ -384,17 +382,17 @@ def test_newtons_start_on_small_graphs_reaches_the_trust_regions_optimum(monkeyp
         return y, ended
 
     monkeypatch.setattr(staircase, "trust_region", counted)
-    newton, a = synchronize3d(g)
+    newton, a = synchronize(g)
     assert iterations == []
     with monkeypatch.context() as patch:  # the staircase from Newton's point
-        patch.setattr(certified3d, "_verified_at_once", lambda *args: None)
-        climbed, c = synchronize3d(g)
+        patch.setattr(spatial, "_verified_at_once", lambda *args: None)
+        climbed, c = synchronize(g)
     assert iterations == [0]
     assert np.array_equal(climbed, newton)
     assert (c.status, c.lower_bound, c.estimate_cost, c.min_eigenvalue, c.rank) == \
         (a.status, a.lower_bound, a.estimate_cost, a.min_eigenvalue, a.rank)
-    monkeypatch.setattr(certified3d, "_NEWTON_BELOW", 0)
-    tight, b = synchronize3d(g, gradient_tolerance=1e-12)
+    monkeypatch.setattr(spatial, "_NEWTON_BELOW", 0)
+    tight, b = synchronize(g, gradient_tolerance=1e-12)
     assert iterations[1] > 0 or case == "exact"  # the chordal estimate is exact there
     assert a.status == b.status == Status.CERTIFIED and a.rank == b.rank == 3
     scale = abs(b.estimate_cost) + 1.0
@@ -412,17 +410,15 @@ def test_newtons_damping_takes_a_start_where_the_hessian_is_indefinite():
     region's cost."""
     import math
 
-    import rlpgo_gtsam.certified3d as certified3d
-    from rlpgo_gtsam import staircase
 
     graph, values = gtsam.readG2o(str(DATA / "smallGrid3D.g2o"), True)
     g = PoseGraph3D.from_gtsam(graph, values)
-    problem = certified3d._Problem(g)
-    x = certified3d._stack(chordal_rotations(g))
+    problem = spatial.SpatialProblem(g)
+    x = spatial._stack(chordal_rotations(g))
     tolerance = 1e-6 * math.sqrt(problem.n) * problem.scale
-    y, converged = certified3d._newton(problem, x, tolerance, g.anchor, None)
+    y, converged = newton_point(problem, x, tolerance, g.anchor, None)
     assert converged
-    stiefel = certified3d._STIEFEL
+    stiefel = spatial.manifold()
     qy = problem.apply(y)
     gradient = 2.0 * (qy - stiefel.times(stiefel.multipliers(y, qy), y))
     assert np.linalg.norm(gradient) <= tolerance
@@ -435,19 +431,17 @@ def test_the_small_graph_path_recovers_an_exact_graph_and_refuses_a_wrong_estima
     """A small graph (below ``_NEWTON_BELOW`` rows) is certified at Newton's point without
     the staircase's trust region: the ground truth recovered, rotations and positions; a
     wrong estimate of it refused by the certificate."""
-    import rlpgo_gtsam.certified3d as certified3d
-    from rlpgo_gtsam import staircase
 
     graph, values, rotations, translations = _exact_graph(np.random.default_rng(11), n=12,
                                                           closures=6)
     g = PoseGraph3D.from_gtsam(graph, values)
-    assert 3 * g.num_poses < certified3d._NEWTON_BELOW
+    assert 3 * g.num_poses < spatial._NEWTON_BELOW
     calls = []
     trust_region = staircase.trust_region
     monkeypatch.setattr(staircase, "trust_region",
                         lambda *args, **kwargs: calls.append(1) or trust_region(*args,
                                                                                 **kwargs))
-    result = INITIALIZERS_3D["certified"]().run(g)
+    result = make_initializer("certified").run(g)
     assert calls == []
     certificate = result.certificate
     assert certificate.status == Status.CERTIFIED and certificate.rank == 3
@@ -455,7 +449,7 @@ def test_the_small_graph_path_recovers_an_exact_graph_and_refuses_a_wrong_estima
     assert np.allclose(result.poses[:, :, :3], rotations, atol=1e-8)
     assert np.allclose(result.poses[:, :, 3], translations, atol=1e-8)
     assert result.chi2 < 1e-12
-    wrong = certify3d(g, rotations @ _rotations(np.random.default_rng(12), g.num_poses, 0.3))
+    wrong = certify(g, rotations @ _rotations(np.random.default_rng(12), g.num_poses, 0.3))
     assert wrong.status == Status.NOT_OPTIMAL and not wrong.certified
     assert wrong.min_eigenvalue < -wrong.tolerance and wrong.suboptimality_bound > 0
 
@@ -465,18 +459,17 @@ def test_the_small_graph_path_hands_a_relaxation_that_is_not_exact_to_the_stairc
     """Where S is not positive semidefinite at Newton's point (a small graph with 0.8 rad of
     rotation noise), the staircase runs from that point and escapes: the same rotations and
     certificate, to the bit, as the staircase from Newton's point, not certified."""
-    import rlpgo_gtsam.certified3d as certified3d
     from rlpgo_gtsam.synthetic import generate3d
 
     sample = generate3d(20, 0.8, 0.1, 1.0, 0.5, np.random.default_rng(2),
                         noisy_measurements=True)
     g = PoseGraph3D.from_gtsam(sample.graph, sample.initial)
-    assert 3 * g.num_poses < certified3d._NEWTON_BELOW
-    rotations, certificate = synchronize3d(g)
+    assert 3 * g.num_poses < spatial._NEWTON_BELOW
+    rotations, certificate = synchronize(g)
     assert certificate.rank > 3 and not certificate.certified
     assert certificate.describe().startswith("NOT certified")
-    monkeypatch.setattr(certified3d, "_verified_at_once", lambda *args: None)
-    climbed, staircase_certificate = synchronize3d(g)
+    monkeypatch.setattr(spatial, "_verified_at_once", lambda *args: None)
+    climbed, staircase_certificate = synchronize(g)
     assert np.array_equal(rotations, climbed)
     for field in ("status", "lower_bound", "estimate_cost", "min_eigenvalue", "rank"):
         assert getattr(certificate, field) == getattr(staircase_certificate, field)
@@ -487,7 +480,7 @@ def test_the_dense_pairwise_solve_is_the_sparse_one(monkeypatch):
     block into dense normal equations: the same minimizer as the sparse LU's, to round-off,
     with held unknowns in any order, several right-hand sides and weights (one at zero,
     left out)."""
-    import rlpgo_gtsam.translations3d as translations3d
+    import rlpgo_gtsam.linear as linear
 
     rng = np.random.default_rng(13)
     n, m = 15, 40
@@ -499,10 +492,10 @@ def test_the_dense_pairwise_solve_is_the_sparse_one(monkeypatch):
     held_values = rng.normal(size=(3, 3, 4))
     weights = rng.uniform(0.5, 2.0, size=m)
     weights[20] = 0.0
-    dense = translations3d.solve_block_pairwise(n, edges, a_i, a_j, b, held, held_values,
+    dense = linear.solve_block_pairwise(n, edges, a_i, a_j, b, held, held_values,
                                                 weights)
-    monkeypatch.setattr(translations3d, "_DENSE_BELOW", 0)
-    sparse = translations3d.solve_block_pairwise(n, edges, a_i, a_j, b, held, held_values,
+    monkeypatch.setattr(linear, "_DENSE_BELOW", 0)
+    sparse = linear.solve_block_pairwise(n, edges, a_i, a_j, b, held, held_values,
                                                  weights)
     assert np.array_equal(dense[held], held_values)
     assert np.allclose(dense, sparse, rtol=0, atol=1e-10 * np.abs(sparse).max())
@@ -514,21 +507,20 @@ def test_a_dense_q_verified_by_arpack_agrees_with_the_sparse_path(monkeypatch, n
     factors dense Cholesky factors (S + eta I's proves S's inertia, then ARPACK's
     shift-invert runs through it): the same certificate and estimate as the sparse LU path,
     to round-off, on a graph that certifies at rank 3 and on one whose staircase climbs."""
-    import rlpgo_gtsam.certified3d as certified3d
 
     graph, values, _, _ = _exact_graph(np.random.default_rng(5), n=80, closures=40,
                                        noise=noise)
     g = PoseGraph3D.from_gtsam(graph, values)
-    assert certified3d._STIEFEL.dense_below <= 3 * g.num_poses < certified3d._DENSE_Q_BELOW
-    problem = certified3d._Problem(g)
+    assert spatial.manifold().dense_below <= 3 * g.num_poses < spatial._DENSE_Q_BELOW
+    problem = spatial.SpatialProblem(g)
     assert problem.dense
-    factor = problem.factor(certified3d._STIEFEL.diagonal(g.num_poses, problem.scale))
+    factor = problem.factor(spatial.manifold().diagonal(g.num_poses, problem.scale))
     assert isinstance(factor, DenseCholesky)
-    assert certified3d._STIEFEL.negative_pivots(factor) == 0
-    dense = INITIALIZERS_3D["certified"]().run(g)
-    monkeypatch.setattr(certified3d, "_DENSE_Q_BELOW", 0)
-    assert not certified3d._Problem(g).dense
-    sparse = INITIALIZERS_3D["certified"]().run(g)
+    assert spatial.manifold().negative_pivots(factor) == 0
+    dense = make_initializer("certified").run(g)
+    monkeypatch.setattr(spatial, "_DENSE_Q_BELOW", 0)
+    assert not spatial.SpatialProblem(g).dense
+    sparse = make_initializer("certified").run(g)
     a, b = dense.certificate, sparse.certificate
     assert a.status == b.status and a.rank == b.rank
     assert (a.status, a.rank == 3) == ((Status.CERTIFIED, True) if noise < 0.1 else
@@ -545,46 +537,46 @@ def test_the_isotropic_translation_step_is_the_same_with_a_dense_laplacian(monke
     """Below ``_DENSE_LAPLACIAN_BELOW`` free poses the CG translation step's incidence and
     scalar Laplacian are dense arrays: the same positions as the sparse ones, to round-off,
     and GTSAM's chi2 there the same."""
-    import rlpgo_gtsam.translations3d as translations3d
-    from rlpgo_gtsam.chordal3d import chordal_rotations
+    import rlpgo_gtsam.linear as linear
     from rlpgo_gtsam.synthetic import generate3d
 
     sample = generate3d(80, 0.05, 0.1, 1.0, 0.5, np.random.default_rng(4),
                         noisy_measurements=True)
     g = PoseGraph3D.from_gtsam(sample.graph, sample.initial)
-    assert translations3d._DENSE_BELOW <= 3 * (g.num_poses - 1)
-    assert g.num_poses - 1 < translations3d._DENSE_LAPLACIAN_BELOW
-    step = translations3d.TranslationStep3D(g)
+    assert linear._DENSE_BELOW <= 3 * (g.num_poses - 1)
+    assert g.num_poses - 1 < linear._DENSE_LAPLACIAN_BELOW
+    step = TranslationStep(g)
     rotations = chordal_rotations(g)
     a_j, b = step.whitened(rotations)
-    held, _, held_t = g.held
+    held, held_poses = g.held
+    held_t = held_poses[:, :, 3]
     solved = []
-    for below in (translations3d._DENSE_LAPLACIAN_BELOW, 0):
-        monkeypatch.setattr(translations3d, "_DENSE_LAPLACIAN_BELOW", below)
-        positions = translations3d._solve_isotropic(g.num_poses, g.edges, a_j, b, held, held_t)
+    for below in (linear._DENSE_LAPLACIAN_BELOW, 0):
+        monkeypatch.setattr(linear, "_DENSE_LAPLACIAN_BELOW", below)
+        positions = linear.solve_isotropic(g.num_poses, g.edges, a_j, b, held, held_t)
         assert positions is not None  # the isotropic step ran, not the 3n fallback
         solved.append((positions, step.solve(rotations)[1]))
     (dense, dense_chi2), (sparse, sparse_chi2) = solved
     assert np.allclose(dense, sparse, atol=1e-10)
     assert dense_chi2 == pytest.approx(sparse_chi2, rel=1e-12)
-    exact = translations3d.solve_block_pairwise(g.num_poses, g.edges, -a_j, a_j, b, held, held_t)
+    exact = linear.solve_block_pairwise(g.num_poses, g.edges, -a_j, a_j, b, held, held_t)
     assert np.allclose(dense, exact, atol=1e-8)
 
 
 def test_an_undetermined_pose_is_named_alike_by_the_dense_and_the_sparse_solve(monkeypatch):
     """A dense factor that fails hands over to the sparse LU, whose pivots name the pose."""
-    import rlpgo_gtsam.translations3d as translations3d
+    import rlpgo_gtsam.linear as linear
 
     blocks = np.broadcast_to(np.eye(3), (3, 3, 3))
     edges = np.array([[0, 1], [1, 3], [0, 3]])  # pose 2 is in no edge
     messages = []
     for dense_below in (0, 10**6):
-        monkeypatch.setattr(translations3d, "_DENSE_BELOW", dense_below)
+        monkeypatch.setattr(linear, "_DENSE_BELOW", dense_below)
         with pytest.raises(SolverError, match="undetermined") as error:
-            translations3d.solve_block_pairwise(4, edges, -blocks, blocks, np.ones((3, 3)),
+            linear.solve_block_pairwise(4, edges, -blocks, blocks, np.ones((3, 3)),
                                                 np.array([0]), np.zeros((1, 3)))
         messages.append(str(error.value))
-        solved = translations3d.solve_block_pairwise(3, edges[:1], -blocks[:1], blocks[:1],
+        solved = linear.solve_block_pairwise(3, edges[:1], -blocks[:1], blocks[:1],
                                                      np.ones((1, 3)), np.array([0, 2]),
                                                      np.zeros((2, 3)))
         assert np.allclose(solved, [[0, 0, 0], [1, 1, 1], [0, 0, 0]])
@@ -595,17 +587,16 @@ def test_certified_above_rank_three_polishes_its_rounded_rotations(monkeypatch):
     """Heavy rotation noise: the staircase ends above rank 3, not exact; the rounded
     rotations are polished at rank 3 into proper rotations no higher in cost, the anchor
     kept."""
-    import rlpgo_gtsam.certified3d as certified3d
 
     graph, values, rotations, _ = _exact_graph(np.random.default_rng(1), n=60, closures=40,
                                                noise=0.5)
     g = PoseGraph3D.from_gtsam(graph, values)
-    found, certificate = synchronize3d(g)
+    found, certificate = synchronize(g)
     assert certificate.rank > 3 and certificate.status == Status.NOT_TIGHT
     assert np.allclose(np.linalg.det(found), 1.0)
     assert np.allclose(found[0], rotations[0], atol=1e-12)
-    monkeypatch.setattr(certified3d, "polish", lambda problem, manifold, x, *args, **kw: x)
-    _, plain = synchronize3d(g)
+    monkeypatch.setattr(staircase, "polish", lambda problem, manifold, x, *args, **kw: x)
+    _, plain = synchronize(g)
     assert certificate.estimate_cost <= plain.estimate_cost
     assert certificate.lower_bound == pytest.approx(plain.lower_bound, rel=1e-12)
 
@@ -614,9 +605,8 @@ def test_the_blocks_products_on_fields_equal_the_small_matrix_products(monkeypat
     """From 50 poses the Stiefel blocks' projection, multipliers, Lambda V and Hessian run
     on (3, r, n) fields: the same numbers as the (n, 3, r) matrix products, at ranks 3 and 5,
     and the projection lands in the tangent space."""
-    import rlpgo_gtsam.certified3d as certified3d
 
-    manifold = certified3d._STIEFEL
+    manifold = spatial.manifold()
     rng = np.random.default_rng(4)
     n = 80
     for r in (3, 5):
@@ -625,7 +615,7 @@ def test_the_blocks_products_on_fields_equal_the_small_matrix_products(monkeypat
         fields = (manifold.project(x, v), manifold.multipliers(x, qx))
         lam = fields[1]
         fields += (manifold.times(lam, v), manifold.hessian(x, lam, v, qv))
-        monkeypatch.setattr(certified3d, "_FIELDS_FROM", n + 1)
+        monkeypatch.setattr(spatial, "_FIELDS_FROM", n + 1)
         stacks = (manifold.project(x, v), manifold.multipliers(x, qx))
         stacks += (manifold.times(lam, v), manifold.hessian(x, lam, v, qv))
         monkeypatch.undo()
@@ -642,19 +632,15 @@ def test_truncated_cg_stops_at_half_the_gradient_tolerance_on_parking_garage(
     tolerance: CG stopping at half the tolerance (the 3D manifold's cg_floor) takes fewer
     Hessian products than CG solving to its relative target, and the staircase is certified
     at the same cost."""
-    import dataclasses
-
-    import rlpgo_gtsam.certified3d as certified3d
 
     graph, values = gtsam.readG2o(str(DATA / "parking-garage.g2o"), True)
     g = PoseGraph3D.from_gtsam(graph, values)
     products = hessian_products
-    assert certified3d._STIEFEL.cg_floor == 0.5
-    _, floored = synchronize3d(g)
+    assert spatial.manifold().cg_floor == 0.5
+    _, floored = synchronize(g)
     with_floor, products[0] = products[0], 0
-    monkeypatch.setattr(certified3d, "_STIEFEL",
-                        dataclasses.replace(certified3d._STIEFEL, cg_floor=0.0))
-    _, plain = synchronize3d(g)
+    monkeypatch.setattr(spatial, "_CG_FLOOR", 0.0)
+    _, plain = synchronize(g)
     assert floored.certified and plain.certified
     assert with_floor < 0.75 * products[0]
     assert floored.estimate_cost == pytest.approx(plain.estimate_cost, rel=1e-8)
@@ -665,17 +651,17 @@ def test_the_newton_retraction_is_the_svd_polar_factor():
     """At rank 3 from 250 poses the retraction runs Newton's polar iteration: the SVD's polar
     factor to round-off along small and large tangent steps, orthonormal rows; a singular
     block falls back to the SVD."""
-    import rlpgo_gtsam.certified3d as certified3d
 
     rng = np.random.default_rng(5)
-    n = certified3d._NEWTON_FROM
-    x = certified3d._stack(_rotations(rng, n))
+    stiefel = spatial.manifold()
+    n = spatial._NEWTON_FROM
+    x = spatial._stack(_rotations(rng, n))
     for size in (0.01, 1.0, 5.0):
-        step = certified3d._STIEFEL.project(x, size * rng.normal(size=x.shape))
+        step = stiefel.project(x, size * rng.normal(size=x.shape))
         moved = x + step
         moved[3:6] = np.outer([1.0, 2.0, 3.0], [1.0, 1.0, 1.0])  # rank one
-        polar = certified3d._STIEFEL.retract(moved)
-        assert np.allclose(polar, certified3d._polar_svd(moved), rtol=0, atol=1e-12)
+        polar = stiefel.retract(moved)
+        assert np.allclose(polar, polar_svd(moved), rtol=0, atol=1e-12)
         blocks = polar.reshape(n, 3, 3)
         assert np.allclose(blocks @ blocks.transpose(0, 2, 1), np.eye(3), atol=1e-12)
 
@@ -685,20 +671,19 @@ def test_the_closed_form_trial_point_is_the_svd_polar_factor():
     ``X + V`` is retracted in closed form (``Exp(atan|w| / |w| w) X_i``): the SVD's polar
     factor to 1e-13 along tangent steps from 1e-6 to 5, orthonormal rows; a zero step keeps
     X; other sizes and ranks take the retraction."""
-    import rlpgo_gtsam.certified3d as certified3d
 
     rng = np.random.default_rng(6)
-    stiefel = certified3d._STIEFEL
-    for n in (certified3d._CLOSED_FROM, certified3d._NEWTON_FROM - 1):
-        x = certified3d._stack(_rotations(rng, n))
+    stiefel = spatial.manifold()
+    for n in (spatial._CLOSED_FROM, spatial._NEWTON_FROM - 1):
+        x = spatial._stack(_rotations(rng, n))
         for size in (1e-6, 0.3, 5.0):
             step = stiefel.project(x, size * rng.normal(size=x.shape))
             moved = stiefel.move(x, step)
-            assert np.allclose(moved, certified3d._polar_svd(x + step), rtol=0, atol=1e-13)
+            assert np.allclose(moved, polar_svd(x + step), rtol=0, atol=1e-13)
             blocks = moved.reshape(n, 3, 3)
             assert np.allclose(blocks @ blocks.transpose(0, 2, 1), np.eye(3), atol=1e-13)
         assert np.allclose(stiefel.move(x, np.zeros_like(x)), x, rtol=0, atol=1e-15)
-    x = certified3d._stack(_rotations(rng, certified3d._CLOSED_FROM - 1))
+    x = spatial._stack(_rotations(rng, spatial._CLOSED_FROM - 1))
     step = stiefel.project(x, rng.normal(size=x.shape))
     assert np.array_equal(stiefel.move(x, step), stiefel.retract(x + step))
 
@@ -707,27 +692,28 @@ def test_the_isotropic_translation_step_is_the_direct_solve():
     """Isotropic translation informations (a generated graph, held poses included): the
     translation step's CG with the scalar Laplacian gives the direct 3n solve's positions
     and chi2; anisotropic ones (5, 6, 7 on the axes) are left to the direct solve."""
-    import rlpgo_gtsam.translations3d as translations3d
+    import rlpgo_gtsam.linear as linear
     from rlpgo_gtsam.synthetic import generate3d
 
     sample = generate3d(300, 0.05, 0.1, 1.0, 0.5, np.random.default_rng(2),
                         noisy_measurements=True)
     g = PoseGraph3D.from_gtsam(sample.graph, sample.initial)
     rotations = chordal_rotations(g)
-    step = translations3d.TranslationStep3D(g)
+    step = TranslationStep(g)
     a_j, b = step.whitened(rotations)
     held = np.array([g.anchor, 17, 150])
     held_t = np.random.default_rng(3).normal(size=(3, 3))
-    fast = translations3d._solve_isotropic(g.num_poses, g.edges, a_j, b, held, held_t)
+    fast = linear.solve_isotropic(g.num_poses, g.edges, a_j, b, held, held_t)
     assert fast is not None
-    direct = translations3d.solve_block_pairwise(g.num_poses, g.edges, -a_j, a_j, b, held,
+    direct = linear.solve_block_pairwise(g.num_poses, g.edges, -a_j, a_j, b, held,
                                                  held_t)
     assert np.allclose(fast, direct, rtol=0, atol=1e-9 * np.abs(direct).max())
     assert np.array_equal(fast[held], held_t)
-    assert edge_chi2(g, rotations, fast).sum() == pytest.approx(
-        edge_chi2(g, rotations, direct).sum(), rel=1e-12)
+    assert edge_chi2(g, pose_matrices(rotations, fast)).sum() == pytest.approx(
+        edge_chi2(g, pose_matrices(rotations, direct)).sum(), rel=1e-12)
     graph, values, _, _ = _exact_graph(np.random.default_rng(6), noise=0.05)
     g = PoseGraph3D.from_gtsam(graph, values)
-    a_j, b = translations3d.TranslationStep3D(g).whitened(chordal_rotations(g))
-    held, _, held_t = g.held
-    assert translations3d._solve_isotropic(g.num_poses, g.edges, a_j, b, held, held_t) is None
+    a_j, b = TranslationStep(g).whitened(chordal_rotations(g))
+    held, held_poses = g.held
+    held_t = held_poses[:, :, 3]
+    assert linear.solve_isotropic(g.num_poses, g.edges, a_j, b, held, held_t) is None

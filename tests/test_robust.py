@@ -9,11 +9,19 @@ import numpy as np
 import pytest
 
 from rlpgo_gtsam.errors import RlpgoError, SolverError
-from rlpgo_gtsam.g2o import g2o_text, read_g2o
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, edge_chi2
 from rlpgo_gtsam.initializers import make_initializer
+from rlpgo_gtsam.io import g2o_text, read_g2o
 from rlpgo_gtsam.residuals import outlier_suspicion
-from rlpgo_gtsam.robust import DOUBTFUL_BELOW, robust_initialize
+from rlpgo_gtsam.robust import RobustSettings, robust_initialize
+from rlpgo_gtsam.robust.consistency import pairwise_consistency
+from rlpgo_gtsam.robust.sets import clusters
+from rlpgo_gtsam.robust.statistics import (
+    adaptive_bh_rejections,
+    chi2_quantile,
+    innovation_p_value,
+    set_bar,
+)
 from rlpgo_gtsam.solvers import refine
 from rlpgo_gtsam.staged import staged_initialize
 from rlpgo_gtsam.synthetic import add_outliers, generate, scaled_informations
@@ -23,7 +31,7 @@ from tests.conftest import dataset
 ARGS = (300, 0.1, 0.05, 1.0, 0.5)
 
 # sha256 of g2o_text(graph, initial) + g2o_text(graph, ground_truth) and the rng's next draw,
-# produced by the generator before wrong closures existed (commit b6aa194).
+# produced by the generator before wrong closures existed.
 BEFORE = [
     ((20, 0.3, 0.01, 3.0, 0.5), 0, False,
      "90ae9da3dcf556c92e2d3ee304cdee5b92aebcac5678f3ca334893c7d2826b6b", 0.0907530456191219),
@@ -93,8 +101,8 @@ def test_wrong_closures_are_rejected_and_the_map_recovered(mode):
     assert np.all(result.weights[sample.outlier_edges] == 0.0)
     assert chi2(clean.graph, result.values) == pytest.approx(lowest, rel=1e-6)
     assert result.chi2 == pytest.approx(lowest, rel=1e-6)
-    assert [step["step"] for step in result.steps] == ["all edges", "consistency", "start",
-                                                       "verify", "gnc"]
+    assert [step.name for step in result.steps] == ["all edges", "consistency", "start",
+                                                    "verify", "gnc"]
 
 
 def test_a_clean_graph_comes_out_as_the_staged_default_leaves_it():
@@ -330,11 +338,11 @@ def test_two_exclusive_sets_of_one_size_are_reported_not_picked_silently():
 
 
 def test_a_clean_real_map_keeps_its_isolated_closures():
-    # MIT: 20 loop closures that no short cycle supports; the path used to drop 15 of them
+    # MIT: 20 loop closures that no short cycle supports; judged by support, 15 would go
     graph, values = read_g2o(dataset("MIT.g2o"))
     result = robust_initialize(graph, values)
     assert result.rejected == []
-    assert result.steps[0]["passed"] and len(result.steps) == 1
+    assert result.steps[0].passed and len(result.steps) == 1
     assert result.chi2 == pytest.approx(41.2069, rel=1e-4)
     assert result.doubtful == []  # every edge fits: nothing to doubt
 
@@ -349,7 +357,8 @@ def test_aliased_closures_the_map_cannot_tell_apart_are_listed_as_doubtful():
     doubtful = [k for k, _ in result.doubtful]
     p_values = [p for _, p in result.doubtful]
     assert kept_wrong and not set(doubtful) & set(result.rejected)
-    assert p_values == sorted(p_values) and all(0.0 <= p < DOUBTFUL_BELOW for p in p_values)
+    below = RobustSettings().doubtful_below
+    assert p_values == sorted(p_values) and all(0.0 <= p < below for p in p_values)
     assert len(kept_wrong & set(doubtful)) >= len(kept_wrong) / 2  # 8 of the 12 here
     assert len(set(doubtful) - set(wrong)) <= 2  # and one true closure (p 0.047)
     assert result.record()["doubtful"] == [list(pair) for pair in result.doubtful]
@@ -403,7 +412,6 @@ def test_the_consistency_step_is_bounded_on_parallel_closures():
     import tracemalloc
 
     from rlpgo_gtsam.graph import odometry_edges
-    from rlpgo_gtsam.robust.consistency import FAR, NEAR, pairwise_consistency
 
     noise = gtsam.noiseModel.Diagonal.Sigmas([0.05, 0.05, 0.01])
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
@@ -422,7 +430,8 @@ def test_the_consistency_step_is_bounded_on_parallel_closures():
     seconds = time.perf_counter() - began
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
-    assert result.pairs <= 5000 * (NEAR + FAR)
+    settings = RobustSettings()
+    assert result.pairs <= 5000 * (settings.consistency_near + settings.consistency_far)
     assert seconds < 10.0 and peak < 300e6
     assert result.kept.sum() >= 4990  # nothing contradicts them
 
@@ -448,8 +457,6 @@ def test_two_equally_supported_sets_are_reported_ambiguous():
 
 
 def test_chi2_quantiles_match_the_tables():
-    from rlpgo_gtsam.robust.pipeline import chi2_quantile
-
     assert chi2_quantile(0.9999, 3) == pytest.approx(21.10751, abs=1e-5)
     assert chi2_quantile(0.999, 3) == pytest.approx(16.26624, abs=1e-5)
     assert chi2_quantile(0.9999, 2) == pytest.approx(-2.0 * np.log(1e-4), rel=1e-12)
@@ -472,24 +479,24 @@ def _vertigo_on(name: str, mode: str, fraction: float = 0.1):
     # support from another; against 82 random wrong ones the seed held 5 of them and 1
     # wrong one. Judged by each closure's fit under the map's own uncertainty, admitted
     # where the map checks them best first, all 20 come back and every wrong one goes
-    # (before: 8 true closures rejected, precision 0.91).
+    # (judged by support alone, 8 true closures went: precision 0.91).
     pytest.param("MIT.g2o", "random", 0.1, id="closures_alone_in_their_loops_come_back"),
     # Intel, Vertigo's local groups (5 consecutive pairs a few poses apart, one measurement):
-    # each member fits the map its run holds; left out together, the run does not (before:
-    # 20 of the 150 kept, recall 0.867)
+    # each member fits the map its run holds; left out together, the run does not (judged
+    # one by one, 20 of the 150 stayed: recall 0.867)
     pytest.param("Intel.g2o", "localgroup", 0.1, id="runs_of_wrong_closures_are_judged_whole"),
     # MIT, Vertigo's groups: four true closures close the last loop; each fits (innovation
     # chi2 2-4 against 21) but the loose map would have to turn 1.0-1.4 rad, beyond what the
     # linear test judges. Solved with them, the optimum rises by 2-3: they come back, the
     # true closure first, before the run of five wrong ones that fits as loosely
-    # (before: 4 true closures rejected, precision 0.953).
+    # (by the linear test alone, 4 true closures went: precision 0.953).
     pytest.param("MIT.g2o", "group", 0.1,
                  id="closures_the_map_must_turn_far_are_judged_by_a_solve"),
     # MIT, 5% of Vertigo's local policy (pairs of poses at most 20 apart said to coincide):
     # two wrong closures fit the map within the 0.9999 bar (one fits the right map itself:
     # innovation 18.9 against 21.1, benchmarks/robust_limits.py); among the 39 closures
     # refuted, a fit that unlikely is evidence against them too (the false-rejection bar;
-    # before it: 2 kept, recall 0.951)
+    # without it 2 stay: recall 0.951)
     pytest.param("MIT.g2o", "local", 0.05,
                  id="aliased_closures_that_fit_go_by_the_false_rejection_bar"),
 ])
@@ -497,13 +504,12 @@ def test_vertigo_policies_are_rejected_exactly(name, mode, fraction):
     bad, values, wrong, clean, lowest = _vertigo_on(name, mode, fraction)
     result = robust_initialize(bad, values)
     assert result.rejected == wrong
-    verify = next(step for step in result.steps if step["step"] == "verify")
+    verify = next(step for step in result.steps if step.name == "verify")
     if mode == "local":  # the verify step says how many went by the false-rejection bar
-        assert 1 <= verify["unlikely_fits"] <= len(wrong)
+        assert 1 <= verify.unlikely_fits <= len(wrong)
         off = robust_initialize(bad, values, false_rejection_rate=0.0)
         assert set(off.rejected) < set(wrong)  # without it, wrong closures stay
-        assert next(step for step in off.steps if step["step"] == "verify")[
-            "unlikely_fits"] == 0
+        assert next(step for step in off.steps if step.name == "verify").unlikely_fits == 0
     assert refine(clean, result.values, "lm", 100).chi2 == pytest.approx(lowest, rel=1e-6)
 
 
@@ -511,9 +517,9 @@ def test_a_cluster_of_wrong_closures_that_holds_its_stretch_is_solved_without():
     # MIT, Vertigo's local groups: three wrong closures from two overlapping groups collapse
     # a 12-pose stretch of weak odometry; each fits the map the others hold (leave-one-out
     # chi2 5-8), and the cluster's linear leave-out chi2 (23) lies below its bar (34). Solved
-    # without them, the optimum falls by 59: refuted (before: 8 kept, recall 0.902). The
-    # wrong closures that fit the right map itself (benchmarks/robust_limits.py) go by the
-    # false-rejection bar (before it: 2 kept).
+    # without them, the optimum falls by 59: refuted (by the linear test alone, 8 stayed:
+    # recall 0.902). The wrong closures that fit the right map itself
+    # (benchmarks/robust_limits.py) go by the false-rejection bar (without it, 2 stay).
     bad, values, wrong, clean, lowest = _vertigo_on("MIT.g2o", "localgroup")
     result = robust_initialize(bad, values)
     assert result.rejected == wrong
@@ -526,32 +532,29 @@ def test_innovation_p_values_are_hotellings():
     scipy's F distribution, and the chi-square limit it approaches."""
     from scipy.special import chdtrc, fdtrc
 
-    from rlpgo_gtsam.robust.pipeline import _SAMPLES, _innovation_p_value
-
-    k = _SAMPLES
+    k = RobustSettings().samples
     for dof in (3, 6, 15, 30):
         for value in (0.5, 3.0, 10.0, 21.1, 40.0, 120.0):
             statistic = value * (k - dof + 1) / (dof * (k - dof - 1))
             expected = fdtrc(dof, k - dof + 1, statistic)
-            assert _innovation_p_value(value, dof) == pytest.approx(expected, rel=1e-9,
-                                                                    abs=1e-300)
+            assert innovation_p_value(value, dof) == pytest.approx(expected, rel=1e-9,
+                                                                   abs=1e-300)
             if chdtrc(dof, value) < 0.01:  # in the tail, heavier than chi-square's
-                assert _innovation_p_value(value, dof) > chdtrc(dof, value)
-    assert _innovation_p_value(21.1, 3) == pytest.approx(2.966e-4, rel=1e-3)  # chi2: 1e-4
+                assert innovation_p_value(value, dof) > chdtrc(dof, value)
+    assert innovation_p_value(21.1, 3) == pytest.approx(2.966e-4, rel=1e-3)  # chi2: 1e-4
 
 
 def test_a_3d_run_is_judged_by_its_own_tail():
     """In 3D a run's bar is where its Hotelling tail reaches 1 - inlier_probability (30 dof:
     108, where chi-square's 67.6 would pass a true run only with probability 0.993); planar
     runs and every single closure keep the chi-square quantile."""
-    from rlpgo_gtsam.robust.groups import _Planar, _Spatial
-    from rlpgo_gtsam.robust.pipeline import _hotelling_bar, _innovation_p_value, chi2_quantile
 
-    assert _Spatial.hotelling_runs and not _Planar.hotelling_runs
-    bar = _hotelling_bar(0.9999, 30)
-    assert _innovation_p_value(bar, 30) == pytest.approx(1e-4, rel=1e-6)
+    settings = RobustSettings()
+    assert settings.hotelling_runs(3) and not settings.hotelling_runs(2)
+    bar = set_bar(0.9999, 30, hotelling=True)
+    assert innovation_p_value(bar, 30) == pytest.approx(1e-4, rel=1e-6)
     assert bar == pytest.approx(108.03, abs=0.01) and chi2_quantile(0.9999, 30) < 67.7
-    assert 1.0 - _innovation_p_value(chi2_quantile(0.9999, 30), 30) == pytest.approx(
+    assert 1.0 - innovation_p_value(chi2_quantile(0.9999, 30), 30) == pytest.approx(
         0.993, abs=5e-4)
 
 
@@ -560,7 +563,6 @@ def test_the_false_rejection_bar_follows_benjamini_hochberg():
     (pi0 = 1 here: most p-values lie above 1/2); the closures already refuted count as
     rejections at p = 0; a run's p-value rejects every member; only kept closures come
     back; where most p-values are small, pi0 < 1 lifts the bar."""
-    from rlpgo_gtsam.robust.pipeline import _doubted
 
     q = 0.01
     m_kept = 100
@@ -573,38 +575,39 @@ def test_the_false_rejection_bar_follows_benjamini_hochberg():
     target = [0.5 * q * 11 / 110, 0.9 * q * 12 / 110, 3.0 * q * 13 / 110]
     for e, p_wanted in enumerate(target):
         chi2_values[e] = _value_with_p(p_wanted)
-    doubted = _doubted(chi2_values, singles, kept, refuted, 3, q)
+    doubted = adaptive_bh_rejections(chi2_values, singles, kept, refuted, 3, q)
     # ranks 11 and 12 pass q k / m (10 refuted come first); rank 13 does not
     assert np.flatnonzero(doubted).tolist() == [0, 1]
     # without the refuted ones, m = 100 and rank 1 needs p <= q / 100: none passes
-    assert not _doubted(chi2_values, singles, kept, np.zeros_like(kept), 3, q).any()
+    assert not adaptive_bh_rejections(chi2_values, singles, kept, np.zeros_like(kept), 3, q).any()
     # rate 0: the bar is off
-    assert not _doubted(chi2_values, singles, kept, refuted, 3, 0.0).any()
+    assert not adaptive_bh_rejections(chi2_values, singles, kept, refuted, 3, 0.0).any()
     # a run: members fit alone, together they do not
     run = np.array([50, 51])
     sets = singles + [run]
     values = np.concatenate([np.full(m_kept, 1.0), [_value_with_p(1e-6, dof=6)]])
-    assert np.flatnonzero(_doubted(values, sets, kept, refuted, 3, q)).tolist() == [50, 51]
+    rejected = adaptive_bh_rejections(values, sets, kept, refuted, 3, q)
+    assert np.flatnonzero(rejected).tolist() == [50, 51]
     # a closure that is out already is never "doubted"
-    assert not _doubted(values, sets, np.zeros_like(kept), refuted, 3, q).any()
+    assert not adaptive_bh_rejections(values, sets, np.zeros_like(kept), refuted, 3, q).any()
     # 10 closures kept, 90 refuted: pi0 = (1 + 9) / 50 = 0.2, the bar 5x higher; a kept
     # closure at p = 2 q k / m passes it (plain Benjamini-Hochberg would keep it)
     kept = np.zeros(100, bool)
     kept[90:] = True
     few = [np.array([e]) for e in range(90, 100)]
     few_values = np.array([_value_with_p(2.0 * q * 91 / 100)] + [1.0] * 9)
-    assert np.flatnonzero(_doubted(few_values, few, kept, ~kept, 3, q)).tolist() == [90]
+    rejected = adaptive_bh_rejections(few_values, few, kept, ~kept, 3, q)
+    assert np.flatnonzero(rejected).tolist() == [90]
 
 
 def test_the_false_rejection_bar_skips_only_p_values_that_cannot_matter():
-    """_doubted computes p-values only between 1/2 and 1e-12 (all where the bar may reach
-    above 1/2): the same decision as the adaptive Benjamini-Hochberg procedure over every
-    p-value (the share of true closures estimated over the single closures), on random
-    statistics, sets and rates."""
-    from rlpgo_gtsam.robust.pipeline import _doubted, _innovation_p_value
+    """The false-rejection bar computes p-values only between 1/2 and 1e-12 (all where the
+    bar may reach above 1/2): the same decision as the adaptive Benjamini-Hochberg procedure
+    over every p-value (the share of true closures estimated over the single closures), on
+    random statistics, sets and rates."""
 
     def reference(values, sets, kept, refuted, rate):
-        p = np.array([_innovation_p_value(float(v), 3 * len(w))
+        p = np.array([innovation_p_value(float(v), 3 * len(w))
                       for v, w in zip(values, sets, strict=True)])
         m = len(p) + int(refuted.sum())
         single = np.array([len(w) == 1 for w in sets])
@@ -629,18 +632,17 @@ def test_the_false_rejection_bar_skips_only_p_values_that_cannot_matter():
         scale = rng.choice([1.0, 1.0, 1.0, 5.0, 40.0], len(sets))
         values = np.array([rng.chisquare(3 * len(w)) for w in sets]) * scale
         for rate in (0.005, 0.05, 0.3):
-            assert (_doubted(values, sets, kept, refuted, 3, rate)
+            assert (adaptive_bh_rejections(values, sets, kept, refuted, 3, rate)
                     == reference(values, sets, kept, refuted, rate)).all()
 
 
 def _value_with_p(p_wanted: float, dof: int = 3) -> float:
-    """The statistic whose _innovation_p_value is ``p_wanted`` (bisection)."""
-    from rlpgo_gtsam.robust.pipeline import _innovation_p_value
+    """The statistic whose innovation p-value is ``p_wanted`` (bisection)."""
 
     low, high = 0.0, 1e4
     for _ in range(200):
         middle = 0.5 * (low + high)
-        if _innovation_p_value(middle, dof) > p_wanted:
+        if innovation_p_value(middle, dof) > p_wanted:
             low = middle
         else:
             high = middle
@@ -651,7 +653,6 @@ def test_clusters_link_nearby_closures_of_several_diagonals():
     """The verify step's clusters (judged without their members by a solve): closures whose
     low ends and diagonals differ by at most two poses form one, in pieces of at most five in
     low-end order; a lone closure or a run on one diagonal is no cluster."""
-    from rlpgo_gtsam.robust.pipeline import _clusters
 
     n = 60
     closures = [(3, 10), (4, 12), (5, 11),  # three diagonals, linked: one cluster
@@ -669,7 +670,7 @@ def test_clusters_link_nearby_closures_of_several_diagonals():
     among = np.zeros(g.num_edges, bool)
     among[[edge[c] for c in closures]] = True
 
-    pieces = sorted(sorted(piece.tolist()) for piece in _clusters(g, among))
+    pieces = sorted(sorted(piece.tolist()) for piece in clusters(g, among, RobustSettings()))
 
     expected = [[(3, 10), (4, 12), (5, 11)],
                 [(40, 45), (41, 47), (42, 46), (43, 48), (44, 47)],  # the first five ...
@@ -677,4 +678,5 @@ def test_clusters_link_nearby_closures_of_several_diagonals():
     assert pieces == sorted(sorted(edge[c] for c in piece) for piece in expected)
     # a closure left out of ``among`` is in no piece: the long chain loses its middle link
     among[edge[(43, 48)]] = False
-    assert all(edge[(43, 48)] not in piece.tolist() for piece in _clusters(g, among))
+    assert all(edge[(43, 48)] not in piece.tolist()
+               for piece in clusters(g, among, RobustSettings()))

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from rlpgo_gtsam.errors import GraphError
-from rlpgo_gtsam.g2o3d import read_g2o3d
-from rlpgo_gtsam.graph3d import PoseGraph3D, extract_pose_graph
+from rlpgo_gtsam.graph import PoseGraph3D, extract_pose_graph
+from rlpgo_gtsam.io import read_g2o
 from rlpgo_gtsam.robust import robust_initialize
 from rlpgo_gtsam.robust.gnc import robust_positions
-from rlpgo_gtsam.robust.pipeline import _judged_by_printed, noise_scale
+from rlpgo_gtsam.robust.noise import graph_with_printed_blocks, noise_scale
 from rlpgo_gtsam.solvers import refine
 from rlpgo_gtsam.staged import staged_initialize
 from rlpgo_gtsam.synthetic import add_outliers3d, generate3d
@@ -31,7 +31,7 @@ def test_a_clean_3d_graph_keeps_every_edge_at_the_default_chi2():
     robust = robust_initialize(sample.graph, sample.initial)
     default = staged_initialize(sample.graph, sample.initial)
     assert robust.rejected == []
-    assert robust.steps[0]["step"] == "all edges" and robust.steps[0]["passed"]
+    assert robust.steps[0].name == "all edges" and robust.steps[0].passed
     assert robust.chi2 == pytest.approx(default.best.refined_chi2, rel=1e-6)
     assert robust.values.atPose3(0).equals(default.values.atPose3(0), 1e-6)
 
@@ -49,13 +49,13 @@ def test_known_wrong_closures_in_3d_are_rejected_exactly(mode):
     assert robust.trusted and not set(robust.trusted) & set(robust.rejected)
     default = staged_initialize(clean.graph, clean.initial)
     assert robust.chi2 == pytest.approx(default.best.refined_chi2, rel=1e-6)
-    assert [step["step"] for step in robust.steps] == ["all edges", "consistency", "start",
-                                                       "verify", "gnc"]
+    assert [step.name for step in robust.steps] == ["all edges", "consistency", "start",
+                                                    "verify", "gnc"]
 
 
 @pytest.mark.parametrize("name", ["tinyGrid3D", "smallGrid3D"])
 def test_sesync_grids_keep_every_edge(name):
-    graph, values = read_g2o3d(dataset(f"3d/{name}.g2o"))
+    graph, values = read_g2o(dataset(f"3d/{name}.g2o"))
     robust = robust_initialize(graph, values)
     default = staged_initialize(graph, values)
     assert robust.rejected == [] and robust.stopped.startswith("every edge fits")
@@ -69,7 +69,7 @@ def test_a_loose_map_takes_back_every_true_closure_of_a_spiral():
     # seed's map is loose (innovation spreads up to 350). Admitted by tiers of spread alone,
     # 555 that fit were still waiting after 20 rounds (precision 0.31); those a wrong
     # closure would pass less than 1e-3 of the time come in at once, and only the wrong go.
-    graph, values = read_g2o3d(dataset("3d/sphere2500.g2o"))
+    graph, values = read_g2o(dataset("3d/sphere2500.g2o"))
     best = refine(graph, staged_initialize(graph, values).values, "lm", 100)
     bad, wrong = add_outliers3d(graph, best.values, 0.05, np.random.default_rng(1), "uniform")
     result = robust_initialize(bad, values)
@@ -89,8 +89,8 @@ def test_true_closures_refuted_beside_many_wrong_ones_all_come_back():
     clean = generate3d(*args, np.random.default_rng(1), noisy_measurements=True)
     robust = robust_initialize(sample.graph, sample.initial)
     assert robust.rejected == sample.outlier_edges
-    verify = next(step for step in robust.steps if step["step"] == "verify")
-    assert verify["iterations"] > 20
+    verify = next(step for step in robust.steps if step.name == "verify")
+    assert verify.iterations > 20
     best = refine(clean.graph, staged_initialize(clean.graph, clean.initial).values, "lm", 100)
     assert refine(clean.graph, robust.values, "lm", 100).chi2 == pytest.approx(best.chi2,
                                                                                 rel=1e-6)
@@ -107,8 +107,8 @@ def test_the_kept_edges_relaxation_is_tried_again_after_each_restart():
                         outliers=0.1, outlier_mode="local")
     robust = robust_initialize(sample.graph, sample.initial)
     assert robust.rejected == sample.outlier_edges
-    verify = next(step for step in robust.steps if step["step"] == "verify")
-    assert verify["restarts"] >= 2
+    verify = next(step for step in robust.steps if step.name == "verify")
+    assert verify.restarts >= 2
 
 
 def test_noise_scale_reads_the_noise_the_errors_show():
@@ -155,10 +155,10 @@ def test_the_robust_steps_judge_cubicle_by_its_printed_blocks(tmp_path):
     other factor is the same object, in the same order."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        graph, values = read_g2o3d(_cubicle_head(tmp_path))
+        graph, values = read_g2o(_cubicle_head(tmp_path))
     g = extract_pose_graph(graph, values)
     assert len(g.printed) > 0
-    judged, judged_g = _judged_by_printed(graph, values, g)
+    judged, judged_g = graph_with_printed_blocks(graph, values, g)
     assert judged.size() == graph.size()
     replaced = 0
     for before, after in zip(g.information, judged_g.information, strict=True):
@@ -172,4 +172,4 @@ def test_the_robust_steps_judge_cubicle_by_its_printed_blocks(tmp_path):
         np.testing.assert_allclose(after[:3, 3:], 0.0, atol=1e-9 * np.abs(matrix).max())
     assert replaced == 40  # the head's indefinite matrices (tests/test_cli_3d.py)
     # a graph without printed matrices is judged as it is
-    assert _judged_by_printed(graph, values, replace(g, printed={}))[0] is graph
+    assert graph_with_printed_blocks(graph, values, replace(g, printed={}))[0] is graph

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from benchmarks.models_summary import EXPECTED_FILE, EXPECTED_SEEDS, behaviour
+from benchmarks.models import EXPECTED_FILE, EXPECTED_SEEDS, behaviour
 from rlpgo_gtsam.rl.agent.inference import NumpyPolicy
 from rlpgo_gtsam.rl.episode import rollout
 from rlpgo_gtsam.rl.evaluation import evaluation_graph
@@ -48,7 +48,7 @@ def test_every_shipped_model_has_expected_figures():
 def test_shipped_model_behaves_as_recorded_and_beats_the_rule(name):
     """On fixed generated graphs of its training environment, through the rollout and numpy
     policy users run: the agent's and the rule's best-OC ratios are the recorded ones
-    (models/expected.json, ``python benchmarks/models_summary.py --write-expected``), the
+    (models/expected.json, ``python benchmarks/models.py write-expected``), the
     agent lowers the OC well and does at least as well as the edge-balancing rule."""
     expected = EXPECTED["models"][name]
     measured = behaviour(name)

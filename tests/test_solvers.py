@@ -138,7 +138,7 @@ def test_the_gauge_prior_goes_only_where_the_graph_has_no_prior(small_noisy):
     """refine reads from the extraction that a graph of edges alone has no prior, and walks
     the factors otherwise: a soft prior added to the graph is honoured even when the
     extraction handed in is the plain graph's (another graph)."""
-    from rlpgo_gtsam.graph3d import extract_pose_graph
+    from rlpgo_gtsam.graph import extract_pose_graph
 
     plain = extract_pose_graph(small_noisy.graph, small_noisy.initial)
     graph = gtsam.NonlinearFactorGraph(small_noisy.graph)

@@ -49,12 +49,12 @@ def test_correlated_information_is_used(small_noisy):
     theta = _poses(small_noisy.ground_truth)[:, 2]
     full = pose_graph.to_values(np.column_stack([solve_translations(pose_graph, theta), theta]))
     diagonal_only = PoseGraph2D(
-        pose_graph.keys,
-        pose_graph.poses,
-        pose_graph.edges,
-        pose_graph.measured,
-        pose_graph.information * np.eye(3),
-        pose_graph.anchor,
+        keys=pose_graph.keys,
+        poses=pose_graph.poses,
+        edges=pose_graph.edges,
+        measured=pose_graph.measured,
+        information=pose_graph.information * np.eye(3),
+        anchor=pose_graph.anchor,
     )
     dropped = pose_graph.to_values(
         np.column_stack([solve_translations(diagonal_only, theta), theta])
@@ -64,8 +64,8 @@ def test_correlated_information_is_used(small_noisy):
 
 def test_translation_step_chi2_is_gtsams_chi2_of_the_translation_step(small_noisy):
     """The real-cost reward's chi2 (scipy, cached pattern) is GTSAM's chi2 of
-    poses_with_orientations, to rounding, away from the optimum and near it."""
-    from rlpgo_gtsam import poses_with_orientations
+    poses_with_rotations, to rounding, away from the optimum and near it."""
+    from rlpgo_gtsam import poses_with_rotations
     from rlpgo_gtsam.translations import TranslationStep
 
     graph = PoseGraph2D.from_gtsam(small_noisy.graph, small_noisy.initial)
@@ -73,7 +73,7 @@ def test_translation_step_chi2_is_gtsams_chi2_of_the_translation_step(small_nois
     rng = np.random.default_rng(0)
     truth = _poses(small_noisy.ground_truth)[:, 2]
     for theta in (graph.poses[:, 2], truth + rng.normal(0.0, 0.3, graph.num_poses), truth):
-        poses = poses_with_orientations(graph, theta)
+        poses = poses_with_rotations(graph, theta)
         expected = chi2(graph.graph, graph.to_values(poses))
         assert step.chi2(theta) == pytest.approx(expected, rel=1e-10)
         assert np.abs(step.positions(theta) - poses[:, :2]).max() < 1e-8
@@ -127,13 +127,13 @@ def test_anisotropic_translation_information_keeps_no_factorization():
     assert np.abs(solve_translations(pose_graph, theta) - fresh).max() <= 1e-6 * np.abs(fresh).max()
 
 
-def test_the_chordal_orientations_a_graph_keeps_are_handed_out_as_copies():
-    from rlpgo_gtsam.chordal import chordal_orientations
+def test_the_chordal_rotations_a_graph_keeps_are_handed_out_as_copies():
+    from rlpgo_gtsam.chordal import chordal_rotations
 
     graph, values = read_g2o(dataset("M3500.g2o"))
     pose_graph = PoseGraph2D.from_gtsam(graph, values)
-    first = chordal_orientations(pose_graph)
+    first = chordal_rotations(pose_graph)
     first[:] = 0.0
-    second = chordal_orientations(pose_graph)
+    second = chordal_rotations(pose_graph)
     assert np.abs(second).max() > 0.1
-    assert np.array_equal(second, chordal_orientations(pose_graph))
+    assert np.array_equal(second, chordal_rotations(pose_graph))

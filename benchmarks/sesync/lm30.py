@@ -1,5 +1,5 @@
 """GTSAM LM30 from SE-Sync's rounded estimate, as a process of its own: the second half of
-the baseline that ``benchmarks/process.py`` and ``benchmarks/scale.py`` time (the first is
+the baseline that ``benchmarks/process.py`` times (the first is
 the ``sesync_rounded`` driver).
 
     python benchmarks/sesync/lm30.py INPUT.g2o SESYNC.json OUTPUT.g2o

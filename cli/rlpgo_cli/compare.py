@@ -1,5 +1,5 @@
 """rlpgo-compare: initial guesses side by side, each refined by the same GTSAM solver, on
-planar or 3D g2o files (each file gets its own dimension's methods)."""
+planar or 3D g2o files (each file gets the methods of its group)."""
 
 from __future__ import annotations
 
@@ -13,23 +13,18 @@ from rlpgo_cli.inputs import read_input
 from rlpgo_cli.output import RunFiles, json_text
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, OutputFile
 from rlpgo_gtsam.accuracy import TrajectoryErrors, trajectory_errors
-from rlpgo_gtsam.dimension import (
-    COMPARISON_3D,
-    METHODS_3D,
-    check_method_3d,
-    extract_pose_graph,
-    g2o_dimension,
-)
 from rlpgo_gtsam.errors import OutputError, RlpgoError
 from rlpgo_gtsam.files import check_name
-from rlpgo_gtsam.g2o import read_g2o
-from rlpgo_gtsam.graph import chi2
+from rlpgo_gtsam.graph import chi2, extract_pose_graph
+from rlpgo_gtsam.groups import SE2, SE3, Group
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
+from rlpgo_gtsam.io import file_group, read_g2o
 from rlpgo_gtsam.ranking import (
     FROM_BEST,
     TIE_RELATIVE,
     MethodResult,
     compare_methods,
+    comparison_methods,
     line_progress_options,
     tied_best,
 )
@@ -51,7 +46,7 @@ DEFAULT_METHODS = ",".join([*CLASSICAL, "certified"])
 # What the default leaves out, the agent excepted (benchmarks/compare_speed.py --wins).
 LEFT_OUT = ("fastsync",)
 # On a 3D file: the 3D rows, certified first (--methods not given).
-DEFAULT_METHODS_3D = list(COMPARISON_3D)
+DEFAULT_METHODS_3D = comparison_methods(SE3)
 # The graph compared when no file is given: the paper's n = 300 lawn mower with heavy
 # rotation noise and noisy measurements, where odometry and the classical starts differ.
 DEMO = dict(n=300, sigma_r=0.3, sigma_t=0.05, d=3.0, lc=0.5, noisy_measurements=True)
@@ -112,34 +107,30 @@ def _best_line(results: list[MethodResult]) -> str:
 
 
 def _methods(text: str, start: str) -> list[str]:
-    """The --methods list, each a method of either dimension (a usage error otherwise);
-    ``rl`` is ``rl@<start>``."""
+    """The --methods list, each a method of some group (a usage error otherwise); ``rl`` is
+    ``rl@<start>``."""
     methods = [m.strip() for m in text.split(",") if m.strip()]
     if not methods:
         raise click.BadParameter("give at least one method", param_hint="--methods")
     methods = [f"rl@{start}" if m == "rl" else m for m in methods]
     for method in methods:
-        if method in METHODS_3D:
-            continue
         try:
             check_method(method)
         except RlpgoError as error:
-            raise click.BadParameter(f"{error} (3D files: {', '.join(METHODS_3D)})",
-                                     param_hint="--methods") from None
+            raise click.BadParameter(str(error), param_hint="--methods") from None
     return methods
 
 
-def _methods_for(path: Path, dimension: int, given: list[str] | None) -> list[str]:
+def _methods_for(path: Path, group: Group, given: list[str] | None) -> list[str]:
     """The methods run on the file at ``path``: the --methods given, each checked against
-    the file's dimension (an error that names the file), or that dimension's default."""
+    the file's group (an error that names the file), or that group's default."""
     if given is None:
-        return DEFAULT_METHODS_3D if dimension == 3 else _methods(DEFAULT_METHODS, "odometry")
-    if dimension == 3:
-        for method in given:
-            try:
-                check_method_3d(method)
-            except RlpgoError as error:
-                raise RlpgoError(f"{path} holds a 3D pose graph: {error}") from None
+        return DEFAULT_METHODS_3D if group is SE3 else _methods(DEFAULT_METHODS, "odometry")
+    for method in given:
+        try:
+            check_method(method, group)
+        except RlpgoError as error:
+            raise RlpgoError(f"{path} holds a {group.kind} pose graph: {error}") from None
     return given
 
 
@@ -162,7 +153,7 @@ def _methods_for(path: Path, dimension: int, given: list[str] | None) -> list[st
               help="Agent of the rl methods: a shipped model name or a model file.")
 @click.option("--episodes", type=ROLLOUTS, default=1, show_default=True,
               help="Rollouts of the rl methods (lowest chi2 kept).")
-@click.option("--start", type=click.Choice(start_names()), default="odometry",
+@click.option("--start", type=click.Choice(start_names(SE2)), default="odometry",
               show_default=True, help="Start of method rl (rl@<start> names it per method).")
 @click.option("--cycles", type=click.IntRange(1, 10_000), default=None,
               help="Passes over the edges of the rl methods [default: the model's test cycles].")
@@ -203,10 +194,10 @@ def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, e
             check_name(plot)
     # One check of every output: a PNG that is an input or is also --json is refused.
     run.check(*(plots if plot_dir is not None and plot_dir.is_dir() else []), json_path)
-    dimensions = [g2o_dimension(path) for path in files]
-    per_file = [_methods_for(path, dimension, method_list if given else None)
-                for path, dimension in zip(files, dimensions, strict=True)]
-    three = [path for path, dimension in zip(files, dimensions, strict=True) if dimension == 3]
+    groups = [file_group(path) for path in files]
+    per_file = [_methods_for(path, group, method_list if given else None)
+                for path, group in zip(files, groups, strict=True)]
+    three = [path for path, group in zip(files, groups, strict=True) if group is SE3]
     for option, used in (("--ground-truth", truth_path), ("--plot", plot_dir)):
         if used is not None and three:
             raise RlpgoError(f"{three[0]} holds a 3D pose graph: {option} is planar so far "

@@ -9,9 +9,8 @@ import numpy as np
 from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import SEED, FiniteFloat, OutputFile
-from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text, g2o_text, g2o_text_lines
-from rlpgo_gtsam.g2o3d import g2o3d_text, g2o3d_text_lines
 from rlpgo_gtsam.graph import chi2
+from rlpgo_gtsam.io import EDGE_LIST_LINE, edge_list_text, g2o_text, g2o_text_lines
 from rlpgo_gtsam.synthetic import (
     GROUP_SIZE,
     LAYER_ROWS,
@@ -22,9 +21,8 @@ from rlpgo_gtsam.synthetic import (
     generate3d,
 )
 
-# --dim: the generator, the g2o text (and each factor's line) and the edge lists' tag
-_DIMENSIONS = {2: (generate, g2o_text_lines, g2o_text, "EDGE_SE2"),
-               3: (generate3d, g2o3d_text_lines, g2o3d_text, "EDGE_SE3:QUAT")}
+# --dim: the generator
+_GENERATORS = {2: generate, 3: generate3d}
 
 
 @click.command(cls=RlpgoCommand)
@@ -73,17 +71,17 @@ def main(dim, n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, grou
     """Generate a lawn-mower pose graph as in the RL-PGO paper (in layers in 3D: --dim 3)."""
     run = RunFiles()
     run.check(output, ground_truth, outliers_out)
-    make, text_lines, text_of, tag = _DIMENSIONS[dim]
+    make = _GENERATORS[dim]
     sample = make(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
                   noisy_measurements=noisy_measurements, outliers=outliers,
                   outlier_mode=outlier_mode, group_size=group_size)
-    text, lines = text_lines(sample.graph, sample.initial)
+    text, lines = g2o_text_lines(sample.graph, sample.initial)
     files = [(output, text.encode())]
     if ground_truth is not None:
-        files.append((ground_truth, text_of(sample.graph, sample.ground_truth).encode()))
+        files.append((ground_truth, g2o_text(sample.graph, sample.ground_truth).encode()))
     if outliers_out is not None:
         listed = edge_list_text(sample.graph, sample.outlier_edges, lines, g2o_name=output.name,
-                                title="wrong loop closures that rlpgo-generate added", tag=tag)
+                                title="wrong loop closures that rlpgo-generate added")
         files.append((outliers_out, listed.encode("utf-8", "surrogateescape")))
     run.write_together(files)  # every file or none
     click.echo(f"{output}: {n} poses, {sample.graph.size()} edges, initial chi2 "

@@ -14,38 +14,34 @@ from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.inputs import read_input
 from rlpgo_cli.output import RunFiles, json_text
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, FiniteFloat, OutputFile
-from rlpgo_gtsam.dimension import (
-    COMPARISON_3D,
-    METHODS_3D,
-    check_method_3d,
-    g2o_dimension,
-    pose_graph_text,
-)
 from rlpgo_gtsam.errors import RlpgoError
-from rlpgo_gtsam.g2o import EDGE_LIST_LINE, edge_list_text
 from rlpgo_gtsam.graph import chi2
-from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
+from rlpgo_gtsam.groups import SE2, SE3, Group
+from rlpgo_gtsam.initializers import CLASSICAL, check_method, initializer_names, start_names
+from rlpgo_gtsam.io import EDGE_LIST_LINE, edge_list_text, file_group, g2o_text
 from rlpgo_gtsam.ranking import (
     MethodResult,
     best_of,
     compare_methods,
+    comparison_methods,
     line_progress_options,
     ties,
     usable_rows,
 )
 from rlpgo_gtsam.residuals import variance_factor
 from rlpgo_gtsam.rl.models import DEFAULT_MODEL, model_path
+from rlpgo_gtsam.robust.results import AllEdgesStep, JudgedStep, Step
+from rlpgo_gtsam.robust.settings import RobustSettings
 from rlpgo_gtsam.staged import DEFAULT_BUDGET_S, DEFAULT_SEARCHES, staged_initialize
 
 # --method all: every initializer, and the agent from each classical start; on a 3D graph
-# the 3D rows (COMPARISON_3D).
+# the 3D rows (comparison_methods).
 ALL = [*CLASSICAL, "fastsync", "certified", *(f"rl@{s}" for s in (*CLASSICAL, "certified"))]
 # Options of the staged default and the methods, which --robust does not use.
 NOT_ROBUST = ("budget", "model", "cycles", "episodes", "start", "iters", "seed")
-# --false-rejections' default in --help: the library's DEFAULT_FALSE_REJECTION_RATE, written
-# here so that --help need not import the robust path (tests/test_cli_robust.py holds them
-# equal)
-FALSE_REJECTIONS_DEFAULT = 0.0025
+# --false-rejections' default in --help: the library's (its settings import without the
+# robust path)
+FALSE_REJECTIONS_DEFAULT = RobustSettings.false_rejection_rate
 # The agent's options (--start, read by --method rl alone, is checked on its own).
 AGENT_OPTIONS = ("model", "cycles", "episodes", "seed")
 
@@ -71,41 +67,36 @@ def _progress_bar():
 
 
 def _check_method_name(method: str, start: str) -> None:
-    """A usage error for a --method that is no method of either dimension."""
+    """A usage error for a --method that is no method of any group."""
     name = f"rl@{start}" if method == "rl" else method
-    if method in ("auto", "all") or name in METHODS_3D:
+    if method in ("auto", "all"):
         return
     try:
         check_method(name)
     except RlpgoError as error:
-        raise click.BadParameter(f"{error} (3D graphs: {', '.join(METHODS_3D)})",
-                                 param_hint="--method") from None
+        raise click.BadParameter(str(error), param_hint="--method") from None
 
 
-def _method_list(method: str, start: str, dimension: int, input_path: Path) -> list[str]:
-    """The methods --method runs on a graph of ``dimension``; a method of the other
-    dimension is an error that names the file."""
+def _method_list(method: str, start: str, group: Group, input_path: Path) -> list[str]:
+    """The methods --method runs on a graph of ``group``; a method that does not take it is
+    an error that names the file."""
     if method == "auto":
         return ["certified", *(name for name, _ in DEFAULT_SEARCHES)]
     if method == "all":
-        return ALL if dimension == 2 else list(COMPARISON_3D)
-    if dimension == 3:
-        try:
-            check_method_3d(method)
-        except RlpgoError as error:
-            raise RlpgoError(f"{input_path} holds a 3D pose graph: {error}") from None
-        return [method]
-    name = f"rl@{start}" if method == "rl" else method
-    check_method(name)
-    return [name]
+        return ALL if group is SE2 else comparison_methods(group)
+    try:
+        check_method(method, group)
+    except RlpgoError as error:
+        raise RlpgoError(f"{input_path} holds a {group.kind} pose graph: {error}") from None
+    return [f"rl@{start}" if method == "rl" else method]
 
 
-def _check_3d_options(ctx: click.Context, input_path: Path) -> None:
-    """The agent's options name nothing on a 3D graph: the agent is planar."""
+def _check_agent_options(ctx: click.Context, input_path: Path, group: Group) -> None:
+    """The agent's options name nothing on a graph the agent does not take (it is planar)."""
     given = [f"--{name}" for name in (*AGENT_OPTIONS, "start") if _given(ctx, name)]
-    if given:
-        raise RlpgoError(f"{input_path} holds a 3D pose graph, and the agent is planar (it runs "
-                         f"on 2D graphs only): {', '.join(given)} cannot apply")
+    if given and "rl" not in initializer_names(group):
+        raise RlpgoError(f"{input_path} holds a {group.kind} pose graph, and the agent is "
+                         f"planar (it runs on 2D graphs only): {', '.join(given)} cannot apply")
 
 
 def _ranking(results: list[MethodResult]) -> list[tuple[str, MethodResult]]:
@@ -113,10 +104,11 @@ def _ranking(results: list[MethodResult]) -> list[tuple[str, MethodResult]]:
     share a rank, shown as ``=k``, in the order they ran (the first is the one
     written); failed rows last, unranked."""
     usable = usable_rows(results)
-    ordered = sorted(usable, key=lambda r: r.refined_chi2)
+    refined = {id(r): float(r.refined_chi2) for r in usable if r.refined_chi2 is not None}
+    ordered = sorted(usable, key=lambda r: refined[id(r)])
     groups: list[list[MethodResult]] = []
     for r in ordered:
-        if groups and ties(r.refined_chi2, groups[-1][0].refined_chi2):
+        if groups and ties(refined[id(r)], refined[id(groups[-1][0])]):
             groups[-1].append(r)
         else:
             groups.append([r])
@@ -210,21 +202,23 @@ def _check_robust_options(ctx: click.Context, robust: bool, method: str, refine:
 LOOSE_FIT = 1.5
 
 
-def _describe_step(step: dict) -> str:
+def _describe_step(step: Step) -> str:
     """One line on a step of the robust path (``RobustResult.steps``)."""
-    shown = ("step", "seconds", "judged", "kept", "rejected")
-    if "kept" not in step and step.get("skipped"):  # the all-edges check, not needed
-        return f"step {step.get('step')}: skipped: {step['skipped']}"
-    if "kept" not in step:  # the all-edges check
-        verdict = "every edge fits, nothing rejected" if step.get("passed") else \
-            "not every edge fits"
-        worst = step.get("worst_edge_chi2")
+    if isinstance(step, AllEdgesStep):
+        if step.skipped:  # not needed
+            return f"step {step.name}: skipped: {step.skipped}"
+        verdict = "every edge fits, nothing rejected" if step.passed else "not every edge fits"
+        worst = step.worst_edge_chi2
         judged = "" if worst is None else f", worst edge chi2 {worst:.4g}"
-        return (f"step {step.get('step')}: certified {step.get('certified')}{judged}: "
-                f"{verdict}; {step.get('seconds', 0.0):.2f} s")
-    text = (f"step {step.get('step')}: kept {step.get('kept')} of {step.get('judged')} edges "
-            f"judged, rejected {step.get('rejected')}; {step.get('seconds', 0.0):.2f} s")
-    return text + "".join(f"; {key.replace('_', ' ')} {value}" for key, value in step.items()
+        return (f"step {step.name}: certified {step.certified}{judged}: {verdict}; "
+                f"{step.seconds:.2f} s")
+    if not isinstance(step, JudgedStep):
+        return f"step {step.name}: {step.seconds:.2f} s"
+    shown = ("step", "seconds", "judged", "kept", "rejected")
+    text = (f"step {step.name}: kept {step.kept} of {step.judged} edges judged, rejected "
+            f"{step.rejected}; {step.seconds:.2f} s")
+    return text + "".join(f"; {key.replace('_', ' ')} {value}"
+                          for key, value in step.record().items()
                           if key not in shown and value is not None)
 
 
@@ -243,7 +237,7 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
                 covariance_scale: float = 1.0,
                 false_rejections: float | None = None) -> None:
     # not on the default's path
-    from rlpgo_gtsam.robust import DEFAULT_FALSE_REJECTION_RATE, DOUBTFUL_BELOW, robust_initialize
+    from rlpgo_gtsam.robust import robust_initialize
 
     run = RunFiles([input_path])
     run.check(output, outliers_out, json_path)  # fail before the work, not after
@@ -252,7 +246,7 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
     _print_notes(notes)
     began = time.perf_counter()
     pose_graph = read.pose_graph()
-    rate = DEFAULT_FALSE_REJECTION_RATE if false_rejections is None else false_rejections
+    rate = FALSE_REJECTIONS_DEFAULT if false_rejections is None else false_rejections
     if pose_graph.dimension == 3:  # the robust path takes what it can: its error otherwise
         try:
             result = robust_initialize(graph, values, trust_odometry=trust_odometry,
@@ -273,7 +267,8 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
     judged = pose_graph.num_edges - len(result.trusted)
     if result.doubtful:
         click.echo(f"doubtful: {len(result.doubtful)} of the {judged - len(result.rejected)} "
-                   f"loop closures kept fit the map poorly (p < {DOUBTFUL_BELOW:g}; where the "
+                   f"loop closures kept fit the map poorly (p < "
+                   f"{RobustSettings.doubtful_below:g}; where the "
                    "covariances state "
                    "the noise, 1 in 20 true closures does too): not rejected, and not told "
                    "apart from wrong ones, worst first: factors "
@@ -288,11 +283,10 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
                 "were rejected; --covariance-scale says by how much (docs/robust.md)")
         click.echo(f"hint: {hint}")
     # every edge, new vertices
-    files = [(output, pose_graph_text(graph, result.values, pose_graph).encode())]
+    files = [(output, g2o_text(graph, result.values, pose_graph).encode())]
     if outliers_out is not None:
         listed = edge_list_text(graph, result.rejected, lines, g2o_name=input_path.name,
-                                title="edges that rlpgo-init --robust judged wrong",
-                                tag="EDGE_SE3:QUAT" if pose_graph.dimension == 3 else "EDGE_SE2")
+                                title="edges that rlpgo-init --robust judged wrong")
         # a file name that is not UTF-8 comes back as the bytes it was
         files.append((outliers_out, listed.encode("utf-8", "surrogateescape")))
     seconds = time.perf_counter() - began
@@ -305,7 +299,7 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
             "false_rejection_rate": rate, "hint": hint,  # the rate used, given or not
             "rejected": list(result.rejected),
             "doubtful": [{"factor": k, "p_value": p} for k, p in result.doubtful],
-            "steps": result.steps, "seconds": seconds,
+            "steps": [step.record() for step in result.steps], "seconds": seconds,
             "notes": notes}).encode()))
     run.write_together(files)  # the guess, its list and its record, or none
     what = "loop closures" if trust_odometry else "edges"
@@ -332,7 +326,7 @@ def _print_stage(row: MethodResult, reason: str) -> None:
               help="auto (certify, then refine), all (every method, keep the lowest chi2), rl, "
                    "rl@<start>, or one initializer: " + ", ".join(
                        [*CLASSICAL, "fastsync", "certified"]) + "; on a 3D graph auto, all "
-                   "or one of " + ", ".join(METHODS_3D) + ".")
+                   "or one of " + ", ".join(initializer_names(SE3)) + ".")
 @click.option("--budget", type=FiniteFloat(0.0, 1e6), default=DEFAULT_BUDGET_S,
               show_default=True,
               help="--method auto: the whole run's time limit, the certified stage's included; "
@@ -379,7 +373,7 @@ def _print_stage(row: MethodResult, reason: str) -> None:
 @click.option("--episodes", type=ROLLOUTS, default=1, show_default=True,
               help="[agent] Rollouts differing in their initial last action; lowest chi2 "
                    "kept.")
-@click.option("--start", type=click.Choice(start_names()), default="odometry",
+@click.option("--start", type=click.Choice(start_names(SE2)), default="odometry",
               show_default=True,
               help="[agent] Orientations the agent starts from (with --method rl).")
 @click.option("--seed", type=SEED, default=0, show_default=True,
@@ -408,10 +402,9 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
         return
     _check_method_name(method, start)
     _check_method_options(ctx, method)
-    dimension = g2o_dimension(input_path)
-    if dimension == 3:
-        _check_3d_options(ctx, input_path)
-    methods = _method_list(method, start, dimension, input_path)
+    group = file_group(input_path)
+    _check_agent_options(ctx, input_path, group)
+    methods = _method_list(method, start, group, input_path)
     run = RunFiles([input_path])
     uses_agent = any(m.partition("@")[0] == "rl" for m in methods)
     if uses_agent:
@@ -462,7 +455,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
                                                _ranking(results)))
         elif chosen.init.certificate is not None:
             click.echo(f"certificate: {chosen.init.certificate.describe()}")
-    files = [(output, pose_graph_text(graph, chosen.refined, pose_graph).encode())]
+    files = [(output, g2o_text(graph, chosen.refined, pose_graph).encode())]
     seconds = time.perf_counter() - began
     input_chi2 = chi2(graph, values)
     if json_path is not None:

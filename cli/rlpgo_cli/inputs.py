@@ -9,11 +9,12 @@ from typing import TYPE_CHECKING
 
 import gtsam
 
-from rlpgo_gtsam.dimension import extract_pose_graph, read_pose_graph_extracted
 from rlpgo_gtsam.errors import InformationWarning
+from rlpgo_gtsam.graph import extract_pose_graph
+from rlpgo_gtsam.io import read_g2o_extracted
 
 if TYPE_CHECKING:
-    from rlpgo_gtsam.graph3d import AnyPoseGraph
+    from rlpgo_gtsam.graph import PoseGraph
 
 
 @dataclass(eq=False)
@@ -31,11 +32,11 @@ class InputGraph:
     values: gtsam.Values
     notes: list[str] = field(default_factory=list)
     lines: list[int] = field(default_factory=list)  # each factor's file line
-    read_extraction: AnyPoseGraph | None = None  # the planar reader's, where it made one
+    read_extraction: PoseGraph | None = None  # the planar reader's, where it made one
 
-    def pose_graph(self) -> AnyPoseGraph:
+    def pose_graph(self) -> PoseGraph:
         """The graph's one extraction: the planar reader's (the same arrays, without a
-        second walk over the factors), else :func:`~rlpgo_gtsam.graph3d.extract_pose_graph`
+        second walk over the factors), else :func:`~rlpgo_gtsam.graph.extract_pose_graph`
         (which raises what it refuses)."""
         if self.read_extraction is not None:
             return self.read_extraction
@@ -44,11 +45,11 @@ class InputGraph:
 
 def read_input(path: Path) -> InputGraph:
     """Read a planar or a 3D g2o file
-    (:func:`~rlpgo_gtsam.dimension.read_pose_graph_extracted`), with each factor's file line
+    (:func:`~rlpgo_gtsam.io.read_g2o_extracted`), with each factor's file line
     and the reader's information warnings as notes; any other warning is passed on."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", InformationWarning)
-        graph, values, factor_lines, extraction = read_pose_graph_extracted(path)
+        graph, values, factor_lines, extraction = read_g2o_extracted(path)
     notes = []
     for warning in caught:
         if issubclass(warning.category, InformationWarning):

@@ -27,7 +27,7 @@ import sys
 INTERRUPTED_EXIT = 130  # here, not in rlpgo_cli.errors: this module must import nothing heavy
 
 
-def _interrupted(error: BaseException) -> bool:
+def _interrupted(error: BaseException | None) -> bool:
     """True for Ctrl-C, also when an extension module's initialization turned it into an
     ImportError ("initialization failed")."""
     while error is not None:
@@ -71,7 +71,7 @@ def _exec_wrapped(name: str, path, around) -> object:
     if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
         return spec
     run = spec.loader.exec_module
-    spec.loader.exec_module = lambda module: around(run, module)
+    spec.loader.exec_module = lambda module: around(run, module)  # type: ignore[method-assign]
     return spec
 
 
@@ -112,13 +112,13 @@ class _NumpyToolingUnloaded(_OnFirstImport):
         left_out = {n for n in _NUMPY_TOOLING if f"numpy.{n}" not in sys.modules}
         numpy.__all__[:] = [n for n in names if n not in left_out]
         if listing is not None:
-            numpy.__dir__ = lambda: [n for n in listing() if n not in left_out]
+            numpy.__dir__ = lambda: [n for n in listing() if n not in left_out]  # type: ignore[method-assign]
         try:
             run(module)
         finally:
             numpy.__all__[:] = names
             if listing is not None:
-                numpy.__dir__ = listing
+                numpy.__dir__ = listing  # type: ignore[method-assign]
 
 
 class _DocUnparsed:
@@ -188,9 +188,10 @@ class _CollectorOffDuring(_OnFirstImport):
         _collector_off(run, module)
 
 
-# modules the lean commands import inside a step (rlpgo_gtsam.initializers,
-# initializers3d) that bring SciPy with them
-_LOADING_SCIPY = ("rlpgo_gtsam.certified", "rlpgo_gtsam.certified3d")
+# modules the lean commands import inside a step (rlpgo_gtsam.initializers) that bring
+# SciPy with them: the relaxation's package, then its planar or spatial problem
+_LOADING_SCIPY = ("rlpgo_gtsam.relaxation", "rlpgo_gtsam.relaxation.circles",
+                  "rlpgo_gtsam.relaxation.stiefel")
 
 
 def _import(module: str, lean: bool = False):

@@ -24,7 +24,7 @@ from rlpgo_gtsam.rl.episode import (
     OrientationState,
     generated_graph,
 )
-from rlpgo_gtsam.translations import poses_with_orientations
+from rlpgo_gtsam.translations import poses_with_rotations
 
 __all__ = ["ENV_ID", "PoseGraphEnv"]
 
@@ -110,7 +110,7 @@ class PoseGraphEnv(gym.Env):
             raise RlpgoError("cycles must be >= 1")
         if (graph is None) != (values is None):
             raise RlpgoError("give both graph and values, or neither")
-        if graph is not None and pose_graph is None:
+        if graph is not None and values is not None and pose_graph is None:
             pose_graph = PoseGraph2D.from_gtsam(graph, values)
         self._fixed = pose_graph is not None
         self.observation_space = gym.spaces.Box(
@@ -183,7 +183,7 @@ class PoseGraphEnv(gym.Env):
         if self.pose_graph is None:
             raise RlpgoError("reset the environment first")
         return self.pose_graph.to_values(
-            poses_with_orientations(self.pose_graph, self.best_orientations()))
+            poses_with_rotations(self.pose_graph, self.best_orientations()))
 
 
 if ENV_ID not in gym.registry:

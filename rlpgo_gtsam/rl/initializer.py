@@ -24,7 +24,7 @@ from rlpgo_gtsam.initializers import Estimate, Initializer, start_names
 from rlpgo_gtsam.rl.agent.inference import NumpyPolicy
 from rlpgo_gtsam.rl.episode import rollout
 from rlpgo_gtsam.rl.models import DEFAULT_MODEL, resolve_model
-from rlpgo_gtsam.translations import poses_with_orientations
+from rlpgo_gtsam.translations import poses_with_rotations
 
 __all__ = ["RLInitializer", "MAX_EPISODES", "MAX_CYCLES"]
 
@@ -83,8 +83,8 @@ class RLInitializer(Initializer):
         config = self.model.env_config
         result = rollout(self.policy, pose_graph, start_theta, self.cycles,
                          config.action_range_rad, self.last_actions(), self.progress)
-        guesses = [poses_with_orientations(pose_graph, theta) for theta in result.best_theta]
-        costs = [chi2(pose_graph.graph, pose_graph.to_values(poses)) for poses in guesses]
+        guesses = [poses_with_rotations(pose_graph, theta) for theta in result.best_theta]
+        costs = [chi2(pose_graph.factor_graph, pose_graph.to_values(poses)) for poses in guesses]
         chosen = int(np.argmin(costs))
         return Estimate(guesses[chosen], {
             "rollout_chi2": [float(c) for c in costs], "chosen_rollout": chosen,

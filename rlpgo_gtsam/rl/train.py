@@ -181,10 +181,11 @@ def _training_state(path: Path, config: TrainConfig) -> dict:
     if not isinstance(state, dict) or not isinstance(state.get("agent"), dict):
         raise ModelError(f"{path}: not a training state (needs agent, episode, seconds)")
     episode, seconds = state.get("episode"), state.get("seconds")
-    if type(episode) is not int or not 0 <= episode <= config.episodes:
+    if not isinstance(episode, int) or type(episode) is bool or not 0 <= episode <= config.episodes:
         raise ModelError(f"{path}: episode must be an integer in 0..{config.episodes}, "
                          f"got {str(episode)[:40]}")
-    if type(seconds) not in (int, float) or not 0 <= seconds < float("inf"):
+    if not isinstance(seconds, int | float) or type(seconds) is bool \
+            or not 0 <= seconds < float("inf"):
         raise ModelError(f"{path}: seconds must be a finite number >= 0")
     best = state.get("best_validation", float("inf"))
     if type(best) not in (int, float) or best != best:

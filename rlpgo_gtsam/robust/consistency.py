@@ -5,7 +5,7 @@ chain: ``Z_e^-1 D(i, k) Z_f D(l, j)`` is the identity up to noise (``D(a, b)`` t
 odometry from pose a to pose b). Its error (the cycle's Logmap: 3 dof on SE(2), 6 on SE(3))
 is scored against the cycle's covariance, propagated to first order from every measurement
 in it through the group's adjoints. A score above the bar is evidence that one of the two is
-wrong: a *conflict*. The group is the graph's (:mod:`rlpgo_gtsam.robust.groups`): the same
+wrong: a *conflict*. The group is the graph's (:mod:`rlpgo_gtsam.groups`): the same
 code for planar and 3D graphs.
 
 Following pairwise consistency maximization (Mangelson et al., ICRA 2018) the closures are
@@ -18,11 +18,11 @@ absence of support is not evidence against it. A group of wrong closures that ag
 each other (Vertigo's groups) conflicts with the many true closures it contradicts, so it
 goes, not them.
 
-Bounded: each closure is tested against at most ``NEAR`` closures next to it in chain order
-(sorted by the chain position of its nearer end) and ``FAR`` closures spread evenly over
-the chain order, so at most ``(NEAR + FAR) x closures`` pairs, scored in chunks of
-``_CHUNK``: memory and time are linear in the number of closures, whatever their layout
-(5000 parallel closures on 21 poses included).
+Bounded: each closure is tested against at most ``consistency_near`` closures next to it in
+chain order (sorted by the chain position of its nearer end) and ``consistency_far`` closures
+spread evenly over the chain order (:class:`~rlpgo_gtsam.robust.settings.RobustSettings`), so
+at most ``(near + far) x closures`` pairs, scored in chunks: memory and time are linear in
+the number of closures, whatever their layout (5000 parallel closures on 21 poses included).
 
 The chain is the spanning tree :func:`~rlpgo_gtsam.graph.odometry_edges` finds; ``D(a, b)``
 follows the tree through the two poses' lowest common ancestor, and its covariance comes
@@ -31,7 +31,7 @@ same whatever its length.
 
 What it cannot tell apart: two sets of closures that conflict with each other and are
 (nearly) equally supported. Each connected group of conflicts whose rejected closures form
-a consistent alternative at least ``AMBIGUOUS_RATIO`` times the size of what was kept
+a consistent alternative at least ``ambiguous_ratio`` times the size of what was kept
 there is reported (:attr:`Consistency.ambiguous`), not decided silently.
 """
 
@@ -42,38 +42,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rlpgo_gtsam.graph import component_labels
-from rlpgo_gtsam.robust.groups import Group, PoseGraph, group_of
+from rlpgo_gtsam.graph import PoseGraph, component_labels
+from rlpgo_gtsam.groups import Group, group_of
+from rlpgo_gtsam.robust.settings import RobustSettings
 
-__all__ = ["Consistency", "ChainTree", "pairwise_consistency", "NEAR", "FAR",
-           "LOOSE_SUPPORT", "WINDOW", "AMBIGUOUS_RATIO"]
-
-# Each closure is tested against this many closures next to it in chain order, ...
-NEAR = 16
-# ... and this many spread over the whole chain (long cycles: global evidence).
-FAR = 16
-# A closure with this many agreeing tests over short cycles has loose support (the seed and
-# the verify step's looser bar), ...
-LOOSE_SUPPORT = 3
-# ... short: both ends of the two closures within this many chain steps of each other. Over
-# long cycles with heavy rotation noise anything agrees (a uniformly random wrong closure
-# agreed with 34-44 of its 32 far and near tests on the generator's 0.1 rad graphs).
-WINDOW = 15
-# A rejected alternative at least this fraction of the kept side's size is ambiguous.
-AMBIGUOUS_RATIO = 0.8
-# A pair agrees (support, for the seed) below the chi-square threshold or, where the
-# scores' lower quartile shows the nominal covariances overstate
-# the noise (real data), below this many times that quartile.
-_DATA_SCALE = 40.0
-# A pair conflicts above the threshold or this many times the lower quartile, if lower: an
-# honest chi-square of 1 to 3 dof passes it but for 6e-6 of true pairs.
-_CONFLICT_SCALE = 200.0
-_CHUNK = 50_000  # pairs scored at once
-# Informative agreements for the seed: with NEAR + FAR = 32 tests a wrong closure passes
-# each with probability below _CHANCE, so 2 by chance for 4% of wrong closures (3 of 86 on
-# the generator's "plausible" graph), 3 for 0.4%.
-_MIN_SUPPORT = 3
-_CHANCE = 1e-2  # a test is informative where a wrong closure passes it less often
+__all__ = ["Consistency", "ChainTree", "pairwise_consistency"]
 
 
 @dataclass
@@ -82,12 +55,12 @@ class Consistency:
 
     Attributes:
         kept: the loop closures in the consistent set (chain edges are False).
-        supported: kept closures that agree with at least ``LOOSE_SUPPORT`` tested ones over
-            short cycles (both ends within ``WINDOW`` chain steps).
+        supported: kept closures that agree with at least ``loose_support`` tested ones over
+            short cycles (both ends within ``support_window`` chain steps).
         seed: kept closures with positive support, where the robust start begins: at least
-            ``_MIN_SUPPORT`` agreements in tests that a wrong closure would pass by chance
-            less than ``_CHANCE`` of the time, or loose support. (Support chooses where the
-            estimate starts; only evidence rejects.)
+            ``min_support`` agreements in tests that a wrong closure would pass by chance
+            less than ``informative_chance`` of the time, or loose support. (Support chooses
+            where the estimate starts; only evidence rejects.)
         pairs: pairs scored.
         conflicts: pairs in conflict.
         bar: the score below which a pair agrees (support).
@@ -250,21 +223,86 @@ class ChainTree:
 
 
 def pairwise_consistency(g: PoseGraph, chain_mask: np.ndarray, threshold: float,
-                         near: int = NEAR, far: int = FAR) -> Consistency:
+                         settings: RobustSettings | None = None) -> Consistency:
     """The consistent set of loop closures; see the module docstring.
 
     Args:
         g: the graph.
         chain_mask: (m,) the odometry chain (a spanning tree; the rest are closures).
         threshold: chi-square bar of a consistent cycle (the group's dof: 3 planar, 6 3D).
-        near, far: closures tested per closure next to it in chain order / spread out.
+        settings: the closures tested per closure, the support and conflict scales (None:
+            the defaults).
     """
+    settings = settings if settings is not None else RobustSettings()
     closures = np.flatnonzero(~chain_mask)
     kept = ~chain_mask
     result = Consistency(kept=kept.copy(), supported=np.zeros(g.num_edges, bool),
                          seed=np.zeros(g.num_edges, bool))
     if len(closures) < 2:
         return result
+    scored = _scored_pairs(g, chain_mask, closures, settings)
+    a_idx, b_idx, scores = scored.a, scored.b, scored.scores
+    # the scores' lower quartile sets the scale where nominal covariances overstate the
+    # noise (real data); evidence against asks for a far larger multiple than support
+    quartile = float(np.quantile(scores, 0.25))
+    conflict = scores > min(threshold, settings.conflict_scale * quartile)
+    bar = min(threshold, settings.data_scale * quartile)
+    agreed = scores <= bar
+    agree = np.bincount(np.concatenate([a_idx[agreed], b_idx[agreed]]),
+                        minlength=len(closures))
+    # the chance that a wrong closure agrees anyway: the agreement ellipsoid's volume over
+    # that of the wrong closures' distribution (a square or cube of the chain's extent)
+    group = scored.tree.group
+    side = max(float(np.ptp(group.translations(scored.tree.poses), axis=0).max()), 1e-9)
+    sharp = agreed & (group.agreement_chance(bar, scored.volume, side)
+                      < settings.informative_chance)
+    ca, cb = a_idx[conflict], b_idx[conflict]
+    removed = _greedy_removal(len(closures), ca, cb, agree)
+    kept[closures[removed]] = False
+    result.kept = kept
+    # support counts agreements with closures the conflicts left, and not with closures
+    # parallel to it a few steps along (i + k, j + k): a run of wrong closures from one
+    # aliased place (Vertigo's groups) agrees with itself, so a run must find its support
+    # outside itself; a group of wrong closures that agree with each other supports nobody
+    # once it is out; a true closure that the greedy removal took for a few conflicts with
+    # true ones (linearized cycles under heavy rotation noise: 26 of 10496 true pairs on the
+    # 0.2 rad graph) keeps its support from the rest and joins the seed when that outweighs
+    # its conflicts with them
+    near_agree = _count(len(closures), a_idx, b_idx, agreed & scored.short & ~scored.parallel,
+                        ~removed)
+    informed = _count(len(closures), a_idx, b_idx, sharp & ~scored.parallel, ~removed)
+    against = _count(len(closures), a_idx, b_idx, conflict, ~removed)
+    loose = near_agree >= settings.loose_support
+    support = (informed >= settings.min_support) | loose
+    result.supported[closures] = ~removed & loose
+    result.seed[closures] = support & (~removed | (np.maximum(informed, near_agree) > against))
+    result.pairs, result.conflicts, result.bar = len(a_idx), int(conflict.sum()), bar
+    result.ambiguous = [
+        (closures[k].tolist(), closures[r].tolist())
+        for k, r in _ambiguous(len(closures), ca, cb, removed, agree, settings.ambiguous_ratio)]
+    return result
+
+
+@dataclass
+class _ScoredPairs:
+    """The pairs of closures tested (indices into the closures, ``a`` and ``b``), each
+    pair's cycle score (chi2 of its error against its covariance), the cycle covariance's
+    ``volume`` (sqrt det), whether the cycle is ``short`` (both ends within the support
+    window) and whether the two closures run ``parallel`` a few steps apart."""
+
+    tree: ChainTree
+    a: np.ndarray
+    b: np.ndarray
+    scores: np.ndarray
+    volume: np.ndarray
+    short: np.ndarray
+    parallel: np.ndarray
+
+
+def _scored_pairs(g: PoseGraph, chain_mask: np.ndarray, closures: np.ndarray,
+                  settings: RobustSettings) -> _ScoredPairs:
+    """The pairs of ``closures`` to test (:func:`_pairs`), scored through the chain's tree in
+    chunks of ``settings.consistency_chunk`` pairs."""
     covariance = np.linalg.inv(g.information)
     tree = ChainTree.build(g, chain_mask, covariance)
     group = tree.group
@@ -273,60 +311,25 @@ def pairwise_consistency(g: PoseGraph, chain_mask: np.ndarray, threshold: float,
     measured, closure_cov = _oriented(group, group.measured(g)[closures], covariance[closures],
                                       flip)
     i[flip], j[flip] = j[flip], i[flip].copy()
-    a_idx, b_idx = _pairs(np.lexsort((tree.position[j], tree.position[i])), near, far)
-
-    scores = np.empty(len(a_idx))
-    volume = np.empty(len(a_idx))
-    short = np.empty(len(a_idx), bool)
-    parallel = np.empty(len(a_idx), bool)
-    for start in range(0, len(a_idx), _CHUNK):
-        a, b = a_idx[start:start + _CHUNK], b_idx[start:start + _CHUNK]
+    a_idx, b_idx = _pairs(np.lexsort((tree.position[j], tree.position[i])),
+                          settings.consistency_near, settings.consistency_far)
+    window, chunk = settings.support_window, settings.consistency_chunk
+    scored = _ScoredPairs(tree, a_idx, b_idx, np.empty(len(a_idx)), np.empty(len(a_idx)),
+                          np.empty(len(a_idx), bool), np.empty(len(a_idx), bool))
+    for start in range(0, len(a_idx), chunk):
+        part = slice(start, start + chunk)
+        a, b = a_idx[part], b_idx[part]
         error, total = tree.cycles(i[a], j[a], i[b], j[b], measured[a], closure_cov[a],
                                    measured[b], closure_cov[b])
-        scores[start:start + _CHUNK] = np.einsum(
+        scored.scores[part] = np.einsum(
             "ea,ea->e", error, np.linalg.solve(total, error[..., None])[..., 0])
-        volume[start:start + _CHUNK] = np.sqrt(np.maximum(np.linalg.det(total), 0.0))
-        short[start:start + _CHUNK] = ((tree.distance(i[a], i[b]) <= WINDOW) &
-                                       (tree.distance(j[a], j[b]) <= WINDOW))
+        scored.volume[part] = np.sqrt(np.maximum(np.linalg.det(total), 0.0))
+        scored.short[part] = ((tree.distance(i[a], i[b]) <= window) &
+                              (tree.distance(j[a], j[b]) <= window))
         shift_i = tree.position[i[b]] - tree.position[i[a]]
         shift_j = tree.position[j[b]] - tree.position[j[a]]
-        parallel[start:start + _CHUNK] = ((np.abs(shift_i - shift_j) <= 1) &
-                                          (np.abs(shift_i) <= WINDOW))
-    # the scores' lower quartile sets the scale where nominal covariances overstate the
-    # noise (real data); evidence against asks for a far larger multiple than support
-    quartile = float(np.quantile(scores, 0.25))
-    conflict = scores > min(threshold, _CONFLICT_SCALE * quartile)
-    bar = min(threshold, _DATA_SCALE * quartile)
-    agreed = scores <= bar
-    agree = np.bincount(np.concatenate([a_idx[agreed], b_idx[agreed]]),
-                        minlength=len(closures))
-    # the chance that a wrong closure agrees anyway: the agreement ellipsoid's volume over
-    # that of the wrong closures' distribution (a square or cube of the chain's extent)
-    side = max(float(np.ptp(group.translations(tree.poses), axis=0).max()), 1e-9)
-    chance = group.agreement_chance(bar, volume, side)
-    sharp = agreed & (chance < _CHANCE)
-    ca, cb = a_idx[conflict], b_idx[conflict]
-    removed = _greedy_removal(len(closures), ca, cb, agree)
-    kept[closures[removed]] = False
-    result.kept = kept
-    # support counts agreements with closures the conflicts left, and not with closures
-    # parallel to it a few steps along (i + k, j + k): a run of wrong closures from one
-    # aliased place (Vertigo's groups) agrees with itself, so a run must find its support
-    # outside itself; a group of wrong closures
-    # that agree with each other supports nobody once it is out; a true closure that the
-    # greedy removal took for a few conflicts with true ones (linearized cycles under heavy
-    # rotation noise: 26 of 10496 true pairs on the 0.2 rad graph) keeps its support from
-    # the rest and joins the seed when that outweighs its conflicts with them
-    near_agree = _count(len(closures), a_idx, b_idx, agreed & short & ~parallel, ~removed)
-    informed = _count(len(closures), a_idx, b_idx, sharp & ~parallel, ~removed)
-    against = _count(len(closures), a_idx, b_idx, conflict, ~removed)
-    support = (informed >= _MIN_SUPPORT) | (near_agree >= LOOSE_SUPPORT)
-    result.supported[closures] = ~removed & (near_agree >= LOOSE_SUPPORT)
-    result.seed[closures] = support & (~removed | (np.maximum(informed, near_agree) > against))
-    result.pairs, result.conflicts, result.bar = len(a_idx), int(conflict.sum()), bar
-    result.ambiguous = [(closures[k].tolist(), closures[r].tolist())
-                        for k, r in _ambiguous(len(closures), ca, cb, removed, agree)]
-    return result
+        scored.parallel[part] = (np.abs(shift_i - shift_j) <= 1) & (np.abs(shift_i) <= window)
+    return scored
 
 
 def _pairs(order: np.ndarray, near: int, far: int) -> tuple[np.ndarray, np.ndarray]:
@@ -391,9 +394,9 @@ def _greedy_removal(num: int, a: np.ndarray, b: np.ndarray, agree: np.ndarray,
 
 
 def _ambiguous(num: int, a: np.ndarray, b: np.ndarray, removed: np.ndarray,
-               agree: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+               agree: np.ndarray, ratio: float) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per connected group of conflicts: (kept, alternative) node indices where the removed
-    nodes hold a consistent alternative at least ``AMBIGUOUS_RATIO`` x the kept side."""
+    nodes hold a consistent alternative at least ``ratio`` x the kept side."""
     if len(a) == 0:
         return []
     # each component labelled by its smallest closure index: np.unique below walks them in
@@ -406,7 +409,7 @@ def _ambiguous(num: int, a: np.ndarray, b: np.ndarray, removed: np.ndarray,
     for label in np.unique(labels[involved]).tolist():
         members = involved & (labels == label)
         kept, other = np.flatnonzero(members & ~removed), np.flatnonzero(members & alternative)
-        if len(kept) >= 2 and len(other) >= AMBIGUOUS_RATIO * len(kept):
+        if len(kept) >= 2 and len(other) >= ratio * len(kept):
             found.append((kept, other))
     return found
 

@@ -8,7 +8,7 @@ arithmetic. :class:`NumpyPolicy` copies the actor's weights once and evaluates
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -20,8 +20,9 @@ if TYPE_CHECKING:  # the policy reads an actor's weights but never needs torch i
 __all__ = ["NumpyPolicy"]
 
 
-def _array(tensor: torch.Tensor) -> np.ndarray:
-    return tensor.detach().cpu().numpy().astype(np.float64)
+def _array(tensor: torch.Tensor | torch.nn.Module) -> np.ndarray:
+    # a module's attributes are typed Tensor | Module; every one read here is a Tensor
+    return cast("torch.Tensor", tensor).detach().cpu().numpy().astype(np.float64)
 
 
 class NumpyPolicy:

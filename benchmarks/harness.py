@@ -1,0 +1,585 @@
+"""What every benchmark script shares: the graphs, process-to-process timing, the anchors and
+the results files.
+
+- **Graphs.** :data:`FILES_2D` and :data:`FILES_3D` name the shared files (``$RLPGO_DATASETS``,
+  by default ``../shared/datasets`` and its ``3d/``); :func:`shared_file` finds one,
+  :func:`example_file` one of the gtsam wheel's example files (``Data/``), :func:`graph_file`
+  either (or a path); :func:`read_graph` reads either dimension through the package's
+  reader, and :func:`generated_graph` makes a ``rlpgo-generate`` file once into a cache.
+- **Processes.** :func:`run` times a command as a user runs it: wall seconds from the fork to
+  the exit, peak resident set and CPU seconds from ``wait4``; :func:`competing` keeps one
+  core busy beside it; :func:`run_init` and :func:`run_baseline` are the two sides of the
+  process benchmarks (``rlpgo-init FILE -o OUT`` against SE-Sync's driver then GTSAM LM30).
+- **Anchors.** :func:`gtsam_lm` (GTSAM's LM, first pose fixed), :func:`gnc` (GTSAM's
+  ``GncLMOptimizer``), :func:`dcs` (LM with every closure under GTSAM's DCS m-estimator),
+  :func:`gtsam_staircase` (GTSAM's ``RiemannianStaircaseOptimizer`` on the rotations, where
+  the wheel has it) and SE-Sync (:mod:`benchmarks.sesync`, optional).
+- **Results.** :func:`write_result` writes ``benchmarks/results/<name>.json`` (the command
+  line, the machine, the rows) and ``<name>.md`` (the command line and the table).
+
+``python benchmarks/harness.py spawn RECORD OUT ERR TIMEOUT_S -- COMMAND...`` is the
+launcher behind :func:`run` (this file imports only the standard library at its top, so the
+launcher pays for nothing the measured command does not): it forks, execs COMMAND with its
+stdout and stderr in OUT and ERR, waits with ``wait4`` and writes RECORD (JSON): wall
+seconds from the fork to the child's exit, the exit status, the child's own peak resident
+set (``ru_maxrss`` of ``wait4``; Linux carries the forking process's high-water mark into
+the child, so it has a floor, the launcher's own resident set, :func:`launcher_floor_mb`)
+and its CPU seconds. After TIMEOUT_S the child is killed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import platform
+import shlex
+import shutil
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+DATASETS = Path(os.environ.get("RLPGO_DATASETS", ROOT.parent / "shared" / "datasets"))
+LM30_SCRIPT = ROOT / "benchmarks" / "sesync" / "lm30.py"
+FILES_2D = ("M3500", "M3500A", "M3500B", "M3500C", "Intel", "MIT", "City10K", "FR079")
+FILES_3D = ("tinyGrid3D", "smallGrid3D", "parking-garage", "sphere2500", "torus3D", "cubicle",
+            "sphere_bignoise_vertex3")
+
+
+# --- graphs -----------------------------------------------------------------------------------
+
+def shared_file(name: str) -> Path:
+    """The shared file ``name`` (with or without ``.g2o``): planar ones in ``DATASETS``,
+    3D ones in ``DATASETS/3d``."""
+    stem = name.removesuffix(".g2o")
+    folder = DATASETS / "3d" if stem in FILES_3D else DATASETS
+    return folder / f"{stem}.g2o"
+
+
+def graph_file(name: str) -> Path:
+    """A graph named on a command line: a path that exists, else a shared file, else one of
+    the gtsam wheel's example files (``noisyToyGraph.txt``, ``pose3example.txt``, ...)."""
+    if Path(name).is_file():
+        return Path(name)
+    path = shared_file(name)
+    return path if path.is_file() else example_file(name)
+
+
+def example_file(name: str) -> Path:
+    """One of the gtsam wheel's example files (its ``Data/`` folder), e.g. ``noisyToyGraph.txt``."""
+    import gtsam
+
+    return Path(gtsam.findExampleDataFile(name))
+
+
+def read_graph(path: str | os.PathLike[str]):
+    """``(graph, values)`` of a planar or 3D g2o file, read by the package's reader."""
+    from rlpgo_gtsam import read_g2o
+
+    return read_g2o(Path(path))
+
+
+def graph_size(path: Path) -> tuple[int, int]:
+    """(poses, edges) of a g2o file, counted from its ``VERTEX_`` and ``EDGE_`` lines."""
+    poses = edges = 0
+    with path.open() as handle:
+        for line in handle:
+            poses += line.startswith("VERTEX_SE")
+            edges += line.startswith("EDGE_")
+    return poses, edges
+
+
+def generated_graph(folder: Path, n: int, sigma_r: float, seed: int, *, sigma_t: float = 0.05,
+                    d: float = 3.0, lc: float = 0.5, noisy: bool = True) -> Path:
+    """The file ``rlpgo-generate`` writes for these settings, made once into ``folder`` and
+    reused by later calls."""
+    name = (f"lawn_n{n}_r{sigma_r:g}_t{sigma_t:g}_d{d:g}_lc{lc:g}"
+            f"{'_noisy' if noisy else ''}_seed{seed}.g2o")
+    path = folder / name
+    if not path.is_file():
+        folder.mkdir(parents=True, exist_ok=True)
+        command = [command_path("rlpgo-generate"), "--n", str(n), "--sigma-r", f"{sigma_r:g}",
+                   "--sigma-t", f"{sigma_t:g}", "--d", f"{d:g}", "--lc", f"{lc:g}",
+                   "--seed", str(seed), "-o", str(path)]
+        if noisy:
+            command.append("--noisy-measurements")
+        subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    return path
+
+
+# --- small helpers of every script ------------------------------------------------------------
+
+def timed(function: Callable[[], Any]) -> tuple[Any, float]:
+    """``function()`` and its wall seconds."""
+    began = time.perf_counter()
+    result = function()
+    return result, time.perf_counter() - began
+
+
+def median(values: Sequence[float | None]) -> float | None:
+    """The median of the values that are not None (None if there are none)."""
+    present = [v for v in values if v is not None]
+    return statistics.median(present) if present else None
+
+
+def scores(rejected, wrong) -> tuple[float, float]:
+    """(precision, recall) of the rejected factor indices against the wrong ones."""
+    rejected, wrong = set(rejected), set(wrong)
+    hit = len(rejected & wrong)
+    return (hit / len(rejected) if rejected else 1.0), (hit / len(wrong) if wrong else 1.0)
+
+
+def cell(value, digits: str = ".2f") -> str:
+    """A table cell: ``-`` for None, yes/no for a bool, else ``value`` formatted."""
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    return format(value, digits)
+
+
+# --- processes --------------------------------------------------------------------------------
+
+@dataclass
+class Run:
+    """One command run as its own process.
+
+    Attributes:
+        command: what ran.
+        seconds: wall seconds from the fork to the exit (None: it could not start).
+        returncode: its exit status (negative: the signal that ended it).
+        timed_out: it was killed at the time limit.
+        peak_mb: its peak resident set, MB (``ru_maxrss``; with the launcher's floor).
+        stdout, stderr: what it printed.
+        started, ended: ``time.monotonic()`` at the fork and at the exit.
+        cpu_seconds: its user + system CPU seconds, its threads included.
+    """
+
+    command: list[str]
+    seconds: float | None
+    returncode: int
+    timed_out: bool
+    peak_mb: float | None
+    stdout: str
+    stderr: str
+    started: float | None = None
+    ended: float | None = None
+    cpu_seconds: float | None = None
+
+    @property
+    def failure(self) -> str | None:
+        """Why the run gave no result: None when it exited with status 0."""
+        if self.timed_out:
+            return f"timed out after {self.seconds:.0f} s"
+        if self.returncode == 0:
+            return None
+        lines = [line for line in (self.stderr + "\n" + self.stdout).splitlines()
+                 if line.strip() and not line.startswith("import time:")]
+        return f"exit status {self.returncode}: " + (lines[-1].strip() if lines else "no message")
+
+
+def command_path(name: str) -> str:
+    """A console script of this environment (beside ``sys.executable``), else on PATH."""
+    beside = Path(sys.executable).parent / name
+    if beside.is_file():
+        return str(beside)
+    found = shutil.which(name)
+    if found is None:
+        raise SystemExit(f"{name} not found beside {sys.executable} nor on PATH")
+    return found
+
+
+@contextlib.contextmanager
+def competing(busy: bool) -> Iterator[None]:
+    """With ``busy``, one CPU-bound process (a Python busy loop) runs for the duration:
+    started before, given half a second to be spinning, killed (by its id) after."""
+    if not busy:
+        yield
+        return
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"],
+                           stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+    try:
+        time.sleep(0.5)
+        yield
+    finally:
+        hog.kill()
+        hog.wait()
+
+
+def run(command: Sequence[str | os.PathLike[str]], timeout_s: float,
+        env: dict[str, str] | None = None, python_flags: Sequence[str] = ()) -> Run:
+    """Run ``command`` through the launcher (``spawn``, module docstring) and return it."""
+    parts = [str(part) for part in command]
+    with tempfile.TemporaryDirectory(prefix="rlpgo_run_") as folder:
+        record, out, err = (Path(folder) / name for name in ("run.json", "out.txt", "err.txt"))
+        launcher = [sys.executable, *python_flags, __file__, "spawn", str(record), str(out),
+                    str(err), str(timeout_s), "--", *parts]
+        done = subprocess.run(launcher, env=env, stdin=subprocess.DEVNULL,
+                              capture_output=True, text=True, check=False)
+        if done.returncode != 0 or not record.is_file():
+            message = (done.stderr.strip().splitlines() or ["no message"])[-1]
+            return Run(parts, None, done.returncode, False, None, "", f"launcher: {message}")
+        data = json.loads(record.read_text())
+        text = {path: path.read_text(errors="replace") for path in (out, err)}
+    return Run(parts, data["seconds"], data["returncode"], data["timed_out"], data["peak_mb"],
+               text[out], text[err], data["started"], data["ended"], data.get("cpu_seconds"))
+
+
+def launcher_floor_mb() -> float | None:
+    """The peak the launcher reports for a command that uses almost no memory (``true``):
+    the floor under every ``peak_mb``."""
+    return run(["true"], 10.0).peak_mb
+
+
+def cache_bytecode() -> None:
+    """Let the measured Python processes use cached bytecode, as an installed package does:
+    no PYTHONDONTWRITEBYTECODE in their environment, and this checkout's modules compiled now
+    into their ``__pycache__`` folders, so that no measured run compiles them (about 0.1 s
+    for ``rlpgo-init``)."""
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    folders = [str(ROOT / name) for name in ("rlpgo_gtsam", "cli", "benchmarks")]
+    subprocess.run([sys.executable, "-m", "compileall", "-q", *folders], check=True,
+                   stdout=subprocess.DEVNULL)
+
+
+def _spawn(argv: list[str]) -> int:
+    record, out, err, timeout_s = argv[0], argv[1], argv[2], float(argv[3])
+    command = argv[5:]  # argv[4] is "--"
+    out_fd = os.open(out, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    err_fd = os.open(err, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    started = time.monotonic()
+    pid = os.fork()
+    if pid == 0:  # the child: its output into the files, then the command
+        try:
+            os.dup2(out_fd, 1)
+            os.dup2(err_fd, 2)
+            os.execvp(command[0], command)
+        finally:
+            os._exit(127)
+    timed_out = []
+
+    def stop(_signum, _frame) -> None:
+        timed_out.append(True)
+        os.kill(pid, signal.SIGKILL)
+
+    signal.signal(signal.SIGALRM, stop)
+    signal.setitimer(signal.ITIMER_REAL, timeout_s)
+    _, status, usage = os.wait4(pid, 0)
+    ended = time.monotonic()
+    signal.setitimer(signal.ITIMER_REAL, 0)
+    Path(record).write_text(json.dumps({
+        "seconds": ended - started, "started": started, "ended": ended,
+        "returncode": os.waitstatus_to_exitcode(status), "timed_out": bool(timed_out),
+        "peak_mb": usage.ru_maxrss / 1024.0, "cpu_seconds": usage.ru_utime + usage.ru_stime}))
+    return 0
+
+
+def vmhwm_mb() -> float | None:
+    """This process's peak resident set so far (VmHWM, which exec resets), MB."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return None
+
+
+def init_outcome(stdout: str) -> dict:
+    """What ``rlpgo-init``'s default printed: ``certified`` (True / False / None when it said
+    nothing about it), its ``certificate:`` and ``stopped:`` lines and its last line."""
+    lines = [line.strip() for line in stdout.splitlines() if line.strip()]
+
+    def after(tag: str) -> str | None:
+        return next((line.removeprefix(tag).strip() for line in lines if line.startswith(tag)),
+                    None)
+
+    certificate = after("certificate:")
+    return {"certified": None if certificate is None else
+            certificate.startswith("certified optimal"), "certificate": certificate,
+            "stopped": after("stopped:"), "last": lines[-1] if lines else None}
+
+
+def run_init(path: Path, out: Path, timeout: float, options: Sequence[str] = ()) -> dict:
+    """``rlpgo-init PATH -o OUT [OPTIONS]`` as a process (OUT removed first): its seconds,
+    CPU seconds, peak, failure and what it printed (:func:`init_outcome`)."""
+    out.unlink(missing_ok=True)
+    done = run([command_path("rlpgo-init"), path, "-o", out, *options], timeout)
+    return {"seconds": done.seconds, "cpu_seconds": done.cpu_seconds, "peak_mb": done.peak_mb,
+            "failure": done.failure, **init_outcome(done.stdout)}
+
+
+def run_baseline(path: Path, folder: Path, sesync: str, threads: str, timeout: float,
+                 busy: bool) -> dict:
+    """SE-Sync + GTSAM LM30 as two processes, one after the other: the ``sesync_rounded``
+    driver with BLAS at ``threads`` threads (``default``: as BLAS likes), then
+    ``benchmarks/sesync/lm30.py`` writing ``folder/sesync_lm30.g2o``; with ``busy``, beside
+    one competing process. The driver's own timing of the ``SESync()`` call is kept too."""
+    from benchmarks.sesync.runner import THREAD_VARIABLES
+
+    record, out = folder / "sesync.json", folder / "sesync_lm30.g2o"
+    for file in (record, out):
+        file.unlink(missing_ok=True)
+    env = dict(os.environ)
+    if threads != "default":
+        env.update({name: threads for name in THREAD_VARIABLES})
+    with competing(busy):
+        sesync_run = run([sesync, path, record], timeout, env=env)
+        lm30 = None
+        if sesync_run.failure is None:
+            lm30 = run([sys.executable, LM30_SCRIPT, path, record, out], timeout)
+    row = {"sesync_seconds": sesync_run.seconds, "sesync_peak_mb": sesync_run.peak_mb,
+           "sesync_cpu_seconds": sesync_run.cpu_seconds, "sesync_failure": sesync_run.failure}
+    if sesync_run.failure is None:
+        data = json.loads(record.read_text())
+        row.update(sesync_call_seconds=data["seconds"], sesync_certified=data["certified"],
+                   sesync_status=data["status"], sesync_bound=data["suboptimality_bound"])
+    if lm30 is not None:
+        row.update(lm30_seconds=lm30.seconds, lm30_peak_mb=lm30.peak_mb,
+                   lm30_cpu_seconds=lm30.cpu_seconds, lm30_failure=lm30.failure)
+        if lm30.failure is None:
+            line = json.loads(lm30.stdout.strip().splitlines()[-1])
+            row.update(lm30_chi2=line["chi2"], lm30_iterations=line["iterations"],
+                       lm30_steps=line["seconds"])
+    return row
+
+
+def chi2_of(graph, path: Path, dim: int) -> float | None:
+    """2 x GTSAM error of ``graph`` at the poses of the g2o file ``path`` (None if absent)."""
+    import gtsam
+
+    if not path.is_file():
+        return None
+    _, values = gtsam.readG2o(str(path), dim == 3)
+    return 2.0 * graph.error(values)
+
+
+def sesync_binary(given: str | None) -> str | None:
+    """The SE-Sync driver: ``given`` (it must exist), else ``$RLPGO_SESYNC_BINARY``, else None."""
+    from benchmarks.sesync.runner import default_binary
+
+    if given is not None:
+        if not Path(given).is_file():
+            raise SystemExit(f"--sesync: {given} not found")
+        return given
+    found = default_binary()
+    return None if found is None else str(found)
+
+
+# --- anchors: GTSAM's own optimizers ----------------------------------------------------------
+
+def _first_key(values) -> int:
+    return int(min(values.keys()))
+
+
+def _is_spatial(values) -> bool:
+    """Whether the values hold Pose3 (else Pose2)."""
+    import gtsam
+
+    return gtsam.utilities.allPose3s(values).size() > 0
+
+
+def _pose_types(values, key: int):
+    """(prior factor class, between factor class, dof, pose at key) for the values' poses."""
+    import gtsam
+
+    if _is_spatial(values):
+        return gtsam.PriorFactorPose3, gtsam.BetweenFactorPose3, 6, values.atPose3(key)
+    return gtsam.PriorFactorPose2, gtsam.BetweenFactorPose2, 3, values.atPose2(key)
+
+
+def gtsam_lm(graph, values, iterations: int = 30) -> tuple[float | None, float, str | None]:
+    """GTSAM's Levenberg-Marquardt with its default parameters, ``iterations`` at most and
+    the first pose held by a constrained prior: (chi2 = 2 x the graph's error at the result,
+    CPU seconds, failure or None)."""
+    import gtsam
+
+    key = _first_key(values)
+    prior, _, dof, pose = _pose_types(values, key)
+    fixed = gtsam.NonlinearFactorGraph(graph)
+    fixed.add(prior(key, pose, gtsam.noiseModel.Constrained.All(dof)))
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(iterations)
+    start = time.process_time()
+    try:
+        result = gtsam.LevenbergMarquardtOptimizer(fixed, values, params).optimize()
+    except RuntimeError as error:
+        return None, time.process_time() - start, str(error).strip().splitlines()[0]
+    return 2.0 * graph.error(result), time.process_time() - start, None
+
+
+def gnc(graph, start, known_inliers: Sequence[int], params=None):
+    """GTSAM's ``GncLMOptimizer`` (truncated least squares, inlier thresholds at probability
+    0.9999) from ``start`` with ``known_inliers`` (factor indices): (values, the factor
+    indices it weighs below 0.5)."""
+    import gtsam
+    import numpy as np
+
+    gnc_params = gtsam.GncLMParams(params if params is not None else
+                                   gtsam.LevenbergMarquardtParams())
+    gnc_params.setLossType(gtsam.GncLossType.TLS)
+    gnc_params.setKnownInliers(list(known_inliers))
+    optimizer = gtsam.GncLMOptimizer(graph, start, gnc_params)
+    optimizer.setInlierCostThresholdsAtProbability(0.9999)
+    result = optimizer.optimize()
+    weights = np.asarray(optimizer.getWeights(), float).ravel()
+    return result, [k for k in range(graph.size()) if weights[k] < 0.5]
+
+
+def dcs(graph, start, robust_factors: Sequence[int], params=None):
+    """GTSAM's LM from ``start`` with the noise model of each factor of ``robust_factors``
+    (between factors, by index) wrapped in the DCS m-estimator (Phi = 1), the first pose
+    held by a prior of sigma 1e-8: the result's values."""
+    import gtsam
+
+    chosen = set(robust_factors)
+    key = _first_key(start)
+    prior, between, dof, pose = _pose_types(start, key)
+    robust = gtsam.NonlinearFactorGraph()
+    for k in range(graph.size()):
+        factor = graph.at(k)
+        if not isinstance(factor, between):
+            continue
+        model = factor.noiseModel()
+        if k in chosen:
+            model = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.DCS(1.0), model)
+        i, j = factor.keys()
+        robust.add(between(i, j, factor.measured(), model))
+    robust.add(prior(key, pose, gtsam.noiseModel.Isotropic.Sigma(dof, 1e-8)))
+    return gtsam.LevenbergMarquardtOptimizer(
+        robust, start, params if params is not None else gtsam.LevenbergMarquardtParams()
+    ).optimize()
+
+
+def _rotation_weight(information, spatial: bool) -> float:
+    """SE-Sync's rotational weight kappa of one edge: the rotation's information in 2D,
+    3 / (2 tr of the rotation block's covariance) in 3D (GTSAM orders Pose3's tangent as
+    rotation, then translation)."""
+    import numpy as np
+
+    if not spatial:
+        return float(information[2, 2])
+    return 3.0 / (2.0 * float(np.trace(np.linalg.inv(information[:3, :3]))))
+
+
+def gtsam_staircase(graph, values, max_rank_step: int = 3) -> dict | None:
+    """GTSAM's ``RiemannianStaircaseOptimizer`` on the rotation part of a pose graph
+    (Frobenius between factors of the measured rotations, isotropic with SE-Sync's
+    rotational weights), started from the values' rotations: ``certified``, ``rank``,
+    ``seconds`` (its own), ``min_eigenvalue`` and ``rotations`` (key -> rotation matrix of its
+    rounded estimate, turned so that the first key's equals the values'; None if it rounded
+    none). None where the gtsam wheel has no such optimizer."""
+    import gtsam
+    import numpy as np
+
+    if not hasattr(gtsam, "RiemannianStaircaseOptimizer"):
+        return None
+    spatial = _is_spatial(values)
+    rot, size = ("Rot3", 9) if spatial else ("Rot2", 4)
+    between = getattr(gtsam, f"FrobeniusBetweenFactor{rot}")
+    pose_type = gtsam.BetweenFactorPose3 if spatial else gtsam.BetweenFactorPose2
+    at = values.atPose3 if spatial else values.atPose2
+    rotations, initial = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for key in values.keys():  # the optimizer's variables are transposed rotations
+        initial.insert(key, at(key).rotation().matrix().T)
+    for k in range(graph.size()):
+        factor = graph.at(k)
+        if isinstance(factor, pose_type):
+            i, j = factor.keys()
+            sigma = 1.0 / np.sqrt(_rotation_weight(factor.noiseModel().information(), spatial))
+            rotations.add(between(i, j, factor.measured().rotation(),
+                                  gtsam.noiseModel.Isotropic.Sigma(size, sigma)))
+    params = gtsam.RiemannianStaircaseParams()
+    params.pMin = 3 if spatial else 2
+    params.pMax = params.pMin + max_rank_step
+    result = gtsam.RiemannianStaircaseOptimizer(rotations, initial, params).optimize()
+    found = None
+    if result.hasRoundedSolution():
+        rounded = result.roundedValues()
+        key0 = _first_key(values)
+        turn = at(key0).rotation().matrix() @ rounded.atMatrix(key0)  # R_0 (R'_0)^T
+        found = {int(k): turn @ rounded.atMatrix(k).T for k in rounded.keys()}
+    return {"certified": bool(result.certified), "rank": int(result.finalRank),
+            "seconds": float(result.totalTime), "min_eigenvalue": float(result.minEigenvalue),
+            "rotations": found}
+
+
+# --- results ----------------------------------------------------------------------------------
+
+def command_line(argv: Sequence[str] | None = None) -> str:
+    """``python benchmarks/<script> ARGS``: the command that made a result."""
+    argv = list(sys.argv if argv is None else argv)
+    script = Path(argv[0]).resolve()
+    try:
+        script_name = str(script.relative_to(ROOT))
+    except ValueError:
+        script_name = argv[0]
+    return shlex.join(["python", script_name, *argv[1:]])
+
+
+def _version(name: str) -> str | None:
+    from importlib import metadata
+
+    try:
+        return metadata.version(name)
+    except metadata.PackageNotFoundError:
+        return None
+
+
+def machine() -> dict:
+    """What the numbers were measured on."""
+    facts: dict[str, Any] = {"python": platform.python_version(), "platform": platform.platform(),
+                             "processor": platform.processor() or platform.machine(),
+                             "cpus": os.cpu_count()}
+    for name in ("gtsam", "numpy", "scipy", "torch"):
+        facts[name] = _version(name)
+    if hasattr(os, "getloadavg"):
+        facts["load_average"] = [round(x, 2) for x in os.getloadavg()]
+    return facts
+
+
+def _jsonable(value: Any) -> Any:
+    """What ``json`` cannot write itself: dataclasses (a typed step, a certificate) as
+    dicts, numpy scalars and arrays as numbers and lists."""
+    import dataclasses
+
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return dataclasses.asdict(value)
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if hasattr(value, "item"):
+        return value.item()
+    if isinstance(value, set | frozenset | tuple):
+        return list(value)
+    return str(value)
+
+
+def write_result(name: str, command: str, data: dict | None, table: str | None = None) -> Path:
+    """Write ``benchmarks/results/<name>.json`` (the command, the machine, ``data``; not when
+    ``data`` is None) and, given a table, ``<name>.md`` (the command, then the table); return
+    the path of the first written. A rerun replaces them."""
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / f"{name}.json"
+    if data is not None:
+        path.write_text(json.dumps({"command": command, "machine": machine(), **data},
+                                   indent=1, default=_jsonable) + "\n")
+    if table is not None:
+        text = RESULTS / f"{name}.md"
+        text.write_text(f"Made by `{command}`.\n\n{table.rstrip()}\n")
+        path = path if data is not None else text
+    return path
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "spawn":
+        sys.exit(_spawn(sys.argv[2:]))
+    print(__doc__)
