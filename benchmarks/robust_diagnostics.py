@@ -229,8 +229,8 @@ def floor(args) -> tuple[dict, str]:
 
 def _covariance_row(name: str, factor: float, graph, values, optimum_chi2: float) -> dict:
     from rlpgo_gtsam import extract_pose_graph, robust_initialize
+    from rlpgo_gtsam.information import scaled_informations
     from rlpgo_gtsam.residuals import variance_factor
-    from rlpgo_gtsam.robust.noise import scaled_informations
 
     scaled = scaled_informations(graph, factor)
     began = time.perf_counter()

@@ -44,6 +44,8 @@ __all__ = [
     "Factors",
     "sort_factors",
     "factor_information",
+    "with_informations",
+    "scaled_informations",
 ]
 
 # The information matrices every method can use, measured on generated graphs whose edges
@@ -485,3 +487,32 @@ def _semidefinite_to_rounding(matrix: np.ndarray) -> bool:
     """Whether a symmetric matrix's eigenvalues lie in ``-ROUNDING_3D x largest ..
     INFORMATION_RANGE[1]``, with the largest at least ``INFORMATION_RANGE[0]``."""
     return bool(_semidefinite_many(matrix[None])[0])
+
+
+def with_informations(graph: gtsam.NonlinearFactorGraph,
+                      informations: dict[int, np.ndarray]) -> gtsam.NonlinearFactorGraph:
+    """``graph`` with the between factor at each index of ``informations`` given that
+    information (a Gaussian noise model), its keys and measurement kept; the other factors,
+    and the order, as they are."""
+    replaced = gtsam.NonlinearFactorGraph()
+    for k in range(graph.size()):
+        factor: Any = graph.at(k)
+        if k in informations:
+            factor = type(factor)(factor.keys()[0], factor.keys()[1], factor.measured(),
+                                  gtsam.noiseModel.Gaussian.Information(informations[k]))
+        replaced.add(factor)
+    return replaced
+
+
+def scaled_informations(graph: gtsam.NonlinearFactorGraph,
+                        factor: float) -> gtsam.NonlinearFactorGraph:
+    """``graph`` with every between factor's (``BetweenFactorPose2``, ``BetweenFactorPose3``)
+    information multiplied by ``factor``: its covariance divided by it, the noise understated
+    ``factor`` times (an optimistic front end's covariances) for ``factor > 1``. The same
+    factors, measurements and order; other factors as they are."""
+    between = (gtsam.BetweenFactorPose2, gtsam.BetweenFactorPose3)
+    factors: list[Any] = [graph.at(k) for k in range(graph.size())]
+    models: dict[int, Any] = {k: f.noiseModel() for k, f in enumerate(factors)
+                              if isinstance(f, between)}
+    return with_informations(graph, {k: factor * model.information()
+                                     for k, model in models.items()})

@@ -71,8 +71,7 @@ import numpy as np
 
 from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import PoseGraph2D, PoseGraph3D, odometry_edges
-from rlpgo_gtsam.information import MAX_CONDITION
-from rlpgo_gtsam.robust.noise import scaled_informations, with_informations
+from rlpgo_gtsam.information import MAX_CONDITION, scaled_informations, with_informations
 
 __all__ = ["SyntheticGraph", "generate", "generate3d", "add_outliers", "add_outliers3d",
            "scaled_informations", "with_informations", "OUTLIER_MODES", "VERTIGO_MODES",

@@ -3,10 +3,10 @@ by their printed blocks, and the noise level the odometry chain shows.
 
 Every test of the robust path is a chi-square bound on the noise the covariances state. Where
 they understate it, ``covariance_scale`` judges with each covariance times a factor
-(:func:`scaled_informations`); a 3D edge whose GTSAM model is the partial Cholesky factor of
-an indefinite printed matrix is judged by its printed blocks
-(:func:`graph_with_printed_blocks`); the all-edges check reads the odometry's own noise
-level (:func:`noise_scale`).
+(:func:`graph_with_scaled_covariances`); a 3D edge whose GTSAM model is the partial Cholesky
+factor of an indefinite printed matrix is judged by its printed blocks
+(:func:`graph_with_printed_blocks`); the all-edges check reads the odometry's own noise level
+(:func:`noise_scale`).
 """
 
 from __future__ import annotations
@@ -16,41 +16,12 @@ import numpy as np
 
 from rlpgo_gtsam.graph import PoseGraph, extract_pose_graph
 from rlpgo_gtsam.groups import group_of
+from rlpgo_gtsam.information import scaled_informations, with_informations
 from rlpgo_gtsam.robust.problem import edge_factor_indices
 from rlpgo_gtsam.robust.settings import RobustSettings
 from rlpgo_gtsam.robust.statistics import chi2_quantile
 
-__all__ = ["with_informations", "scaled_informations", "graph_with_printed_blocks",
-           "graph_with_scaled_covariances", "noise_scale"]
-
-
-def with_informations(graph: gtsam.NonlinearFactorGraph,
-                      informations: dict[int, np.ndarray]) -> gtsam.NonlinearFactorGraph:
-    """``graph`` with the between factor at each index of ``informations`` given that
-    information (a Gaussian noise model), its keys and measurement kept; the other factors,
-    and the order, as they are."""
-    replaced = gtsam.NonlinearFactorGraph()
-    for k in range(graph.size()):
-        f = graph.at(k)
-        if k in informations:
-            f = type(f)(f.keys()[0], f.keys()[1],  # type: ignore[call-arg]
-                        f.measured(),  # type: ignore[attr-defined]
-                        gtsam.noiseModel.Gaussian.Information(informations[k]))
-        replaced.add(f)
-    return replaced
-
-
-def scaled_informations(graph: gtsam.NonlinearFactorGraph,
-                        factor: float) -> gtsam.NonlinearFactorGraph:
-    """``graph`` with every between factor's (``BetweenFactorPose2``, ``BetweenFactorPose3``)
-    information multiplied by ``factor``: its covariance divided by it, the noise understated
-    ``factor`` times (an optimistic front end's covariances) for ``factor > 1``. The same
-    factors, measurements and order; other factors as they are."""
-    between = (gtsam.BetweenFactorPose2, gtsam.BetweenFactorPose3)
-    return with_informations(graph, {
-        k: factor * graph.at(k).noiseModel().information()  # type: ignore[attr-defined]
-        for k in range(graph.size())
-        if isinstance(graph.at(k), between)})
+__all__ = ["graph_with_printed_blocks", "graph_with_scaled_covariances", "noise_scale"]
 
 
 def graph_with_printed_blocks(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
