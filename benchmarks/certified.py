@@ -262,12 +262,11 @@ def _generated_case(n: int, sigma_r: float, seed: int, args, folder: Path,
                     repeats: int = 1) -> dict:
     """One generated 3D graph: ours, SE-Sync + LM30 on its g2o file, LM30 from the ground
     truth (the lowest chi2 known for the graph) and the two commands as processes."""
-    from rlpgo_gtsam import extract_pose_graph, write_g2o
-    from rlpgo_gtsam.synthetic import generate3d
+    from rlpgo_gtsam import SE3, extract_pose_graph, generate, write_g2o
 
     sigma_t, d, lc = GENERATED_3D
-    sample = generate3d(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
-                        noisy_measurements=True)
+    sample = generate(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
+                      noisy_measurements=True, group=SE3)
     graph, name = sample.graph, f"gen3d_n{n}_r{sigma_r:g}_s{seed}"
     pose_graph = extract_pose_graph(graph, sample.initial)
     row: dict = {"file": name, "poses": n, "edges": pose_graph.num_edges, "sigma_r": sigma_r,

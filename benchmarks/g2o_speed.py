@@ -105,14 +105,12 @@ def _measure(path: Path, dim: int, repeats: int, folder: Path) -> dict:
 
 
 def _graph_file(size: int, dim: int, folder: Path) -> Path:
-    from rlpgo_gtsam import generate, write_g2o
-    from rlpgo_gtsam.synthetic import generate3d
+    from rlpgo_gtsam import SE2, SE3, generate, write_g2o
 
     path = folder / (f"g2o_speed_{size}.g2o" if dim == 2 else f"g2o_speed_3d_{size}.g2o")
     if not path.exists():
-        generator = generate if dim == 2 else generate3d
-        sample = generator(size, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(1),
-                           noisy_measurements=True)
+        sample = generate(size, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(1),
+                          noisy_measurements=True, group=SE2 if dim == 2 else SE3)
         write_g2o(path, sample.graph, sample.initial)
     return path
 

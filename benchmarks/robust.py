@@ -42,7 +42,7 @@ beside both commands. The robust command's "rejected N of M" is kept as a check 
 
 ``3d``. SE-Sync's seven 3D files clean: the rejections of ``robust_initialize`` (0 expected),
 its chi2 against the clean default's (``staged_initialize``), both in CPU seconds. Then wrong
-closures (``add_outliers3d`` around the clean optimum, seed 1; ``gen``: ``generate3d`` with
+closures (``add_outliers`` around the clean optimum, seed 1; ``gen``: ``generate`` in SE3 with
 1000 poses, sigma_R 0.05 rad, sigma_t 0.1 m, d 1 m, lc 0.5, noisy measurements, seed 7):
 precision, recall, the result + LM30 on the outlier-free graph over its optimum, CPU seconds
 over the clean default's.
@@ -325,12 +325,11 @@ def commands_table(rows: list[dict]) -> str:
 
 def clean_case_3d(name: str):
     """(graph, values, clean default's chi2 and CPU seconds, optimum values and chi2)."""
-    from rlpgo_gtsam import refine, staged_initialize
+    from rlpgo_gtsam import SE3, generate, refine, staged_initialize
     from rlpgo_gtsam.solvers import solver_params
-    from rlpgo_gtsam.synthetic import generate3d
 
     if name == "gen":
-        sample = generate3d(*GEN_3D, np.random.default_rng(7), noisy_measurements=True)
+        sample = generate(*GEN_3D, np.random.default_rng(7), noisy_measurements=True, group=SE3)
         graph, values = sample.graph, sample.initial
     else:
         graph, values = harness.read_graph(harness.shared_file(name))
@@ -352,8 +351,7 @@ def _robust_cpu(graph, values):
 
 
 def spatial(args, rows: dict[str, list[dict]], save) -> None:
-    from rlpgo_gtsam import refine
-    from rlpgo_gtsam.synthetic import add_outliers3d, generate3d
+    from rlpgo_gtsam import SE3, add_outliers, generate, refine
 
     for name in [] if args.clean == "none" else args.clean.split(","):
         graph, values, default_chi2, default_s, _, _ = clean_case_3d(name)
@@ -369,13 +367,13 @@ def spatial(args, rows: dict[str, list[dict]], save) -> None:
         for mode in args.modes.split(","):
             for fraction in map(float, args.fractions.split(",")):
                 if name == "gen":
-                    sample = generate3d(*GEN_3D, np.random.default_rng(7),
-                                        noisy_measurements=True, outliers=fraction,
-                                        outlier_mode=mode)
+                    sample = generate(*GEN_3D, np.random.default_rng(7),
+                                      noisy_measurements=True, outliers=fraction,
+                                      outlier_mode=mode, group=SE3)
                     bad, wrong = sample.graph, sample.outlier_edges
                 else:
-                    bad, wrong = add_outliers3d(graph, optimum, fraction,
-                                                np.random.default_rng(SEED), mode)
+                    bad, wrong = add_outliers(graph, optimum, fraction,
+                                              np.random.default_rng(SEED), mode)
                 result, seconds = _robust_cpu(bad, values)
                 precision, recall = scores(result.rejected, wrong)
                 after = refine(graph, result.values, "lm", 30).chi2
@@ -408,12 +406,10 @@ def spatial_table(rows: dict[str, list[dict]]) -> str:
 
 def noise_graph(dim: int, n: int, sigma_r: float, d: float, seed: int, **outliers):
     """The ``noise`` subcommand's generated graph (``outliers``: its wrong closures)."""
-    from rlpgo_gtsam import generate
-    from rlpgo_gtsam.synthetic import generate3d
+    from rlpgo_gtsam import SE2, SE3, generate
 
-    make = generate if dim == 2 else generate3d
-    return make(n, sigma_r, SIGMA_T, d, LC, np.random.default_rng(seed),
-                noisy_measurements=True, **outliers)
+    return generate(n, sigma_r, SIGMA_T, d, LC, np.random.default_rng(seed),
+                    noisy_measurements=True, group=SE2 if dim == 2 else SE3, **outliers)
 
 
 def noise(args, rows: list[dict], save) -> None:

@@ -1,5 +1,5 @@
-"""The RL-PGO paper's synthetic pose graphs: a lawn-mower path with vertical loop closures,
-in the plane (:func:`generate`) and stacked in layers in 3D (:func:`generate3d`).
+"""The RL-PGO paper's synthetic pose graphs (:func:`generate`): a lawn-mower path with
+vertical loop closures, in the plane (``group=SE2``) or stacked in layers in 3D (``group=SE3``).
 
 Poses run in rows of ten, ``d`` metres apart, rows ``d`` apart, alternating direction; the
 motion into the last pose of a row and the one into the first pose of the next each end
@@ -33,7 +33,7 @@ policies (Suenderhauf and Protzel, switchable constraints, ``generateDataset.py`
 Each Vertigo closure measures a small relative pose (translation N(0, 0.3 m) per axis,
 rotation N(0, 10 deg): "these two places are the same", what perceptual aliasing gives) with
 the information of the graph's first loop closure (the first edge off the chain; the first
-edge if there is none). Two earlier modes remain:
+edge if there is none). Two more modes:
 
 - ``"uniform"``: a random pose pair with a random relative pose: translation uniform in
   ``[-s, s]^2``, ``s`` the longer side of the map's bounding box, angle uniform in
@@ -46,19 +46,19 @@ These two get the noise model (information) of a randomly chosen true loop closu
 odometry edge if the graph has none). No wrong closure joins two poses adjacent on the chain
 or a pair the graph already joins.
 
-3D (:func:`generate3d`, :func:`add_outliers3d`). The planar path folded into layers:
-``LAYER_ROWS`` rows a layer, layers ``d`` apart, each layer run back over the one below it,
-so that the poses fill a 10 x 10 x k lattice, the first layer the planar path itself. Each
-pose faces its next motion (x axis along it, z axis up; the pose that climbs to the next
-layer looks up). Loop-closure candidates join each pose to every lattice neighbour earlier on
-the path but its predecessor: the pose beside it in the previous row and the one under it in
-the previous layer (1.7 a pose in a full stack, a grid like SE-Sync's grid sets). Noise is
-``Exp([N(0, sigma_R) x 3, N(0, sigma_t) x 3])`` in GTSAM's tangent order (rotation first),
-the information ``diag(1 / sigma_R^2 x 3, 1 / sigma_t^2 x 3)``. The wrong closures are drawn
-by the same policies and pairs as in the plane; Vertigo's small relative pose in 3D is a
-translation N(0, 0.3 m) per axis and roll, pitch, yaw N(0, 10 deg) each (its
-``generateDataset.py``); ``"uniform"`` draws the translation in ``[-s, s]^3`` and the rotation
-uniformly on SO(3).
+3D (``group=SE3``; :func:`add_outliers` reads the group from the graph). The planar path
+folded into layers: ``LAYER_ROWS`` rows a layer, layers ``d`` apart, each layer run back
+over the one below it, so that the poses fill a 10 x 10 x k lattice, the first layer the
+planar path itself. Each pose faces its next motion (x axis along it, z axis up; the pose
+that climbs to the next layer looks up). Loop-closure candidates join each pose to every
+lattice neighbour earlier on the path but its predecessor: the pose beside it in the
+previous row and the one under it in the previous layer (1.7 a pose in a full stack, a grid
+like SE-Sync's grid sets). Noise is ``Exp([N(0, sigma_R) x 3, N(0, sigma_t) x 3])`` in
+GTSAM's tangent order (rotation first), the information
+``diag(1 / sigma_R^2 x 3, 1 / sigma_t^2 x 3)``. The wrong closures are drawn by the same
+policies and pairs as in the plane; Vertigo's small relative pose in 3D is a translation
+N(0, 0.3 m) per axis and roll, pitch, yaw N(0, 10 deg) each (its ``generateDataset.py``);
+``"uniform"`` draws the translation in ``[-s, s]^3`` and the rotation uniformly on SO(3).
 """
 
 from __future__ import annotations
@@ -70,16 +70,17 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import RlpgoError
-from rlpgo_gtsam.graph import PoseGraph2D, PoseGraph3D, odometry_edges
+from rlpgo_gtsam.graph import PoseGraph, extract_pose_graph, odometry_edges
+from rlpgo_gtsam.groups import SE2, SE3, Group
 from rlpgo_gtsam.information import MAX_CONDITION, scaled_informations, with_informations
 
-__all__ = ["SyntheticGraph", "generate", "generate3d", "add_outliers", "add_outliers3d",
-           "scaled_informations", "with_informations", "OUTLIER_MODES", "VERTIGO_MODES",
-           "ROW_LENGTH", "LAYER_ROWS", "GROUP_SIZE", "LOCAL_RANGE"]
+__all__ = ["SyntheticGraph", "generate", "add_outliers", "scaled_informations",
+           "with_informations", "OUTLIER_MODES", "VERTIGO_MODES", "ROW_LENGTH", "LAYER_ROWS",
+           "GROUP_SIZE", "LOCAL_RANGE"]
 
 ROW_LENGTH = 10
 LAYER_ROWS = 10  # 3D: rows of a layer
-# Vertigo's policies, then the project's earlier two; the first is the default.
+# Vertigo's policies, then the project's own two; the first is the default.
 VERTIGO_MODES = ("random", "local", "group", "localgroup")
 OUTLIER_MODES = (*VERTIGO_MODES, "uniform", "plausible")
 GROUP_SIZE = 5  # closures per group (group, localgroup)
@@ -105,7 +106,7 @@ class SyntheticGraph:
     outlier_edges: list[int] = field(default_factory=list)
 
 
-def _true_poses(n: int, d: float) -> list[gtsam.Pose2]:
+def _planar_poses(n: int, d: float) -> list[gtsam.Pose2]:
     poses = []
     for k in range(n):
         row, col = divmod(k, ROW_LENGTH)
@@ -117,7 +118,7 @@ def _true_poses(n: int, d: float) -> list[gtsam.Pose2]:
     return poses
 
 
-def _candidates(n: int) -> list[tuple[int, int]]:
+def _planar_candidates(n: int) -> list[tuple[int, int]]:
     pairs = []
     for k in range(ROW_LENGTH, n):
         col = k % ROW_LENGTH
@@ -138,7 +139,7 @@ def _lattice_path(n: int) -> np.ndarray:
     return np.stack([x, y, layer], axis=1)
 
 
-def _true_poses3d(n: int, d: float) -> list[gtsam.Pose3]:
+def _layered_poses(n: int, d: float) -> list[gtsam.Pose3]:
     cells = _lattice_path(n)
     moves = np.diff(cells, axis=0).astype(float)
     x_axis = np.vstack([moves, moves[-1:]])  # the last pose keeps the last motion's direction
@@ -149,7 +150,7 @@ def _true_poses3d(n: int, d: float) -> list[gtsam.Pose3]:
     return [gtsam.Pose3(gtsam.Rot3(r), t) for r, t in zip(rotations, positions, strict=True)]
 
 
-def _candidates3d(n: int) -> list[tuple[int, int]]:
+def _layered_candidates(n: int) -> list[tuple[int, int]]:
     """(k, m): pose k and each lattice neighbour m earlier on the path than its
     predecessor, by k, then m."""
     cells = _lattice_path(n)
@@ -170,6 +171,11 @@ def _candidates3d(n: int) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in joined]
 
 
+# Each group's path: its true poses and its loop-closure candidates.
+_PATHS: dict[Group, tuple[Callable[[int, float], list], Callable[[int], list[tuple[int, int]]]]] = {
+    SE2: (_planar_poses, _planar_candidates), SE3: (_layered_poses, _layered_candidates)}
+
+
 def generate(
     n: int,
     sigma_r: float,
@@ -181,14 +187,16 @@ def generate(
     outliers: float = 0.0,
     outlier_mode: str = OUTLIER_MODES[0],
     group_size: int = GROUP_SIZE,
+    group: Group = SE2,
 ) -> SyntheticGraph:
-    """Generate one lawn-mower pose graph.
+    """Generate one lawn-mower pose graph: planar, or in layers in 3D (see the module
+    docstring).
 
     Args:
         n: number of poses (>= 2).
-        sigma_r: rotation noise, radians (> 0).
+        sigma_r: rotation noise, radians (> 0), per rotation axis.
         sigma_t: translation noise per axis, metres (> 0).
-        d: spacing between neighbouring poses and between rows, metres (> 0).
+        d: spacing between neighbouring poses, rows and layers, metres (> 0).
         lc: fraction of the loop-closure candidates to keep, in [0, 1].
         rng: the only source of randomness.
         noisy_measurements: perturb the measurements too (the ground truth is then not the
@@ -197,41 +205,14 @@ def generate(
             edges (``int(outliers x edges)`` of them), in [0, 1); drawn last.
         outlier_mode: how they are drawn, one of :data:`OUTLIER_MODES`.
         group_size: closures per group in the group modes (>= 1).
+        group: :data:`~rlpgo_gtsam.groups.SE2` (``Pose2`` values, ``BetweenFactorPose2``
+            factors) or :data:`~rlpgo_gtsam.groups.SE3` (``Pose3``, ``BetweenFactorPose3``).
     """
     _check_settings(n, sigma_r, sigma_t, d, lc, outliers, outlier_mode, group_size)
-    return _generate(_true_poses(n, d), _candidates(n), np.array([sigma_t, sigma_t, sigma_r]),
-                     gtsam.BetweenFactorPose2, add_outliers, lc, rng, noisy_measurements,
-                     outliers, outlier_mode, group_size)
-
-
-def generate3d(
-    n: int,
-    sigma_r: float,
-    sigma_t: float,
-    d: float,
-    lc: float,
-    rng: np.random.Generator,
-    noisy_measurements: bool = False,
-    outliers: float = 0.0,
-    outlier_mode: str = OUTLIER_MODES[0],
-    group_size: int = GROUP_SIZE,
-) -> SyntheticGraph:
-    """Generate one 3D pose graph: the lawn-mower path in layers (see the module docstring),
-    ``BetweenFactorPose3`` factors and ``Pose3`` values; the arguments are
-    :func:`generate`'s, ``sigma_r`` per rotation axis and ``sigma_t`` per translation axis."""
-    _check_settings(n, sigma_r, sigma_t, d, lc, outliers, outlier_mode, group_size)
-    sigmas = np.array([sigma_r, sigma_r, sigma_r, sigma_t, sigma_t, sigma_t])
-    return _generate(_true_poses3d(n, d), _candidates3d(n), sigmas, gtsam.BetweenFactorPose3,
-                     add_outliers3d, lc, rng, noisy_measurements, outliers, outlier_mode,
-                     group_size)
-
-
-def _generate(truth: list, candidates: list[tuple[int, int]], sigmas: np.ndarray, factor: type,
-              add: Callable, lc: float, rng: np.random.Generator, noisy_measurements: bool,
-              outliers: float, outlier_mode: str, group_size: int) -> SyntheticGraph:
-    """The generator of both dimensions: ``truth`` (Pose2 or Pose3), the loop-closure
-    ``candidates``, the noise ``sigmas`` in the tangent order of the poses' ``Expmap``."""
-    n = len(truth)
+    true_poses, candidates = _PATHS[group]
+    truth = true_poses(n, d)
+    sigmas = np.full(group.dof, float(sigma_t))  # in the tangent order of the poses' Expmap
+    sigmas[list(group.rotation_axes)] = sigma_r
     expmap = type(truth[0]).Expmap
     noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
 
@@ -239,9 +220,10 @@ def _generate(truth: list, candidates: list[tuple[int, int]], sigmas: np.ndarray
         return pose.compose(expmap(rng.normal(0.0, sigmas)))
 
     odometry = [truth[k].between(truth[k + 1]) for k in range(n - 1)]
-    count = int(lc * len(candidates))
-    chosen = sorted(rng.choice(len(candidates), size=count, replace=False)) if count else []
-    closures = [candidates[c] for c in chosen]
+    pairs = candidates(n)
+    count = int(lc * len(pairs))
+    chosen = sorted(rng.choice(len(pairs), size=count, replace=False)) if count else []
+    closures = [pairs[c] for c in chosen]
 
     def measure(between):
         return perturb(between) if noisy_measurements else between
@@ -251,9 +233,9 @@ def _generate(truth: list, candidates: list[tuple[int, int]], sigmas: np.ndarray
     for k, between in enumerate(odometry):
         measured = measure(between)
         measured_odometry.append(measured)
-        graph.add(factor(k, k + 1, measured, noise))
+        graph.add(group.between_factor(k, k + 1, measured, noise))
     for i, j in closures:
-        graph.add(factor(i, j, measure(truth[i].between(truth[j])), noise))
+        graph.add(group.between_factor(i, j, measure(truth[i].between(truth[j])), noise))
 
     initial, ground_truth = gtsam.Values(), gtsam.Values()
     pose = truth[0]
@@ -266,7 +248,8 @@ def _generate(truth: list, candidates: list[tuple[int, int]], sigmas: np.ndarray
         ground_truth.insert(k, true_pose)
     outlier_edges: list[int] = []
     if outliers > 0:
-        graph, outlier_edges = add(graph, ground_truth, outliers, rng, outlier_mode, group_size)
+        graph, outlier_edges = add_outliers(graph, ground_truth, outliers, rng, outlier_mode,
+                                            group_size)
     return SyntheticGraph(graph, initial, ground_truth, outlier_edges)
 
 
@@ -281,7 +264,9 @@ def add_outliers(
     """A copy of ``graph`` with ``int(fraction x edges)`` wrong loop closures appended.
 
     Args:
-        graph: a planar pose graph (what :class:`~rlpgo_gtsam.graph.PoseGraph2D` accepts).
+        graph: a planar or 3D pose graph (what
+            :func:`~rlpgo_gtsam.graph.extract_pose_graph` accepts); the wrong closures are
+            its group's between factors.
         values: the poses that define the map's geometry (its extent, which poses are far
             apart): the ground truth or the best known solution, not a drifting guess.
         fraction: wrong closures per between factor of ``graph``, in [0, 1).
@@ -297,56 +282,51 @@ def add_outliers(
     Raises:
         RlpgoError: a fraction outside [0, 1), an unknown mode, or a graph with too few
             pose pairs that qualify.
-        GraphError: a graph the package cannot read as a planar pose graph.
+        GraphError: a graph the package cannot read as a pose graph.
     """
     _check_outliers(fraction, mode, group_size)
-    g = PoseGraph2D.from_gtsam(graph, values)
+    g = extract_pose_graph(graph, values)
+    group = g.group
+    measured = group.measured(g)
+    draw = _WRONG_MEASUREMENTS[group]
 
-    def measure(source: int, side: float) -> gtsam.Pose2:
-        if mode in VERTIGO_MODES:
-            return gtsam.Pose2(*rng.normal(0.0, [_VERTIGO_SIGMA_T_M, _VERTIGO_SIGMA_T_M,
-                                                 _VERTIGO_SIGMA_R_RAD]).tolist())
-        if mode == "uniform":
-            dx, dy = rng.uniform(-side, side, size=2).tolist()
-            return gtsam.Pose2(dx, dy, float(rng.uniform(-np.pi, np.pi)))
-        return gtsam.Pose2(*g.measured[source])
+    def measure(source: int, side: float):
+        if mode == "plausible":
+            return group.gtsam_pose(measured[source])
+        return draw(mode, side, rng)
 
-    return _add_wrong_closures(graph, g, g.poses[:, :2], g.measured[:, :2], fraction, rng, mode,
-                               group_size, gtsam.BetweenFactorPose2, measure)
-
-
-def add_outliers3d(
-    graph: gtsam.NonlinearFactorGraph,
-    values: gtsam.Values,
-    fraction: float,
-    rng: np.random.Generator,
-    mode: str = OUTLIER_MODES[0],
-    group_size: int = GROUP_SIZE,
-) -> tuple[gtsam.NonlinearFactorGraph, list[int]]:
-    """:func:`add_outliers` for a 3D graph (what :class:`~rlpgo_gtsam.graph.PoseGraph3D`
-    accepts): the same pairs and policies, ``BetweenFactorPose3`` closures measured as the
-    module docstring says. Raises as :func:`add_outliers` does."""
-    _check_outliers(fraction, mode, group_size)
-    g = PoseGraph3D.from_gtsam(graph, values)
-
-    def measure(source: int, side: float) -> gtsam.Pose3:
-        if mode in VERTIGO_MODES:
-            x, y, z, roll, pitch, yaw = rng.normal(0.0, [_VERTIGO_SIGMA_T_M] * 3
-                                                   + [_VERTIGO_SIGMA_R_RAD] * 3).tolist()
-            return gtsam.Pose3(gtsam.Rot3.Ypr(yaw, pitch, roll), np.array([x, y, z]))
-        if mode == "uniform":
-            t = rng.uniform(-side, side, size=3)
-            q = rng.normal(size=4)  # a uniform rotation: a uniform unit quaternion
-            q /= np.linalg.norm(q)
-            return gtsam.Pose3(gtsam.Rot3.Quaternion(*q.tolist()), t)
-        return gtsam.Pose3(gtsam.Rot3(g.measured_rotations[source]),
-                           g.measured_translations[source])
-
-    return _add_wrong_closures(graph, g, g.translations, g.measured_translations, fraction, rng,
-                               mode, group_size, gtsam.BetweenFactorPose3, measure)
+    return _add_wrong_closures(graph, g, group.translations(g.poses),
+                               group.translations(measured), fraction, rng, mode, group_size,
+                               group.between_factor, measure)
 
 
-def _add_wrong_closures(graph: gtsam.NonlinearFactorGraph, g: PoseGraph2D | PoseGraph3D,
+def _wrong_pose2(mode: str, side: float, rng: np.random.Generator) -> gtsam.Pose2:
+    """A planar wrong closure's measurement: Vertigo's small relative pose, or ``"uniform"``'s."""
+    if mode in VERTIGO_MODES:
+        return gtsam.Pose2(*rng.normal(0.0, [_VERTIGO_SIGMA_T_M, _VERTIGO_SIGMA_T_M,
+                                             _VERTIGO_SIGMA_R_RAD]).tolist())
+    dx, dy = rng.uniform(-side, side, size=2).tolist()
+    return gtsam.Pose2(dx, dy, float(rng.uniform(-np.pi, np.pi)))
+
+
+def _wrong_pose3(mode: str, side: float, rng: np.random.Generator) -> gtsam.Pose3:
+    """A 3D wrong closure's measurement: Vertigo's small relative pose (roll, pitch, yaw),
+    or ``"uniform"``'s (the rotation uniform on SO(3))."""
+    if mode in VERTIGO_MODES:
+        x, y, z, roll, pitch, yaw = rng.normal(0.0, [_VERTIGO_SIGMA_T_M] * 3
+                                               + [_VERTIGO_SIGMA_R_RAD] * 3).tolist()
+        return gtsam.Pose3(gtsam.Rot3.Ypr(yaw, pitch, roll), np.array([x, y, z]))
+    t = rng.uniform(-side, side, size=3)
+    q = rng.normal(size=4)  # a uniform rotation: a uniform unit quaternion
+    q /= np.linalg.norm(q)
+    return gtsam.Pose3(gtsam.Rot3.Quaternion(*q.tolist()), t)
+
+
+_WRONG_MEASUREMENTS: dict[Group, Callable[[str, float, np.random.Generator], object]] = {
+    SE2: _wrong_pose2, SE3: _wrong_pose3}
+
+
+def _add_wrong_closures(graph: gtsam.NonlinearFactorGraph, g: PoseGraph,
                         positions: np.ndarray, moves: np.ndarray, fraction: float,
                         rng: np.random.Generator, mode: str, group_size: int, factor: type,
                         measure: Callable[[int, float], object]):
@@ -371,7 +351,7 @@ def _add_wrong_closures(graph: gtsam.NonlinearFactorGraph, g: PoseGraph2D | Pose
     return result, list(range(start, start + count))
 
 
-def _wrong_pairs(g: PoseGraph2D | PoseGraph3D, positions: np.ndarray, moves: np.ndarray,
+def _wrong_pairs(g: PoseGraph, positions: np.ndarray, moves: np.ndarray,
                  count: int, mode: str, group_size: int,
                  rng: np.random.Generator) -> Iterator[tuple[list[tuple[int, int]], int]]:
     """The one definition of the policies: per group, the pose index pairs of its wrong
@@ -420,7 +400,7 @@ def _wrong_pairs(g: PoseGraph2D | PoseGraph3D, positions: np.ndarray, moves: np.
         drawn += members
 
 
-def _chain_order(g: PoseGraph2D | PoseGraph3D, chain: np.ndarray) -> np.ndarray:
+def _chain_order(g: PoseGraph, chain: np.ndarray) -> np.ndarray:
     """Pose indices in the order a walk along the chain meets them: depth first from the
     anchor, the lower index first (sorted keys on a path)."""
     neighbours: list[list[int]] = [[] for _ in range(g.num_poses)]

@@ -387,7 +387,7 @@ def test_the_width_limit_is_the_one_the_commands_show():
     assert checkpoint._MAX_HIDDEN == MAX_HIDDEN
 
 
-# --- files written while issue 11's options existed ------------------------------------
+# --- files that hold options removed in 0.1.0 -------------------------------------------
 
 
 def _with_env(model: Path, dst: Path, **fields) -> Path:
@@ -397,7 +397,7 @@ def _with_env(model: Path, dst: Path, **fields) -> Path:
 
 
 def test_removed_env_fields_at_their_off_values_load_as_before(model, tmp_path):
-    """Models saved while issue 11's options existed hold them at their defaults: such a file
+    """Models saved with the options removed in 0.1.0 hold them at their defaults: such a file
     loads, with the same environment and the same actions as one without the fields."""
     from rlpgo_gtsam.rl.agent.checkpoint import REMOVED_ENV_FIELDS
 

@@ -17,9 +17,10 @@ import pytest
 
 from rlpgo_gtsam import io
 from rlpgo_gtsam.errors import G2oFormatError
+from rlpgo_gtsam.groups import SE3
 from rlpgo_gtsam.io import read, scan, write
 from rlpgo_gtsam.io.formats import SPATIAL
-from rlpgo_gtsam.synthetic import generate3d
+from rlpgo_gtsam.synthetic import generate
 from tests.conftest import DATASETS
 
 
@@ -61,8 +62,8 @@ def _fast_scan_accepts(path: Path) -> bool:
 
 
 def _generated(n: int, seed: int, fixed: bool) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
-    sample = generate3d(n, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(seed),
-                        noisy_measurements=True)
+    sample = generate(n, 0.05, 0.05, 3.0, 0.3, np.random.default_rng(seed),
+                      noisy_measurements=True, group=SE3)
     graph, values = sample.graph, sample.initial
     if fixed:
         for key in (0, n // 2):

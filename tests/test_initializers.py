@@ -185,12 +185,10 @@ def test_edge_graphs_keep_each_edges_noise_with_one_model_per_value(name, models
 def _both_groups_graphs():
     """A small generated planar graph and a 3D one, odometry noisy enough that the guess
     from the vertices is far from the optimum."""
-    from rlpgo_gtsam.synthetic import generate3d
-
     return {"planar": generate(60, 0.1, 0.05, 2.0, 0.5, np.random.default_rng(1),
                                noisy_measurements=True),
-            "3D": generate3d(60, 0.1, 0.05, 2.0, 0.5, np.random.default_rng(1),
-                             noisy_measurements=True)}
+            "3D": generate(60, 0.1, 0.05, 2.0, 0.5, np.random.default_rng(1),
+                           noisy_measurements=True, group=SE3)}
 
 
 BOTH = [name for name in initializer_names(SE2) if name in initializer_names(SE3)]

@@ -459,10 +459,10 @@ def test_the_small_graph_path_hands_a_relaxation_that_is_not_exact_to_the_stairc
     """Where S is not positive semidefinite at Newton's point (a small graph with 0.8 rad of
     rotation noise), the staircase runs from that point and escapes: the same rotations and
     certificate, to the bit, as the staircase from Newton's point, not certified."""
-    from rlpgo_gtsam.synthetic import generate3d
+    from rlpgo_gtsam.synthetic import generate
 
-    sample = generate3d(20, 0.8, 0.1, 1.0, 0.5, np.random.default_rng(2),
-                        noisy_measurements=True)
+    sample = generate(20, 0.8, 0.1, 1.0, 0.5, np.random.default_rng(2),
+                      noisy_measurements=True, group=SE3)
     g = PoseGraph3D.from_gtsam(sample.graph, sample.initial)
     assert 3 * g.num_poses < spatial._NEWTON_BELOW
     rotations, certificate = synchronize(g)
@@ -538,10 +538,10 @@ def test_the_isotropic_translation_step_is_the_same_with_a_dense_laplacian(monke
     scalar Laplacian are dense arrays: the same positions as the sparse ones, to round-off,
     and GTSAM's chi2 there the same."""
     import rlpgo_gtsam.linear as linear
-    from rlpgo_gtsam.synthetic import generate3d
+    from rlpgo_gtsam.synthetic import generate
 
-    sample = generate3d(80, 0.05, 0.1, 1.0, 0.5, np.random.default_rng(4),
-                        noisy_measurements=True)
+    sample = generate(80, 0.05, 0.1, 1.0, 0.5, np.random.default_rng(4),
+                      noisy_measurements=True, group=SE3)
     g = PoseGraph3D.from_gtsam(sample.graph, sample.initial)
     assert linear._DENSE_BELOW <= 3 * (g.num_poses - 1)
     assert g.num_poses - 1 < linear._DENSE_LAPLACIAN_BELOW
@@ -693,10 +693,10 @@ def test_the_isotropic_translation_step_is_the_direct_solve():
     translation step's CG with the scalar Laplacian gives the direct 3n solve's positions
     and chi2; anisotropic ones (5, 6, 7 on the axes) are left to the direct solve."""
     import rlpgo_gtsam.linear as linear
-    from rlpgo_gtsam.synthetic import generate3d
+    from rlpgo_gtsam.synthetic import generate
 
-    sample = generate3d(300, 0.05, 0.1, 1.0, 0.5, np.random.default_rng(2),
-                        noisy_measurements=True)
+    sample = generate(300, 0.05, 0.1, 1.0, 0.5, np.random.default_rng(2),
+                      noisy_measurements=True, group=SE3)
     g = PoseGraph3D.from_gtsam(sample.graph, sample.initial)
     rotations = chordal_rotations(g)
     step = TranslationStep(g)

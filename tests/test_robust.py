@@ -494,9 +494,9 @@ def _vertigo_on(name: str, mode: str, fraction: float = 0.1):
                  id="closures_the_map_must_turn_far_are_judged_by_a_solve"),
     # MIT, 5% of Vertigo's local policy (pairs of poses at most 20 apart said to coincide):
     # two wrong closures fit the map within the 0.9999 bar (one fits the right map itself:
-    # innovation 18.9 against 21.1, benchmarks/robust_limits.py); among the 39 closures
-    # refuted, a fit that unlikely is evidence against them too (the false-rejection bar;
-    # without it 2 stay: recall 0.951)
+    # innovation 18.9 against 21.1, benchmarks/robust_diagnostics.py limits); among the 39
+    # closures refuted, a fit that unlikely is evidence against them too (the
+    # false-rejection bar; without it 2 stay: recall 0.951)
     pytest.param("MIT.g2o", "local", 0.05,
                  id="aliased_closures_that_fit_go_by_the_false_rejection_bar"),
 ])
@@ -519,7 +519,8 @@ def test_a_cluster_of_wrong_closures_that_holds_its_stretch_is_solved_without():
     # chi2 5-8), and the cluster's linear leave-out chi2 (23) lies below its bar (34). Solved
     # without them, the optimum falls by 59: refuted (by the linear test alone, 8 stayed:
     # recall 0.902). The wrong closures that fit the right map itself
-    # (benchmarks/robust_limits.py) go by the false-rejection bar (without it, 2 stay).
+    # (benchmarks/robust_diagnostics.py limits) go by the false-rejection bar (without it,
+    # 2 stay).
     bad, values, wrong, clean, lowest = _vertigo_on("MIT.g2o", "localgroup")
     result = robust_initialize(bad, values)
     assert result.rejected == wrong

@@ -12,13 +12,14 @@ import pytest
 
 from rlpgo_gtsam.errors import GraphError
 from rlpgo_gtsam.graph import PoseGraph3D, extract_pose_graph
+from rlpgo_gtsam.groups import SE3
 from rlpgo_gtsam.io import read_g2o
 from rlpgo_gtsam.robust import robust_initialize
 from rlpgo_gtsam.robust.gnc import robust_positions
 from rlpgo_gtsam.robust.noise import graph_with_printed_blocks, noise_scale
 from rlpgo_gtsam.solvers import refine
 from rlpgo_gtsam.staged import staged_initialize
-from rlpgo_gtsam.synthetic import add_outliers3d, generate3d
+from rlpgo_gtsam.synthetic import add_outliers, generate
 from tests.conftest import dataset
 from tests.test_cli_3d import _cubicle_head
 
@@ -27,7 +28,7 @@ ARGS = (200, 0.02, 0.05, 1.0, 0.5)
 
 
 def test_a_clean_3d_graph_keeps_every_edge_at_the_default_chi2():
-    sample = generate3d(*ARGS, np.random.default_rng(1), noisy_measurements=True)
+    sample = generate(*ARGS, np.random.default_rng(1), noisy_measurements=True, group=SE3)
     robust = robust_initialize(sample.graph, sample.initial)
     default = staged_initialize(sample.graph, sample.initial)
     assert robust.rejected == []
@@ -41,8 +42,9 @@ def test_known_wrong_closures_in_3d_are_rejected_exactly(mode):
     """10% wrong closures (Vertigo's random pairs measured as "the same place", or random
     relative poses): exactly those go, and the map is the clean one's optimum."""
     rng = np.random.default_rng(1)
-    sample = generate3d(*ARGS, rng, noisy_measurements=True, outliers=0.1, outlier_mode=mode)
-    clean = generate3d(*ARGS, np.random.default_rng(1), noisy_measurements=True)
+    sample = generate(*ARGS, rng, noisy_measurements=True, outliers=0.1, outlier_mode=mode,
+                      group=SE3)
+    clean = generate(*ARGS, np.random.default_rng(1), noisy_measurements=True, group=SE3)
     robust = robust_initialize(sample.graph, sample.initial)
     assert len(sample.outlier_edges) == 32
     assert robust.rejected == sample.outlier_edges
@@ -71,7 +73,7 @@ def test_a_loose_map_takes_back_every_true_closure_of_a_spiral():
     # closure would pass less than 1e-3 of the time come in at once, and only the wrong go.
     graph, values = read_g2o(dataset("3d/sphere2500.g2o"))
     best = refine(graph, staged_initialize(graph, values).values, "lm", 100)
-    bad, wrong = add_outliers3d(graph, best.values, 0.05, np.random.default_rng(1), "uniform")
+    bad, wrong = add_outliers(graph, best.values, 0.05, np.random.default_rng(1), "uniform")
     result = robust_initialize(bad, values)
     assert result.rejected == sorted(wrong)
     assert refine(graph, result.values, "lm", 30).chi2 == pytest.approx(best.chi2, rel=1e-6)
@@ -84,9 +86,9 @@ def test_true_closures_refuted_beside_many_wrong_ones_all_come_back():
     which took past 20 rounds (at 20: 47 true closures left out, the map 76x the optimum).
     Every wrong closure goes, every true one stays, and the map is the clean graph's."""
     args = (300, 0.3, 0.05, 3.0, 0.5)
-    sample = generate3d(*args, np.random.default_rng(1), noisy_measurements=True,
-                        outliers=0.1, outlier_mode="random")
-    clean = generate3d(*args, np.random.default_rng(1), noisy_measurements=True)
+    sample = generate(*args, np.random.default_rng(1), noisy_measurements=True,
+                      outliers=0.1, outlier_mode="random", group=SE3)
+    clean = generate(*args, np.random.default_rng(1), noisy_measurements=True, group=SE3)
     robust = robust_initialize(sample.graph, sample.initial)
     assert robust.rejected == sample.outlier_edges
     verify = next(step for step in robust.steps if step.name == "verify")
@@ -103,8 +105,8 @@ def test_the_kept_edges_relaxation_is_tried_again_after_each_restart():
     the full clean graph's optimum 1282); their relaxation, tried again, lies lower, and from
     it those five come back."""
     args = (300, 0.3, 0.05, 3.0, 0.5)
-    sample = generate3d(*args, np.random.default_rng(1), noisy_measurements=True,
-                        outliers=0.1, outlier_mode="local")
+    sample = generate(*args, np.random.default_rng(1), noisy_measurements=True,
+                      outliers=0.1, outlier_mode="local", group=SE3)
     robust = robust_initialize(sample.graph, sample.initial)
     assert robust.rejected == sample.outlier_edges
     verify = next(step for step in robust.steps if step.name == "verify")
@@ -126,8 +128,8 @@ def test_noise_scale_reads_the_noise_the_errors_show():
 def test_the_translation_step_gnc_drops_3d_gross_errors():
     """At the true rotations, the weighted 3D translation step keeps the true closures and
     drops the wrong ones (3 dof whitened residuals)."""
-    sample = generate3d(*ARGS, np.random.default_rng(2), noisy_measurements=True,
-                        outliers=0.1, outlier_mode="uniform")
+    sample = generate(*ARGS, np.random.default_rng(2), noisy_measurements=True,
+                      outliers=0.1, outlier_mode="uniform", group=SE3)
     g = PoseGraph3D.from_gtsam(sample.graph, sample.ground_truth)
     wrong = np.zeros(g.num_edges, bool)
     wrong[np.array(sample.outlier_edges)] = True

@@ -37,9 +37,10 @@ from rlpgo_gtsam.synthetic import generate
 # never gave the lowest refined chi2 alone on 31 graphs (the shared 2D files, the sigma_t
 # sweep, 18 generated graphs where the relaxation mostly fails: tied on 11 files, 1.5x and
 # 6.4x the lowest on M3500C and MIT, 9.6-28x on the generated graphs;
-# benchmarks/results/compare_wins.md) and took 14% of the
-# comparison on M3500 and City10K (benchmarks/results/compare_speed_before.md), which
-# without it takes under 3x rlpgo-init there; and the agent (rl@certified): from the certified
+# benchmarks/results/compare_wins.md), while its row costs 0.35 s on M3500 and 1.0 s on
+# City10K, initialization and refinement (benchmarks/results/compare_fastsync_certified.txt);
+# without it the comparison takes under 3x rlpgo-init there
+# (benchmarks/results/compare_speed.md); and the agent (rl@certified): from the certified
 # start it took 22 s on M3500 and 99 s on City10K, three quarters of the whole comparison,
 # and lowered the refined chi2 on neither (nor on any graph in staged.py's table).
 DEFAULT_METHODS = ",".join([*CLASSICAL, "certified"])

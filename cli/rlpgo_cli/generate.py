@@ -10,6 +10,7 @@ from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import SEED, FiniteFloat, OutputFile
 from rlpgo_gtsam.graph import chi2
+from rlpgo_gtsam.groups import SE2, SE3
 from rlpgo_gtsam.io import EDGE_LIST_LINE, edge_list_text, g2o_text, g2o_text_lines
 from rlpgo_gtsam.synthetic import (
     GROUP_SIZE,
@@ -18,11 +19,10 @@ from rlpgo_gtsam.synthetic import (
     OUTLIER_MODES,
     ROW_LENGTH,
     generate,
-    generate3d,
 )
 
-# --dim: the generator
-_GENERATORS = {2: generate, 3: generate3d}
+# --dim: the pose group
+_GROUPS = {2: SE2, 3: SE3}
 
 
 @click.command(cls=RlpgoCommand)
@@ -56,7 +56,7 @@ _GENERATORS = {2: generate, 3: generate3d}
                    "N(0, 10 deg), with the first loop closure's information): random: random "
                    f"pose pairs; local: the second pose within {LOCAL_RANGE} of the first; "
                    "group: --group-size consecutive pairs (i+k, j+k) sharing one measurement; "
-                   "localgroup: local groups. Earlier modes: uniform: random pairs with "
+                   "localgroup: local groups. Also: uniform: random pairs with "
                    "random relative poses; plausible: far-apart poses measured like a true "
                    "closure.")
 @click.option("--group-size", type=click.IntRange(1, 10_000), default=GROUP_SIZE,
@@ -71,10 +71,9 @@ def main(dim, n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, grou
     """Generate a lawn-mower pose graph as in the RL-PGO paper (in layers in 3D: --dim 3)."""
     run = RunFiles()
     run.check(output, ground_truth, outliers_out)
-    make = _GENERATORS[dim]
-    sample = make(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
-                  noisy_measurements=noisy_measurements, outliers=outliers,
-                  outlier_mode=outlier_mode, group_size=group_size)
+    sample = generate(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
+                      noisy_measurements=noisy_measurements, outliers=outliers,
+                      outlier_mode=outlier_mode, group_size=group_size, group=_GROUPS[dim])
     text, lines = g2o_text_lines(sample.graph, sample.initial)
     files = [(output, text.encode())]
     if ground_truth is not None:

@@ -199,7 +199,8 @@ def text_careful(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
             factor_lines[index] = len(lines)
         elif isinstance(factor, prior):
             if not isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
-                raise OutputError(f"prior on key {factor.keys()[0]}: a soft prior has no "
+                key = gtsam.DefaultKeyFormatter(factor.keys()[0])
+                raise OutputError(f"prior on key {key}: a soft prior has no "
                                   f"{form.soft_prior_line} (FIX holds a pose exactly)")
             fixed.append(factor.keys()[0])
             priors.append(index)

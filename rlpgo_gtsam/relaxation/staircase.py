@@ -91,8 +91,8 @@ def synchronize(pose_graph: PoseGraph, start: np.ndarray | None = None, *,
             a graph whose translations or rotations the measurements do not determine.
         GraphError: negative or non-finite information.
     """
+    kind = relaxation_type(pose_graph)  # its first call imports the module: not the solve's time
     started = time.perf_counter()
-    kind = relaxation_type(pose_graph)
     lowest = kind.lowest_rank
     initial_rank = lowest if initial_rank is None else initial_rank
     deadline = check_start(started, initial_rank, max_rank, lowest, time_limit_s)

@@ -99,9 +99,9 @@ _ENV_SCHEMA = {
     "d": (float, 0.0, 1e6), "lc": (float, 0.0, 1.0), "cycles": (int, 1, _MAX_CYCLES),
     "action_range_rad": (float, 0.0, 3.2), "noisy_measurements": (bool, None, None),
 }
-# Environment options removed in 0.1.0 (they measured nothing: models/README.md), and the
-# value that meant "off". Files written while they existed hold them: a file with a
-# field at this value loads as before; any other value needs the removed code, and is refused.
+# Environment options removed in 0.1.0 (no shipped model uses them), and the value that
+# meant "off". Files written while they existed hold them: a file with a field at this value
+# loads as before; any other value needs the removed code, and is refused.
 REMOVED_ENV_FIELDS = {"observation": "paper", "reward": "oc", "oc_shaping": 0.0, "keep": "oc",
                       "sigma_r_max": 0.0, "start": "odometry"}
 _REMOVED_IN = "0.1.0"
