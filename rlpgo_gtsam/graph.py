@@ -37,7 +37,7 @@ import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
 from rlpgo_gtsam.groups import SE2, SE3, Group, graph_group, pose3_arrays
-from rlpgo_gtsam.information import printed_of, sort_factors
+from rlpgo_gtsam.information import Factors, printed_of, sort_factors
 from rlpgo_gtsam.se3 import pose_matrices
 
 __all__ = [
@@ -72,6 +72,14 @@ class PoseArrays:
         anchor: index of the pose that fixes the gauge: the first hard prior's pose, else the
             first soft prior's, else index 0.
         fixed: (k,) indices of the poses held by hard (constrained) priors.
+        priors: (p,) indices of the poses that soft (Gaussian) priors pull on, in graph order.
+        prior_poses: (p, ...) the poses those priors measure, in the group's form (planar
+            (p, 3), 3D (p, 3, 4)); None where there are none.
+        prior_information: (p, dof, dof) their information matrices; None where there are
+            none.
+        world_frame: pose 0 is the world frame of a one-anchor problem
+            (:mod:`rlpgo_gtsam.anchoring`): its weights are the FIX lines' and priors', which
+            do not set the scale of the relaxation's tolerances.
         graph: the GTSAM graph the arrays came from (costs are evaluated on it).
         cache: what the numeric steps derive from these arrays alone and keep for the next
             call on the same graph (the chordal rotations, the translation step's system);
@@ -87,6 +95,10 @@ class PoseArrays:
     information: np.ndarray
     anchor: int
     fixed: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    priors: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    prior_poses: np.ndarray | None = None
+    prior_information: np.ndarray | None = None
+    world_frame: bool = False
     graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
     cache: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -182,6 +194,7 @@ class PoseGraph2D(PoseArrays):
             fixed=np.array([k for k, _ in hard], dtype=np.int64),
             fixed_poses=np.array([p for _, p in hard]).reshape(-1, 3),
             anchor_pose=poses[anchor] if anchor_pose is None else np.array(anchor_pose),
+            **_soft_priors(factors, lambda rows: np.array(rows).reshape(-1, 3)),
             graph=graph,
         )
         result.check_connected()
@@ -349,7 +362,7 @@ class PoseGraph3D(PoseArrays):
             fixed_rotations=fixed_r, fixed_translations=fixed_t,
             anchor_rotation=np.asarray(anchor_r, float),
             anchor_translation=np.asarray(anchor_t, float), graph=graph,
-            printed=printed,
+            printed=printed, **_soft_priors(factors, SE3.pose_arrays),
         )
         result.check_connected()
         return result
@@ -443,6 +456,17 @@ def odometry_edges(pose_graph: PoseGraph) -> np.ndarray:
             parent[a] = b
             chain[e] = True
     return chain
+
+
+def _soft_priors(factors: Factors, rows: Callable[[list[Any]], np.ndarray]) -> dict[str, Any]:
+    """The extraction's soft-prior fields from the sorted factors (``rows`` packs the
+    priors' poses in the group's form); no fields where the graph has none."""
+    if not factors.soft:
+        return {}
+    size = len(factors.soft_information[0])
+    return {"priors": np.array([k for k, _ in factors.soft], dtype=np.int64),
+            "prior_poses": rows([pose for _, pose in factors.soft]),
+            "prior_information": np.array(factors.soft_information).reshape(-1, size, size)}
 
 
 def poses_of_values(values: gtsam.Values, keys: list[int]) -> np.ndarray:

@@ -127,6 +127,13 @@ class Group:
         """GTSAM's pose at ``key`` of ``values``."""
         raise NotImplementedError
 
+    def anchored_graph(self, g: PoseGraph, keys: np.ndarray, poses: np.ndarray,
+                       edges: np.ndarray, measured: np.ndarray,
+                       information: np.ndarray) -> PoseGraph:
+        """A pose graph like ``g`` of these poses (group form) and edges whose pose 0 is its
+        anchor, held at ``poses[0]``: no other held pose, no prior, no GTSAM graph."""
+        raise NotImplementedError
+
     def subgraph(self, g: PoseGraph, kept: np.ndarray) -> PoseGraph:
         """``g`` with only the edges in ``kept`` (poses, anchor and priors unchanged)."""
         raise NotImplementedError
@@ -216,6 +223,11 @@ class _SE2(Group):
         return replace(g, edges=g.edges[kept], measured=g.measured[kept],
                        information=g.information[kept])
 
+    def anchored_graph(self, g, keys, poses, edges, measured, information):
+        return replace(g, keys=keys, poses=poses, edges=edges, measured=measured,
+                       information=information, anchor=0, fixed=np.zeros(0, np.int64),
+                       fixed_poses=np.zeros((0, 3)), anchor_pose=poses[0], **_NO_PRIORS)
+
 
 class _SE3(Group):
     name, dimension, dof, d, kind = "SE3", 3, 6, 3, "3D"
@@ -274,6 +286,16 @@ class _SE3(Group):
                        measured_translations=g.measured_translations[kept],
                        information=g.information[kept])
 
+    def anchored_graph(self, g, keys, poses, edges, measured, information):
+        # the printed matrices stay keyed by content: an edge carried over unchanged keeps
+        # its weights, one whose information was transformed is weighed by its own
+        return replace(g, keys=keys, rotations=poses[:, :, :3], translations=poses[:, :, 3],
+                       edges=edges, measured_rotations=measured[:, :, :3],
+                       measured_translations=measured[:, :, 3], information=information,
+                       anchor=0, fixed=np.zeros(0, np.int64), fixed_rotations=np.zeros((0, 3, 3)),
+                       fixed_translations=np.zeros((0, 3)), anchor_rotation=poses[0, :, :3],
+                       anchor_translation=poses[0, :, 3], **_NO_PRIORS)
+
     def edge_errors(self, g, poses):
         # the between of the edges' poses, then of the measurement, on the split arrays
         # (the packed form's concatenations cost a tenth of the 3D edge cost)
@@ -283,6 +305,10 @@ class _SE3(Group):
         r_err, t_err = se3.between(g.measured_rotations, g.measured_translations, r_rel, t_rel)
         return se3.logmap(r_err, t_err)
 
+
+# the fields of a one-anchor problem's graph: its pose 0 the world frame, no prior
+_NO_PRIORS: dict[str, Any] = {"priors": np.zeros(0, np.int64), "prior_poses": None,
+                              "prior_information": None, "graph": None, "world_frame": True}
 
 SE2: Group = _SE2()
 SE3: Group = _SE3()

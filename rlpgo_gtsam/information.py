@@ -131,6 +131,7 @@ class Factors:
         information: each between factor's information matrix.
         hard: (index, prior) of each prior with a constrained noise model (a FIX).
         soft: (index, prior) of each prior with a Gaussian noise model.
+        soft_information: each soft prior's information matrix, in ``soft``'s order.
     """
 
     edges: list[tuple[int, int]] = field(default_factory=list)
@@ -138,6 +139,7 @@ class Factors:
     information: list[np.ndarray] = field(default_factory=list)
     hard: list[tuple[int, Any]] = field(default_factory=list)
     soft: list[tuple[int, Any]] = field(default_factory=list)
+    soft_information: list[np.ndarray] = field(default_factory=list)
 
     @property
     def anchor(self) -> tuple[int, Any]:
@@ -202,8 +204,9 @@ def sort_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int], group
             else:
                 _check_information(factors.information, names, size, check_information,
                                    max_condition)
-                factor_information(factor, f"prior factor on key {key}", size,
-                                   max_condition=max_condition)
+                factors.soft_information.append(
+                    factor_information(factor, f"prior factor on key {key}", size,
+                                       max_condition=max_condition))
                 factors.soft.append(entry)
         else:
             raise refuse(
@@ -263,8 +266,9 @@ def _sort_usable_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int
             sorted_factors.hard.append(entry)
             continue
         try:
-            factor_information(factor, f"prior factor on key {key}", size,
-                               max_condition=max_condition)
+            sorted_factors.soft_information.append(
+                factor_information(factor, f"prior factor on key {key}", size,
+                                   max_condition=max_condition))
         except GraphError:
             return None
         sorted_factors.soft.append(entry)

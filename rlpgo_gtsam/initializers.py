@@ -24,16 +24,18 @@ in with :func:`register`::
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import gtsam
 import numpy as np
 
+from rlpgo_gtsam.anchoring import anchoring
 from rlpgo_gtsam.chordal import chordal_cost, chordal_rotations
 from rlpgo_gtsam.errors import RlpgoError, SolverError, one_line
 from rlpgo_gtsam.graph import (
@@ -45,7 +47,7 @@ from rlpgo_gtsam.graph import (
     rotation_weights,
 )
 from rlpgo_gtsam.groups import GROUPS, SE2, SE3, Group
-from rlpgo_gtsam.numerics import numeric_call
+from rlpgo_gtsam.numerics import eliminating_call, numeric_call
 from rlpgo_gtsam.translations import poses_with_rotations
 
 __all__ = [
@@ -210,7 +212,8 @@ class LagoInitializer(RotationInitializer):
         anchor_pose = gtsam.Pose2(*g.held[1][0])
         diagonal.add(gtsam.PriorFactorPose2(g.anchor, anchor_pose, gtsam.noiseModel.Unit.Create(3)))
         try:
-            orientations = gtsam.lago.initializeOrientations(diagonal, self.odometric_path)
+            orientations = eliminating_call(g.num_poses, lambda: (
+                gtsam.lago.initializeOrientations(diagonal, self.odometric_path)))
             return np.array([orientations.at(k)[0] for k in range(g.num_poses)])
         except (RuntimeError, IndexError) as error:
             raise SolverError(f"LAGO orientation step failed: {one_line(error)}") from None
@@ -274,7 +277,8 @@ class ShonanInitializer(Initializer):
             for k, rotation in enumerate(np.asarray(rotations, dtype=float)):
                 insert(initial, k, rotation)
             try:
-                result, _ = averaging.run(initial, g.group.d, self.max_p)
+                result, _ = eliminating_call(g.num_poses, functools.partial(
+                    averaging.run, initial, g.group.d, self.max_p))
             except RuntimeError as error:
                 runs.append({"seconds": time.perf_counter() - run_began,
                              "failure": one_line(error)})
@@ -387,7 +391,8 @@ class InitializePose3(Initializer):
         graph.add(gtsam.PriorFactorPose3(int(held[0]), SE3.gtsam_pose(held_poses[0]),
                                          gtsam.noiseModel.Unit.Create(6)))
         try:
-            values = gtsam.InitializePose3.initialize(graph)
+            values = eliminating_call(g.num_poses,
+                                      lambda: gtsam.InitializePose3.initialize(graph))
         except RuntimeError as error:
             raise SolverError(f"InitializePose3 failed: {one_line(error)}") from None
         return Estimate(_held_kept(g, values))
@@ -475,13 +480,24 @@ class CertifiedInitializer(Initializer):
     def estimate(self, pose_graph: PoseGraph, start_poses: np.ndarray | None) -> Estimate:
         from rlpgo_gtsam.relaxation import synchronize  # scipy: loaded when first used
 
+        # a graph holding more than its gauge is solved as its one-anchor problem, positions
+        # included: its FIX lines hold, its priors pull (rlpgo_gtsam.anchoring)
+        anchored = anchoring(pose_graph)
+        solved = pose_graph if anchored is None else anchored.graph
         start = None if start_poses is None else pose_graph.group.rotations(start_poses)
-        rotations, certificate = synchronize(pose_graph, start, max_rank=self.max_rank,
+        if start is not None and anchored is not None:
+            start = anchored.reduced_rotations(start)
+        rotations, certificate = synchronize(solved, start, max_rank=self.max_rank,
                                              max_iterations=self.max_iterations,
                                              time_limit_s=self.time_limit_s,
                                              progress=self.progress,
                                              finish_per_start=FINISH_PER_START)
-        return Estimate(poses_with_rotations(pose_graph, rotations), certificate=certificate)
+        poses = poses_with_rotations(solved, rotations)
+        if anchored is not None:
+            poses = anchored.lifted(poses)
+            certificate = replace(certificate, fixed_poses=len(anchored.held),
+                                  priors=anchored.priors)
+        return Estimate(poses, certificate=certificate)
 
 
 # The planar comparison's classical rows.

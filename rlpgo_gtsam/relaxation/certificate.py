@@ -95,6 +95,9 @@ class Certificate:
             the rotation problem itself), real columns of the spatial one (SE-Sync's r, 3
             the rotation problem); the lowest rank for ``certify``.
         seconds: wall time of the call.
+        fixed_poses: how many FIXed poses the relaxation held beside its gauge's frame (0: the
+            graph's one anchor fixed the gauge; see :mod:`rlpgo_gtsam.anchoring`).
+        priors: how many soft priors it holds as edges from the world frame.
     """
 
     status: Status
@@ -105,6 +108,8 @@ class Certificate:
     tolerance: float
     rank: int
     seconds: float
+    fixed_poses: int = 0
+    priors: int = 0
 
     @property
     def certified(self) -> bool:
@@ -134,8 +139,11 @@ class Certificate:
         else:
             bounds = (f"lower bound {self.lower_bound:.6g}, suboptimality bound "
                       f"{self.suboptimality_bound:.3g}; lambda_min {self.min_eigenvalue:.3g}")
+        covers = ""
+        if self.fixed_poses or self.priors:
+            covers = f"with {self.fixed_poses} FIXed poses and {self.priors} priors inside, "
         return (f"{verdict} (relaxation cost {self.estimate_cost:.6g}, {bounds}, tolerance "
-                f"{self.tolerance:.3g}, {rank}{self.seconds:.2f} s)")
+                f"{self.tolerance:.3g}, {rank}{covers}{self.seconds:.2f} s)")
 
 
 @dataclass(frozen=True, eq=False)

@@ -145,7 +145,8 @@ class PlanarProblem(Relaxation):
         except RuntimeError:
             raise SolverError("the measurements do not determine the translations (a pose "
                               "without translational information?)") from None
-        self.scale = float(np.mean(np.real(self.d.diagonal())))
+        # a one-anchor problem's world frame carries its FIX lines' and priors' weights
+        self.scale = float(np.mean(np.real(self.d.diagonal())[int(g.world_frame):]))
         if not self.scale > 0:
             raise SolverError("every edge has zero information: nothing to synchronize")
         self._layout: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None

@@ -18,10 +18,12 @@ import functools
 import math
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from rlpgo_gtsam.anchoring import Anchoring, anchoring
 from rlpgo_gtsam.errors import GraphError, SolverError
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.relaxation.certificate import Certificate, Check, Status, certificate
@@ -52,6 +54,11 @@ def synchronize(pose_graph: PoseGraph, start: np.ndarray | None = None, *,
                 finish_per_start: float = 0.0) -> tuple[np.ndarray, Certificate]:
     """The rotations of the rounded estimate (the anchor keeps its own) in the group's form
     (planar: angles (n,); spatial: matrices (n, 3, 3)), and their certificate.
+
+    A graph that holds more than its gauge (several FIXed poses, or priors beside a FIX line
+    or each other) is solved as its one-anchor problem
+    (:func:`~rlpgo_gtsam.anchoring.anchoring`): its held poses keep their rotations and the
+    certificate covers its FIX lines and priors (``Certificate.fixed_poses``, ``priors``).
 
     Args:
         pose_graph: a planar or spatial pose graph (by its ``dimension``); its anchor's
@@ -91,6 +98,15 @@ def synchronize(pose_graph: PoseGraph, start: np.ndarray | None = None, *,
             a graph whose translations or rotations the measurements do not determine.
         GraphError: negative or non-finite information.
     """
+    anchored = anchoring(pose_graph)
+    if anchored is not None:
+        reduced_start = None if start is None else anchored.reduced_rotations(start)
+        rotations, proof = synchronize(
+            anchored.graph, reduced_start, max_rank=max_rank, tolerance=tolerance,
+            initial_rank=initial_rank, max_iterations=max_iterations,
+            gradient_tolerance=gradient_tolerance, time_limit_s=time_limit_s,
+            progress=progress, finish_per_start=finish_per_start)
+        return anchored.lifted_rotations(rotations), _covering(proof, anchored)
     kind = relaxation_type(pose_graph)  # its first call imports the module: not the solve's time
     started = time.perf_counter()
     lowest = kind.lowest_rank
@@ -132,6 +148,10 @@ def certify(pose_graph: PoseGraph, rotations: np.ndarray, *,
     guess of a loopy graph) gets a clearly negative ``lambda_min(S)`` (status
     ``not_optimal``), so it is not certified and its suboptimality bound is positive.
     """
+    anchored = anchoring(pose_graph)
+    if anchored is not None:
+        return _covering(certify(anchored.graph, anchored.reduced_rotations(rotations),
+                                 tolerance=tolerance), anchored)
     started = time.perf_counter()
     problem = relaxation_type(pose_graph)(pose_graph)
     eta = problem.tolerance(tolerance)
@@ -146,7 +166,11 @@ def certify(pose_graph: PoseGraph, rotations: np.ndarray, *,
 def relaxation_cost(pose_graph: PoseGraph, rotations: np.ndarray) -> float:
     """The relaxation's cost with the translations eliminated, ``min_t F(R, t)``, at given
     rotations (angles (n,) planar, matrices (n, 3, 3) spatial): about chi2 plus chi2's
-    rotational part near a good estimate."""
+    rotational part near a good estimate; of the one-anchor problem where the graph holds
+    more than its gauge (its constant terms, edges between held poses, left out)."""
+    anchored = anchoring(pose_graph)
+    if anchored is not None:
+        return relaxation_cost(anchored.graph, anchored.reduced_rotations(rotations))
     problem = relaxation_type(pose_graph)(pose_graph)
     return problem.cost(problem.given(rotations))
 
@@ -167,6 +191,11 @@ def descend(pose_graph: PoseGraph, *, max_iterations: int,
     y = polish(problem, problem.manifold(), problem.start(None), eta, max_iterations, grad_tol,
                None)
     return problem.anchored(problem.unstacked(y))[0]
+
+
+def _covering(proof: Certificate, anchored: Anchoring) -> Certificate:
+    """``proof`` of the one-anchor problem, saying which FIX lines and priors it covers."""
+    return replace(proof, fixed_poses=len(anchored.held), priors=anchored.priors)
 
 
 def relaxation_type(pose_graph: PoseGraph) -> type[Relaxation]:

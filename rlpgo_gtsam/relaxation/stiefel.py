@@ -229,7 +229,9 @@ class SpatialProblem(Relaxation):
         self.q = w.T @ w
         np.subtract(self.connection, self.q, out=self.q)
         self.q += terms[:size, :size]
-        self.scale = float(np.trace(self.connection) + np.trace(terms[:size, :size])) / size
+        first = 3 * int(g.world_frame)  # a world frame's weights are its FIX lines' and priors'
+        self.scale = float(np.sum(np.diagonal(self.connection)[first:])
+                           + np.sum(np.diagonal(terms)[first:size])) / (size - first)
 
     def _set_up_sparse(self, g: PoseGraph3D, kappa: np.ndarray, tau: np.ndarray) -> None:
         """D, L, B (and its transpose) as sparse matrices, L's LU."""
@@ -269,7 +271,7 @@ class SpatialProblem(Relaxation):
                                options={"SymmetricMode": True})
         except RuntimeError:
             raise SolverError("the measurements do not determine the translations") from None
-        self.scale = float(np.mean(self.d.diagonal()))
+        self.scale = float(np.mean(self.d.diagonal()[3 * int(g.world_frame):]))
 
     def apply(self, x: np.ndarray) -> np.ndarray:
         """Q x for x (3n, r)."""
