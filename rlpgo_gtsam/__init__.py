@@ -37,6 +37,8 @@ _WHERE = {
     "OutputError": "rlpgo_gtsam.errors",
     "RlpgoError": "rlpgo_gtsam.errors",
     "SolverError": "rlpgo_gtsam.errors",
+    "example_file": "rlpgo_gtsam.datasets",
+    "example_names": "rlpgo_gtsam.datasets",
     "read_g2o": "rlpgo_gtsam.io",
     "read_g2o_lines": "rlpgo_gtsam.io",
     "write_g2o": "rlpgo_gtsam.io",
@@ -88,7 +90,7 @@ _WHERE = {
 
 
 # Modules reached as attributes (``rlpgo_gtsam.groups.SE3``).
-_SUBMODULES = ("groups", "initializers")
+_SUBMODULES = ("datasets", "groups", "initializers")
 
 
 def __getattr__(name: str) -> Any:
@@ -151,6 +153,8 @@ __all__ = [
     "best_of",
     "chi2",
     "compare_methods",
+    "example_file",
+    "example_names",
     "extract_pose_graph",
     "generate",
     "initializer_names",

@@ -165,7 +165,7 @@ class Group:
         ``2 side``, rotations anywhere)."""
         ball = math.pi ** (self.dof / 2) / math.gamma(self.dof / 2 + 1)
         return ball * bar ** (self.dof / 2) * volume / (
-            (2.0 * side) ** self.d * self.rotation_volume)
+            np.float64(2.0 * side) ** self.d * self.rotation_volume)
 
 
 class _SE2(Group):

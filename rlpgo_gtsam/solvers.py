@@ -3,6 +3,7 @@ trace."""
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -13,6 +14,7 @@ import gtsam
 from rlpgo_gtsam.errors import SolverError, one_line
 from rlpgo_gtsam.graph import chi2, extract_pose_graph
 from rlpgo_gtsam.groups import GROUPS
+from rlpgo_gtsam.numerics import eliminating_call
 
 if TYPE_CHECKING:
     from rlpgo_gtsam.graph import PoseGraph
@@ -104,7 +106,9 @@ def refine(
             None: found out by a walk over its factors (MIT: 3 ms a call).
 
     A failure of the linear solver (an indeterminate system) or a non-finite error ends the
-    run with ``failure`` set instead of raising.
+    run with ``failure`` set instead of raising. The solver runs on a thread whose stack
+    holds GTSAM's elimination of the whole graph however deep its tree
+    (:func:`~rlpgo_gtsam.numerics.eliminating_call`).
 
     Raises:
         SolverError: an unknown solver name or a negative iteration cap.
@@ -137,10 +141,11 @@ def refine(
             optimizer = gtsam.GaussNewtonOptimizer(optimized, values, params)
         else:
             optimizer = gtsam.LevenbergMarquardtOptimizer(optimized, values, params)
+        run: Callable[[], object] = optimizer.optimize
         if solver == "gn":
-            _iterate_through_increases(optimizer, params.getMaxIterations(), tolerance, record)
-        else:
-            optimizer.optimize()
+            run = functools.partial(_iterate_through_increases, optimizer,
+                                    params.getMaxIterations(), tolerance, record)
+        eliminating_call(values.size(), run)
     except RuntimeError as error:
         failure = f"{name} failed: {one_line(error)}"
     finally:

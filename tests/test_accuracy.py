@@ -1,5 +1,6 @@
 """Trajectory errors against ground truth: the same figures as evo's APE and RPE, on generated
-graphs (exact, noisy, refined), and the compare command's APE/RPE columns."""
+planar and 3D graphs (exact, noisy, refined); what a ground truth needs (a pose for each of the
+estimate's keys, nothing else); and the compare command's APE/RPE columns."""
 
 from __future__ import annotations
 
@@ -12,7 +13,18 @@ from click.testing import CliRunner
 from rlpgo_cli.compare import main as compare_main
 from rlpgo_cli.generate import main as generate_main
 
-from rlpgo_gtsam import GraphError, TrajectoryErrors, generate, refine, trajectory_errors
+from rlpgo_gtsam import (
+    G2oFormatError,
+    GraphError,
+    TrajectoryErrors,
+    generate,
+    refine,
+    trajectory_errors,
+    write_g2o,
+)
+from rlpgo_gtsam.accuracy import check_ground_truth
+from rlpgo_gtsam.groups import SE2, SE3
+from rlpgo_gtsam.io import read_poses
 
 RELATIVE = 1e-6
 
@@ -32,6 +44,28 @@ def _graphs():
 GRAPHS = _graphs()
 
 
+def _graphs_3d():
+    """(name, estimate, ground truth) of generated 3D graphs (the lawn mower in layers):
+    a noisy guess, and a noisy-measurement graph's guess after LM."""
+    exact = generate(60, 0.05, 0.05, 3.0, 0.5, np.random.default_rng(5), group=SE3)
+    noisy = generate(60, 0.1, 0.1, 2.0, 0.5, np.random.default_rng(6), noisy_measurements=True,
+                     group=SE3)
+    refined = refine(noisy.graph, noisy.initial, "lm", 20).values
+    return [("3D exact", exact.initial, exact.ground_truth),
+            ("3D noisy + LM", refined, noisy.ground_truth)]
+
+
+GRAPHS_3D = _graphs_3d()
+
+
+def _is_3d(values: gtsam.Values) -> bool:
+    try:
+        values.atPose3(values.keys()[0])
+    except RuntimeError:
+        return False
+    return True
+
+
 def _evo_trajectory(values: gtsam.Values, keys: list[int]):
     """An evo PoseTrajectory3D of the Pose2 values at ``keys``: z = 0, a rotation about z,
     timestamps the key index."""
@@ -44,6 +78,17 @@ def _evo_trajectory(values: gtsam.Values, keys: list[int]):
     return PoseTrajectory3D(xyz, wxyz, np.arange(len(keys), dtype=float))
 
 
+def _evo_trajectory_3d(values: gtsam.Values, keys: list[int]):
+    """An evo PoseTrajectory3D of the Pose3 values at ``keys``, timestamps the key index."""
+    from evo.core.trajectory import PoseTrajectory3D
+
+    poses = [values.atPose3(key) for key in keys]
+    xyz = np.array([p.translation() for p in poses])
+    quaternions = [p.rotation().toQuaternion() for p in poses]
+    wxyz = np.array([[q.w(), q.x(), q.y(), q.z()] for q in quaternions])
+    return PoseTrajectory3D(xyz, wxyz, np.arange(len(keys), dtype=float))
+
+
 def _evo_errors(estimate: gtsam.Values, truth: gtsam.Values,
                 delta: int = 1) -> tuple[dict[str, float], bool]:
     """evo's own figures: APE (translation part) after its Umeyama SE(3) alignment, RPE
@@ -52,7 +97,8 @@ def _evo_errors(estimate: gtsam.Values, truth: gtsam.Values,
     from evo.core import metrics
 
     keys = sorted(estimate.keys())
-    reference, estimated = _evo_trajectory(truth, keys), _evo_trajectory(estimate, keys)
+    trajectory = _evo_trajectory_3d if _is_3d(estimate) else _evo_trajectory
+    reference, estimated = trajectory(truth, keys), trajectory(estimate, keys)
     rotation, _, _ = estimated.align(reference, correct_scale=False)
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((reference, estimated))
@@ -67,7 +113,8 @@ def _evo_errors(estimate: gtsam.Values, truth: gtsam.Values,
 
 
 @pytest.mark.parametrize("delta", [1, 7])
-@pytest.mark.parametrize("name, estimate, truth", GRAPHS, ids=[g[0] for g in GRAPHS])
+@pytest.mark.parametrize("name, estimate, truth", GRAPHS + GRAPHS_3D,
+                         ids=[g[0] for g in GRAPHS + GRAPHS_3D])
 def test_the_figures_are_evos(name, estimate, truth, delta):
     pytest.importorskip("evo")
     ours = trajectory_errors(estimate, truth, rpe_delta=delta)
@@ -182,4 +229,80 @@ def test_compare_reports_ape_and_rpe_with_a_ground_truth(tmp_path):
                                        "--ground-truth", str(short)])
     result = CliRunner().invoke(compare_main, [str(graph), "--ground-truth", str(short)])
     assert result.exit_code == 1
-    assert "Error: key 20 of the estimate has no pose in the ground truth" in result.output
+    assert result.stderr == (f"Error: {short}: key 20 of the estimate has no pose in the "
+                             "ground truth (nor have 9 more of its 30)\n")
+
+
+# --------------------------------------------------------------------------- what a ground truth is
+
+
+def _vertex_lines(path, kept: str) -> str:
+    """The lines of the g2o file at ``path`` whose tag starts with ``kept``."""
+    return "".join(line for line in path.read_text().splitlines(keepends=True)
+                   if line.startswith(kept))
+
+
+@pytest.mark.parametrize("group", [SE2, SE3], ids=["planar", "3D"])
+def test_a_ground_truth_of_vertices_alone_is_read_and_one_of_edges_alone_refused(tmp_path,
+                                                                                   group):
+    sample = generate(50, 0.1, 0.1, 2.0, 0.5, np.random.default_rng(4), noisy_measurements=True,
+                      group=group)
+    estimate, truth = sample.initial, sample.ground_truth
+    full = tmp_path / "full.g2o"
+    write_g2o(full, sample.graph, truth)
+    vertices, edges = tmp_path / "vertices.g2o", tmp_path / "edges.g2o"
+    vertices.write_text(_vertex_lines(full, "VERTEX"))
+    edges.write_text(_vertex_lines(full, "EDGE"))
+    # vertices alone give the same poses as the whole file, and the same figures
+    read = read_poses(vertices)
+    assert sorted(read.keys()) == sorted(truth.keys())
+    assert trajectory_errors(estimate, read) == trajectory_errors(estimate, read_poses(full))
+    assert trajectory_errors(estimate, read).ape_rmse_m == pytest.approx(
+        trajectory_errors(estimate, truth).ape_rmse_m, rel=1e-9)
+    # edges chain into poses, but those are no ground truth: refused, naming the file
+    with pytest.raises(G2oFormatError) as excinfo:
+        read_poses(edges)
+    assert str(excinfo.value) == (f"{edges}: holds no {group.vertex_tag} line: a ground truth "
+                                  "needs the true poses as vertex lines")
+
+
+def test_a_ground_truth_of_the_other_group_is_named():
+    (_, planar, planar_truth), (_, spatial, spatial_truth) = GRAPHS[0], GRAPHS_3D[0]
+    with pytest.raises(GraphError, match="^key 0 of the ground truth is not a Pose2, as the "
+                                         "estimate's poses are$"):
+        check_ground_truth(planar, spatial_truth)
+    with pytest.raises(GraphError, match="^key 0 of the ground truth is not a Pose3"):
+        trajectory_errors(spatial, planar_truth)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_compare_takes_a_vertices_only_ground_truth_and_refuses_one_without_poses(tmp_path, dim):
+    graph, truth = tmp_path / "g.g2o", tmp_path / "gt.g2o"
+    made = CliRunner().invoke(generate_main, ["--n", "40", "--dim", str(dim), "--seed", "3",
+                                              "--noisy-measurements", "-o", str(graph),
+                                              "--ground-truth", str(truth)])
+    assert made.exit_code == 0, made.output
+    vertices, edges = tmp_path / "v.g2o", tmp_path / "e.g2o"
+    vertices.write_text(_vertex_lines(truth, "VERTEX"))
+    edges.write_text(_vertex_lines(truth, "EDGE"))
+    records = {}
+    for name, path in (("full", truth), ("vertices", vertices)):
+        out = tmp_path / f"{name}.json"
+        result = CliRunner().invoke(compare_main, [str(graph), "--ground-truth", str(path),
+                                                   "--methods", "chordal", "--json", str(out)])
+        assert result.exit_code == 0, result.output
+        records[name] = json.loads(out.read_text())[0]["accuracy"]
+    assert records["vertices"] == records["full"]
+    assert records["full"]["dimension"] == dim and 1e-6 < records["full"]["ape_rmse_m"] < 10
+    tag = "VERTEX_SE3:QUAT" if dim == 3 else "VERTEX_SE2"
+    result = CliRunner().invoke(compare_main, [str(graph), "--ground-truth", str(edges)])
+    assert result.exit_code == 1 and result.stdout == ""  # refused before any run
+    assert result.stderr == (f"Error: {edges}: holds no {tag} line: a ground truth needs the "
+                             "true poses as vertex lines\n")
+    first_lines = "".join(_vertex_lines(truth, "VERTEX").splitlines(keepends=True)[:25])
+    partial = tmp_path / "partial.g2o"
+    partial.write_text(first_lines)
+    result = CliRunner().invoke(compare_main, [str(graph), "--ground-truth", str(partial)])
+    assert result.exit_code == 1 and result.stdout == ""
+    assert result.stderr == (f"Error: {partial}: key 25 of the estimate has no pose in the "
+                             "ground truth (nor have 14 more of its 40)\n")

@@ -25,7 +25,7 @@ from rlpgo_gtsam import read_g2o, read_g2o_lines, refine
 from rlpgo_gtsam.io import edge_list_text, g2o_text_lines
 from rlpgo_gtsam.robust import RobustSettings, robust_initialize
 from rlpgo_gtsam.synthetic import generate
-from tests.conftest import assert_same_edges, cli_error, cli_ok
+from tests.conftest import assert_same_edges, cli_error, cli_ok, dataset
 
 ARGS = (300, 0.1, 0.05, 1.0, 0.5)
 SEED = 3
@@ -340,3 +340,61 @@ def test_options_that_do_not_go_together_are_usage_errors(clean, tmp_path, comma
     inputs = [clean.graph] if command is init_main else []
     _usage_error(_run(command, *inputs, "-o", output, *args), *mentions)
     assert not output.exists()
+
+
+# --------------------------------------------------------------------------- hostile input
+
+
+def _appended(source: Path, folder: Path, *lines: str) -> Path:
+    """A copy of ``source`` in ``folder`` with ``lines`` appended."""
+    path = folder / f"{source.stem}-hostile.g2o"
+    path.write_text(source.read_text() + "".join(f"{line}\n" for line in lines))
+    return path
+
+
+@pytest.mark.parametrize("length", ["1e20", "1e300"])
+def test_robust_rejects_a_closure_no_map_can_fit_and_writes_the_clean_map(length, tmp_path):
+    graph = _appended(dataset("MIT.g2o"), tmp_path, f"EDGE_SE2 1 500 {length} 0 0 1 0 0 1 0 1")
+    out, listed = tmp_path / "out.g2o", tmp_path / "wrong.txt"
+    result = _run(init_main, graph, "-o", out, "--robust", "--outliers-out", listed)
+    cli_ok(result)
+    assert "step reach: kept 827 of 828 edges judged, rejected 1" in result.stdout
+    summary = SUMMARY.match(result.stdout.splitlines()[-1])
+    assert summary is not None and summary["rejected"] == "1" and summary["judged"] == "21"
+    assert float(summary["chi2"]) == pytest.approx(41.2069, rel=1e-5)  # MIT's own optimum
+    assert _entries(listed) == [(len(graph.read_text().splitlines()), 1, 500)]
+
+
+def test_robust_keeps_fixed_poses_where_the_file_holds_them(tmp_path):
+    graph = _appended(dataset("3d/smallGrid3D.g2o"), tmp_path, "FIX 0 40 80",
+                      "EDGE_SE3:QUAT 0 20 1e300 0 0 0 0 0 1 100 0 0 0 0 0 100 0 0 0 0 100 0 0 0 "
+                      "25 0 0 25 0 25")
+    out = tmp_path / "out.g2o"
+    cli_ok(_run(init_main, graph, "-o", out, "--robust"))
+    _, given = read_g2o(graph)
+    _, written = read_g2o(out)
+    for key in (0, 40, 80):
+        assert written.atPose3(key).equals(given.atPose3(key), 1e-9)
+
+
+def test_robust_on_a_graph_with_every_pose_fixed_writes_the_held_poses(tmp_path):
+    source = dataset("3d/tinyGrid3D.g2o")
+    ids = [row.split()[1] for row in source.read_text().splitlines()
+           if row.startswith("VERTEX")]
+    graph = _appended(source, tmp_path, "FIX " + " ".join(ids))
+    out = tmp_path / "out.g2o"
+    result = _run(init_main, graph, "-o", out, "--robust")
+    cli_ok(result)
+    assert "step held: " in result.stdout
+    _, given = read_g2o(graph)
+    _, written = read_g2o(out)
+    for key in given.keys():
+        assert written.atPose3(key).equals(given.atPose3(key), 1e-9)
+
+
+def test_robust_refuses_a_bridge_too_long_for_the_arithmetic_on_one_line(tmp_path):
+    graph = _appended(dataset("MIT.g2o"), tmp_path, "VERTEX_SE2 5000 0 0 0",
+                      "EDGE_SE2 1 5000 1e300 0 0 1 0 0 1 0 1")
+    message = cli_error(_run(init_main, graph, "-o", tmp_path / "out.g2o", "--robust"))
+    assert message.startswith("between factor 1-5000 measures 1e+300 m, ")
+    assert not (tmp_path / "out.g2o").exists()

@@ -76,7 +76,7 @@ def _loaded_after(code: str) -> set[str]:
     "import rlpgo_gtsam; rlpgo_gtsam.read_g2o",
     "import rlpgo_gtsam; rlpgo_gtsam.make_initializer('chordal')",
     "import rlpgo_cli.init, rlpgo_cli.compare, rlpgo_cli.generate, rlpgo_cli.train, "
-    "rlpgo_cli.evaluate",
+    "rlpgo_cli.evaluate, rlpgo_cli.example",
 ])
 def test_light_entry_points_load_neither_torch_nor_gymnasium(code):
     loaded = _loaded_after(code)
@@ -87,7 +87,8 @@ def test_the_commands_help_loads_no_scipy():
     """What --help needs (the command modules and the package's errors) stays off scipy,
     the solvers' heavy import: --help answers in under half a second here."""
     loaded = _loaded_after("import rlpgo_cli.init, rlpgo_cli.compare, rlpgo_cli.generate, "
-                           "rlpgo_cli.train, rlpgo_cli.evaluate, rlpgo_gtsam.errors")
+                           "rlpgo_cli.train, rlpgo_cli.evaluate, rlpgo_cli.example, "
+                           "rlpgo_gtsam.errors")
     assert not {"scipy", "threadpoolctl", "evo"} & loaded
 
 

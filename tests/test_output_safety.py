@@ -181,11 +181,73 @@ def test_write_together_writes_every_file_or_none(tmp_path):
     assert _snapshot(tmp_path) == {"a.txt": OLD}  # a.txt was staged, then dropped
 
 
-def test_write_together_writes_a_device_after_the_files(tmp_path, guard_dev):
+@pytest.mark.parametrize("existing", [True, False], ids=["existing", "new"])
+@pytest.mark.parametrize("device_first", [True, False], ids=["device_first", "device_last"])
+def test_a_device_that_fails_leaves_no_file_written(tmp_path, guard_dev, device_first,
+                                                      existing):
+    """A device cannot be staged: it is written after the files are staged and before any is
+    renamed into place, so its failure (/dev/full) leaves every file as it was."""
     device = _dev_full(tmp_path)
+    if existing:
+        (tmp_path / "a.txt").write_bytes(OLD)
+    files = [(tmp_path / "a.txt", b"new\n"), (tmp_path / "b.json", b"{}\n")]
+    items = [(device, b"x"), *files] if device_first else [*files, (device, b"x")]
+    before = _snapshot(tmp_path)
     with pytest.raises(OutputError, match="^/dev/full: cannot write: No space left on device$"):
-        write_together([(device, b"x"), (tmp_path / "a.txt", b"new\n")])
-    assert _snapshot(tmp_path) == {"a.txt": b"new\n"}  # a device cannot be staged
+        write_together(items)
+    assert _snapshot(tmp_path) == before  # no file, no temporary file, the old one kept
+
+
+def _fail_replacing(monkeypatch, name: str, error: BaseException) -> None:
+    """Make the rename onto the file called ``name`` fail with ``error``."""
+    real_replace = os.replace
+
+    def replace(src, dst, *args, **kwargs):
+        if Path(dst).name == name and Path(src).name.startswith(".rlpgo-"):
+            raise error
+        return real_replace(src, dst, *args, **kwargs)
+
+    monkeypatch.setattr(os, "replace", replace)
+
+
+@pytest.mark.parametrize("error", [OSError(errno.EIO, "Input/output error"), KeyboardInterrupt()],
+                         ids=["io_error", "ctrl_c"])
+def test_a_failed_rename_puts_back_the_files_already_replaced(tmp_path, monkeypatch, error):
+    """The third of three renames fails: the first file gets its old bytes back (the user's
+    file, given with --overwrite), the second, new, is removed; nothing else is left."""
+    (tmp_path / "a.g2o").write_bytes(OLD)
+    (tmp_path / "a.g2o").chmod(0o640)
+    (tmp_path / "c.txt").write_bytes(b"old c\n")
+    before = _snapshot(tmp_path)
+    _fail_replacing(monkeypatch, "c.txt", error)
+    with pytest.raises(OutputError if isinstance(error, OSError) else KeyboardInterrupt):
+        write_together([(tmp_path / "a.g2o", b"new a\n"), (tmp_path / "b.json", b"{}\n"),
+                        (tmp_path / "c.txt", b"new c\n")])
+    assert _snapshot(tmp_path) == before
+    assert (tmp_path / "a.g2o").stat().st_mode & 0o777 == 0o640
+    monkeypatch.undo()
+    write_together([(tmp_path / "a.g2o", b"new a\n"), (tmp_path / "c.txt", b"new c\n")])
+    assert _snapshot(tmp_path) == {"a.g2o": b"new a\n", "c.txt": b"new c\n"}  # none kept
+
+
+@pytest.mark.parametrize("where", ["device", "rename"])
+def test_a_folder_made_for_the_files_goes_when_the_write_fails(tmp_path, monkeypatch, guard_dev,
+                                                               where):
+    """Folders made for a write (a plot folder and its missing parents) are removed again
+    when the write fails or is interrupted; one that existed stays."""
+    (tmp_path / "kept").mkdir()
+    folder = tmp_path / "kept" / "new" / "plots"
+    items = [(folder / "a.png", b"png"), (tmp_path / "r.json", b"{}\n")]
+    if where == "device":
+        items.append((_dev_full(tmp_path), b"x"))
+        expected: type[BaseException] = OutputError
+    else:
+        _fail_replacing(monkeypatch, "r.json", KeyboardInterrupt())
+        expected = KeyboardInterrupt
+    before = _snapshot(tmp_path)
+    with pytest.raises(expected):
+        write_together(items, folders=[folder])
+    assert _snapshot(tmp_path) == before
 
 
 # --------------------------------------------------------------------------- successful writes
@@ -386,3 +448,144 @@ def test_each_command_refuses_a_bad_output_before_work(tmp_path, input_file, mod
     cli_error(result, message(tmp_path, input_file, model_file))
     assert _snapshot(tmp_path) == before  # inputs intact, nothing made
     load_model(model_file)  # still a model
+
+
+# --------------------------------------------------------------------------- all or none
+
+
+def _robust_input(tmp: Path, graph: Path) -> Path:
+    """The 40-pose graph with three wrong loop closures, for --robust."""
+    sample = generate(40, 0.3, 0.05, 3.0, 0.5, np.random.default_rng(1), noisy_measurements=True,
+                      outliers=0.05)
+    path = tmp / "wrong.g2o"
+    write_g2o(path, sample.graph, sample.initial)
+    return path
+
+
+# (command, the input builder or None, arguments with {out} for the run's folder and {input},
+# the output that fails); every other output would be written, or an existing one replaced.
+ONE_FAILS = {
+    "init_json": (init_main, None, ["{input}", "-o", "{out}/out.g2o", "--json", "/dev/full"]),
+    "init_output": (init_main, None, ["{input}", "-o", "/dev/full", "--json", "{out}/r.json"]),
+    "init_robust_list": (init_main, _robust_input,
+                         ["{input}", "--robust", "-o", "{out}/out.g2o", "--json",
+                          "{out}/r.json", "--outliers-out", "/dev/full"]),
+    "generate_truth": (generate_main, None, ["--n", "30", "-o", "{out}/g.g2o",
+                                              "--ground-truth", "/dev/full",
+                                              "--outliers-out", "{out}/wrong.txt"]),
+    "generate_output": (generate_main, None, ["--n", "30", "-o", "/dev/full",
+                                               "--ground-truth", "{out}/gt.g2o"]),
+    "compare_json": (compare_main, None, ["{input}", "--methods", "odometry,chordal", "--plot",
+                                          "{out}/plots/new", "--json", "/dev/full"]),
+}
+
+
+@pytest.mark.parametrize("existing", [False, True], ids=["new", "overwrite"])
+@pytest.mark.parametrize("command, build, arguments", ONE_FAILS.values(), ids=ONE_FAILS.keys())
+def test_an_output_that_fails_leaves_every_other_as_it_was(tmp_path, input_file, guard_dev,
+                                                            command, build, arguments, existing):
+    """A run whose last write fails (/dev/full: a full disk) exits 1 with one line and
+    leaves its folder as it was: no new file, no plot folder, an existing output (given
+    with --overwrite) with its old bytes."""
+    _dev_full(tmp_path)
+    graph = build(tmp_path, input_file) if build else input_file
+    out = tmp_path / "run"
+    out.mkdir()
+    args = [a.format(out=out, input=graph) for a in arguments]
+    if existing:
+        for arg in args:
+            if arg.startswith(str(out)) and "plots" not in arg:
+                Path(arg).write_bytes(OLD)
+        args.append("--overwrite")
+    before = _snapshot(out)
+    result = CliRunner().invoke(command, args)
+    assert result.exit_code == 1, result.output
+    assert result.stderr == "Error: /dev/full: cannot write: No space left on device\n"
+    assert _snapshot(out) == before
+
+
+def _failing_method(monkeypatch) -> None:
+    """Register an initializer that raises, as users register theirs."""
+    from rlpgo_gtsam import initializers
+    from rlpgo_gtsam.errors import SolverError
+    from rlpgo_gtsam.initializers import RotationInitializer, register
+
+    class Failing(RotationInitializer):
+        def rotations(self, pose_graph, start=None):
+            raise SolverError("indeterminate on purpose")
+
+    monkeypatch.setattr(initializers, "_REGISTRY", dict(initializers._REGISTRY))
+    register("failing", Failing)
+
+
+def test_a_compare_that_fails_writes_nothing(tmp_path, input_file, monkeypatch):
+    """One method fails: the run exits 1, and neither its plot (nor the folder for it) nor
+    its JSON is written; an existing JSON keeps its bytes."""
+    _failing_method(monkeypatch)
+    (tmp_path / "r.json").write_bytes(OLD)
+    before = _snapshot(tmp_path)
+    result = CliRunner().invoke(compare_main, [
+        str(input_file), "--methods", "odometry,failing", "--plot", str(tmp_path / "p" / "q"),
+        "--json", str(tmp_path / "r.json"), "--overwrite"])
+    assert result.exit_code == 1
+    assert result.stderr == ("Error: at least one method failed (see FAILED above) (nothing "
+                             "written)\n")
+    assert "FAILED: " in result.stdout
+    assert _snapshot(tmp_path) == before
+
+
+def test_an_interrupted_compare_leaves_no_plot_folder(tmp_path, input_file, monkeypatch):
+    """Ctrl-C during the methods: exit 130, and the plot folder (made only with the files)
+    does not exist."""
+    import rlpgo_cli.compare as compare_module
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(compare_module, "compare_methods", interrupted)
+    before = _snapshot(tmp_path)
+    result = CliRunner().invoke(compare_main, [str(input_file), "--methods", "odometry",
+                                               "--plot", str(tmp_path / "plots"),
+                                               "--json", str(tmp_path / "r.json")])
+    assert result.exit_code == 130 and result.stderr == "Error: interrupted\n"
+    assert _snapshot(tmp_path) == before
+
+
+def test_a_plot_folder_is_made_with_its_files(tmp_path, input_file):
+    """The folder that --plot names, and its missing parents, appear with the PNG."""
+    result = CliRunner().invoke(compare_main, [str(input_file), "--methods", "odometry",
+                                               "--plot", str(tmp_path / "a" / "b")])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "a" / "b" / "input.png").read_bytes()[:4] == b"\x89PNG"
+    assert _temp_files(tmp_path) == []
+
+
+def test_a_plot_folder_that_cannot_be_made_is_refused_before_work(tmp_path, input_file):
+    """A plot folder below a file, or in a folder that cannot be written, is refused before
+    any method runs."""
+    (tmp_path / "file").write_text("x\n")
+    result = CliRunner().invoke(compare_main, [str(input_file), "--methods", "odometry",
+                                               "--plot", str(tmp_path / "file" / "plots")])
+    cli_error(result, f"{tmp_path / 'file' / 'plots'}: {tmp_path / 'file'} is not a folder")
+    if hasattr(os, "geteuid") and os.geteuid() == 0:
+        return  # root writes in any folder
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o500)
+    try:
+        result = CliRunner().invoke(compare_main, [str(input_file), "--methods", "odometry",
+                                                   "--plot", str(locked / "new" / "plots")])
+    finally:
+        locked.chmod(0o700)
+    cli_error(result, f"{locked / 'new' / 'plots'}: cannot make a folder in {locked}: "
+              "Permission denied")
+
+
+def test_a_device_may_take_several_outputs(tmp_path, input_file, guard_dev):
+    """-o /dev/null --json /dev/null discards both (a file named twice is refused above)."""
+    if not os.path.exists("/dev/null"):
+        pytest.skip("/dev/null not available")
+    before = _snapshot(tmp_path)
+    result = CliRunner().invoke(init_main, [str(input_file), "-o", "/dev/null", "--json",
+                                            "/dev/null", "--method", "odometry"])
+    assert result.exit_code == 0, result.output
+    assert _snapshot(tmp_path) == before

@@ -8,8 +8,8 @@ import gtsam
 import numpy as np
 import pytest
 
-from rlpgo_gtsam.errors import RlpgoError, SolverError
-from rlpgo_gtsam.graph import PoseGraph2D, chi2, edge_chi2
+from rlpgo_gtsam.errors import GraphError, RlpgoError, SolverError
+from rlpgo_gtsam.graph import PoseGraph2D, chi2, component_labels, edge_chi2, odometry_edges
 from rlpgo_gtsam.initializers import make_initializer
 from rlpgo_gtsam.io import g2o_text, read_g2o
 from rlpgo_gtsam.residuals import outlier_suspicion
@@ -681,3 +681,175 @@ def test_clusters_link_nearby_closures_of_several_diagonals():
     among[edge[(43, 48)]] = False
     assert all(edge[(43, 48)] not in piece.tolist()
                for piece in clusters(g, among, RobustSettings()))
+
+
+# --------------------------------------------------------------------------- hostile input
+# A measurement no map can fit (a closure of 1e20 m on a map 100 m across) and FIXed poses:
+# the run hands over the map of the other edges, and a held pose never moves.
+
+FIXED = gtsam.noiseModel.Constrained.All(3)
+
+
+def _with_factors(graph: gtsam.NonlinearFactorGraph, *factors) -> gtsam.NonlinearFactorGraph:
+    grown = gtsam.NonlinearFactorGraph(graph)
+    for factor in factors:
+        grown.add(factor)
+    return grown
+
+
+def _held_moved_by(graph: gtsam.NonlinearFactorGraph, before: gtsam.Values,
+                   after: gtsam.Values) -> float:
+    """The largest change of a FIXed pose (translation or angle) from ``before``."""
+    moved = 0.0
+    for k in range(graph.size()):
+        factor = graph.at(k)
+        if isinstance(factor, gtsam.PriorFactorPose2) and isinstance(
+                factor.noiseModel(), gtsam.noiseModel.Constrained):
+            key = factor.keys()[0]
+            moved = max(moved, float(np.abs(gtsam.Pose2.Logmap(
+                before.atPose2(key).between(after.atPose2(key)))).max()))
+    return moved
+
+
+@pytest.mark.parametrize("trust", [True, False])
+@pytest.mark.parametrize(("wild", "where"), [
+    ([(1e20, 0.0)], [(1, 150)]),  # one closure far beyond the map
+    ([(1e300, 0.0)], [(1, 150)]),  # its chi2 overflows
+    ([(3e20, -1e20), (3e20, -1e20)], [(20, 200), (20, 200)]),  # two that agree
+    ([(0.0, 1e300)], [(7, 8)]),  # beside an odometry edge: trusted, and out
+])
+def test_a_measurement_no_map_can_fit_is_rejected_before_the_steps(wild, where, trust):
+    clean = generate(*ARGS, np.random.default_rng(3), noisy_measurements=True)
+    noise = gtsam.noiseModel.Diagonal.Sigmas([0.05, 0.05, 0.01])
+    graph = _with_factors(clean.graph, *(gtsam.BetweenFactorPose2(i, j, gtsam.Pose2(x, y, 0.3),
+                                                                  noise)
+                                         for (x, y), (i, j) in zip(wild, where, strict=True)))
+    added = list(range(clean.graph.size(), graph.size()))
+    expected = robust_initialize(clean.graph, clean.initial, trust_odometry=trust)
+    result = robust_initialize(graph, clean.initial, trust_odometry=trust)
+    assert result.steps[0].name == "reach" and result.steps[0].rejected == len(added)
+    assert result.rejected == sorted(expected.rejected + added)
+    assert np.all(result.weights[added] == 0.0)
+    assert result.chi2 == pytest.approx(expected.chi2, rel=1e-9)
+
+
+def test_a_closure_beyond_the_map_on_mit_leaves_mit_as_it_was():
+    graph, values = read_g2o(dataset("MIT.g2o"))
+    clean = robust_initialize(graph, values)
+    for length in (1e20, 1e300):
+        wild = gtsam.BetweenFactorPose2(1, 500, gtsam.Pose2(length, 0.0, 0.0),
+                                        gtsam.noiseModel.Unit.Create(3))
+        result = robust_initialize(_with_factors(graph, wild), values)
+        assert result.rejected == [graph.size()]
+        assert result.chi2 == pytest.approx(clean.chi2, rel=1e-9)
+
+
+def test_a_bridge_too_long_for_the_arithmetic_is_a_one_line_error():
+    # a new pose seen once, 1e50 m away: no cycle judges the edge, and beside it the rest of
+    # the map keeps none of its digits (every true closure was rejected, chi2 1e14)
+    sample = generate(40, 0.05, 0.05, 1.0, 0.5, np.random.default_rng(0),
+                      noisy_measurements=True)
+    graph = _with_factors(sample.graph, gtsam.BetweenFactorPose2(
+        3, 1000, gtsam.Pose2(1e50, 0.0, 0.0), gtsam.noiseModel.Unit.Create(3)))
+    values = gtsam.Values(sample.initial)
+    values.insert(1000, gtsam.Pose2())
+    with pytest.raises(GraphError, match="^between factor 3-1000 measures 1e[+]50 m, "):
+        robust_initialize(graph, values)
+
+
+def _ring(n: int, fixed: list[int], wrong: bool) -> tuple[gtsam.NonlinearFactorGraph,
+                                                          gtsam.Values]:
+    """``n`` poses on a circle of radius 5, odometry around it, initial values 0.3 m and
+    0.05 rad off; ``fixed`` poses FIXed at their initial values; ``wrong``: a wrong closure
+    across the ring."""
+    rng = np.random.default_rng(0)
+    angles = 2 * np.pi * np.arange(n) / n
+    truth = [gtsam.Pose2(5 * np.cos(a), 5 * np.sin(a), a + np.pi / 2) for a in angles]
+    noise = gtsam.noiseModel.Diagonal.Sigmas([0.05, 0.05, 0.01])
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for k in range(n):
+        step = truth[k].between(truth[(k + 1) % n])
+        graph.add(gtsam.BetweenFactorPose2(k, (k + 1) % n, step.compose(gtsam.Pose2(
+            *rng.normal(0, [0.05, 0.05, 0.01]))), noise))
+        values.insert(k, truth[k].compose(gtsam.Pose2(*rng.normal(0, [0.3, 0.3, 0.05]))))
+    if wrong:
+        graph.add(gtsam.BetweenFactorPose2(0, n // 2, gtsam.Pose2(3.0, -2.0, 1.0), noise))
+    for k in fixed:
+        graph.add(gtsam.PriorFactorPose2(k, values.atPose2(k), FIXED))
+    return graph, values
+
+
+@pytest.mark.parametrize("trust", [True, False])
+def test_fixed_poses_of_a_ring_stay_where_the_fix_holds_them(trust):
+    graph, values = _ring(10, [0, 2, 4, 6, 8], wrong=True)
+    result = robust_initialize(graph, values, trust_odometry=trust)
+    assert _held_moved_by(graph, values, result.values) <= 1e-9
+    assert 10 in result.rejected  # the wrong closure
+
+
+@pytest.mark.parametrize("trust", [True, False])
+@pytest.mark.parametrize("mode", ["random", "group"])
+def test_poses_fixed_where_they_are_leave_the_decisions_as_they_were(mode, trust):
+    # three poses FIXed at their true places agree with every true closure: the same wrong
+    # closures go, and the held poses stay to the last digit
+    sample = generate(*ARGS, np.random.default_rng(3), noisy_measurements=True, outliers=0.1,
+                      outlier_mode=mode)
+    graph = _with_factors(sample.graph, *(gtsam.PriorFactorPose2(
+        k, sample.ground_truth.atPose2(k), FIXED) for k in (0, 120, 250)))
+    result = robust_initialize(graph, sample.initial, trust_odometry=trust)
+    assert _held_moved_by(graph, sample.ground_truth, result.values) <= 1e-9
+    assert result.rejected == sample.outlier_edges
+
+
+def test_mit_with_fixed_poses_rejects_only_closures_the_fix_contradicts():
+    """FIX 1 400 800 holds poses 400 and 800 where dead reckoning put them (MIT's vertices
+    are its odometry chained). They stay there to the last digit; the closures rejected (7
+    of 20) are those that would close loops the held poses keep open: put back, the chi2
+    rises from 71 to above 2000 (alone, each raises the optimum by 208 to 914 against its
+    bar of 21); without the FIX every closure is kept."""
+    graph, values = read_g2o(dataset("MIT.g2o"))
+    fixed = _with_factors(graph, *(gtsam.PriorFactorPose2(k, values.atPose2(k), FIXED)
+                                   for k in (1, 400, 800)))
+    result = robust_initialize(fixed, values)
+    assert _held_moved_by(fixed, values, result.values) <= 1e-9
+    closures = np.flatnonzero(~odometry_edges(PoseGraph2D.from_gtsam(fixed, values)))
+    assert set(result.rejected) <= set(closures.tolist())
+    assert result.chi2 < 100.0
+    every = refine(fixed, result.values, "lm", 300).chi2
+    assert every > 2000.0
+    assert robust_initialize(graph, values).rejected == []
+
+
+def test_untrusted_odometry_beside_fixed_poses_places_every_pose():
+    # the FIX strains the odometry next to the held poses: rejected there on both sides of a
+    # pose, nothing would place it; the edge that fits it best stays
+    graph, values = read_g2o(dataset("MIT.g2o"))
+    fixed = _with_factors(graph, *(gtsam.PriorFactorPose2(k, values.atPose2(k), FIXED)
+                                   for k in (1, 400, 800)))
+    result = robust_initialize(fixed, values, trust_odometry=False)
+    assert _held_moved_by(fixed, values, result.values) <= 1e-9
+    pose_graph = PoseGraph2D.from_gtsam(fixed, values)
+    kept = np.ones(pose_graph.num_edges, bool)
+    kept[result.rejected] = False  # MIT's edges are its first factors
+    labels = component_labels(pose_graph.num_poses, pose_graph.edges[kept])
+    assert set(labels.tolist()) <= set(labels[[1, 400, 800]].tolist())
+
+
+@pytest.mark.parametrize("trust", [True, False])
+def test_every_pose_held_is_judged_at_the_held_poses(trust):
+    graph, values = _ring(10, list(range(10)), wrong=True)
+    wild = gtsam.BetweenFactorPose2(2, 7, gtsam.Pose2(1e300, 0.0, 0.0),
+                                    gtsam.noiseModel.Unit.Create(3))
+    graph = _with_factors(graph, wild)
+    result = robust_initialize(graph, values, trust_odometry=trust)
+    assert [step.name for step in result.steps] == ["held"]
+    for k in range(10):
+        assert result.values.atPose2(k).equals(values.atPose2(k), 1e-12)
+    pose_graph = PoseGraph2D.from_gtsam(graph, values)
+    misfit = ~(edge_chi2(pose_graph, pose_graph.poses) < chi2_quantile(0.9999, 3))
+    if trust:
+        misfit &= ~odometry_edges(pose_graph)
+    factor_of_edge = [k for k in range(graph.size())
+                      if isinstance(graph.at(k), gtsam.BetweenFactorPose2)]
+    assert result.rejected == [factor_of_edge[e] for e in np.flatnonzero(misfit)]
+    assert {10, graph.size() - 1} <= set(result.rejected)  # the wrong and the wild closure

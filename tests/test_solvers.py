@@ -156,3 +156,37 @@ def test_the_gauge_prior_goes_only_where_the_graph_has_no_prior(small_noisy):
     gauged = gtsam.LevenbergMarquardtOptimizer(anchored, small_noisy.initial, params).optimize()
     ours = refine(small_noisy.graph, small_noisy.initial, params, pose_graph=plain)
     assert ours.values.equals(gauged, 1e-9)
+
+
+def test_an_elimination_runs_on_its_own_thread_and_hands_back_what_it_gives(small_noisy):
+    """What :func:`eliminating_call` promises a caller: the function's result or its very
+    exception, the process-wide default stack size left as it was, and a call from inside
+    one run in place. (Its purpose, a tree deeper than the stack, is tested under a small
+    stack in tests/test_hostile.py.)"""
+    import threading
+
+    from rlpgo_gtsam import extract_pose_graph
+    from rlpgo_gtsam.numerics import eliminating_call, elimination_stack_bytes
+
+    before = threading.stack_size()
+    outer = eliminating_call(10**6, lambda: (
+        threading.current_thread(), eliminating_call(10, threading.current_thread)))
+    assert outer[0] is not threading.current_thread() and outer[1] is outer[0]
+    assert threading.stack_size() == before
+    assert elimination_stack_bytes(10**6) >= 100 * 10**6  # 100 bytes a tree level sufficed
+    with pytest.raises(SolverError, match="inside"):
+        eliminating_call(1, lambda: (_ for _ in ()).throw(SolverError("inside")))
+    # an indeterminate system raised on that thread is still the refinement's failure
+    graph = gtsam.NonlinearFactorGraph(small_noisy.graph)
+    values = gtsam.Values(small_noisy.initial)
+    values.insert(10**6, gtsam.Pose2())
+
+    def flat(_factor, _values, jacobians):  # a residual that no step can change
+        if jacobians is not None:
+            jacobians[0] = np.zeros((3, 3))
+        return np.zeros(3)
+
+    graph.add(gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(3), [10**6], flat))
+    result = refine(graph, values, "gn", 5, has_prior=False,
+                    pose_graph=extract_pose_graph(small_noisy.graph, small_noisy.initial))
+    assert result.failure is not None and "Indeterminate linear system" in result.failure

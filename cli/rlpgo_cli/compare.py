@@ -12,13 +12,12 @@ from rlpgo_cli.errors import RlpgoCommand
 from rlpgo_cli.inputs import read_input
 from rlpgo_cli.output import RunFiles, json_text
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, OutputFile
-from rlpgo_gtsam.accuracy import TrajectoryErrors, trajectory_errors
+from rlpgo_gtsam.accuracy import TrajectoryErrors, check_ground_truth, trajectory_errors
 from rlpgo_gtsam.errors import OutputError, RlpgoError
-from rlpgo_gtsam.files import check_name
 from rlpgo_gtsam.graph import chi2, extract_pose_graph
 from rlpgo_gtsam.groups import SE2, SE3, Group
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
-from rlpgo_gtsam.io import file_group, read_g2o
+from rlpgo_gtsam.io import file_group, read_poses
 from rlpgo_gtsam.ranking import (
     FROM_BEST,
     TIE_RELATIVE,
@@ -159,8 +158,9 @@ def _methods_for(path: Path, group: Group, given: list[str] | None) -> list[str]
 @click.option("--cycles", type=click.IntRange(1, 10_000), default=None,
               help="Passes over the edges of the rl methods [default: the model's test cycles].")
 @click.option("--ground-truth", "truth_path", type=click.Path(path_type=Path),
-              help="True poses (g2o) of the one FILE: adds evo's APE and RPE (rmse, m) of each "
-                   "refined result. With no FILE, the generated graph's own are used.")
+              help="True poses of the one FILE (a g2o file whose vertex lines hold a pose for "
+                   "each of its ids; edges are not needed): adds evo's APE and RPE (rmse, m) of "
+                   "each refined result. With no FILE, the generated graph's own are used.")
 @click.pass_context
 def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, episodes, start,
          cycles, truth_path):
@@ -183,6 +183,7 @@ def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, e
     if uses_agent:
         run.add_input(model_path(model))
     plots = []
+    folders = [] if plot_dir is None else [plot_dir]  # made with the files, not before
     if plot_dir is not None:
         if plot_dir.exists() and not plot_dir.is_dir():
             raise OutputError(f"{plot_dir}: exists and is not a folder")
@@ -191,25 +192,22 @@ def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, e
         if len(set(plots)) < len(plots):
             raise OutputError(f"{plot_dir}: two FILES have the same name; their plots would "
                               "overwrite each other")
-        for plot in plots:  # in a folder still to be made, the names are what can be checked
-            check_name(plot)
     # One check of every output: a PNG that is an input or is also --json is refused.
-    run.check(*(plots if plot_dir is not None and plot_dir.is_dir() else []), json_path)
+    run.check(*plots, json_path, folders=folders)
     groups = [file_group(path) for path in files]
     per_file = [_methods_for(path, group, method_list if given else None)
                 for path, group in zip(files, groups, strict=True)]
     three = [path for path, group in zip(files, groups, strict=True) if group is SE3]
-    for option, used in (("--ground-truth", truth_path), ("--plot", plot_dir)):
-        if used is not None and three:
-            raise RlpgoError(f"{three[0]} holds a 3D pose graph: {option} is planar so far "
-                             "(trajectory errors and plots of 2D graphs)")
+    if plot_dir is not None and three:
+        raise RlpgoError(f"{three[0]} holds a 3D pose graph: --plot is planar so far "
+                         "(plots of 2D graphs)")
     read = [read_input(path) for path in files]  # all validated before any run
     for one in read:
         for note in one.notes:
             click.echo(f"note: {note}")
     inputs = [(path.name, one.graph, one.values, one.read_extraction)
               for path, one in zip(files, read, strict=True)]
-    truth = None if truth_path is None else read_g2o(truth_path)[1]
+    truth = None if truth_path is None else read_poses(truth_path)
     if not inputs:
         demo = generate(rng=np.random.default_rng(seed), **DEMO)
         settings = " ".join(f"{key}={value}" for key, value in DEMO.items())
@@ -217,10 +215,11 @@ def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, e
                    demo.graph, demo.initial, None)]
         per_file = [method_list if given else _methods(DEFAULT_METHODS, "odometry")]
         truth = demo.ground_truth
-    if truth is not None:  # its keys checked before any run
-        trajectory_errors(inputs[0][2], truth, align=False)
-    if plot_dir is not None:
-        plot_dir.mkdir(parents=True, exist_ok=True)
+    if truth is not None:  # its poses checked before any run
+        try:
+            check_ground_truth(inputs[0][2], truth)
+        except RlpgoError as error:
+            raise RlpgoError(f"{truth_path}: {error}" if truth_path else str(error)) from None
     # a long method's progress, indented under the rows: "    certified: rank 2 ..."
     options = line_progress_options(lambda method, line: click.echo(f"    {method}: {line}"))
     options["rl"] = {"model": model, "episodes": episodes, "cycles": cycles}
@@ -255,7 +254,7 @@ def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, e
                 record["accuracy"] = None if errors is None else errors.record()
             records.append(record)
         failed = failed or any(r.failure for r in results)
-        if plots:
+        if plots and not failed:  # a failed run writes no plot: none is drawn
             from rlpgo_gtsam.plotting import Panel, plot_trajectories
 
             best = tied_best(results)
@@ -267,14 +266,15 @@ def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, e
             pngs.append((plots[index], plot_trajectories(
                 pose_graph, panels, title=f"{name}: each method's guess refined by "
                 f"{solver.upper()}{iters}")))
+    if failed:  # a run that fails writes nothing
+        written = " (nothing written)" if plots or json_path is not None else ""
+        raise RlpgoError(f"at least one method failed (see FAILED above){written}")
     # the records and the plots together: every file or none
     outputs = [(path, data) for path, data in pngs]
     if json_path is not None:
         outputs.append((json_path, json_text(records).encode()))
     if outputs:
-        run.write_together(outputs)
-    if failed:
-        raise RlpgoError("at least one method failed (see FAILED above)")
+        run.write_together(outputs, folders)
 
 
 if __name__ == "__main__":

@@ -257,3 +257,7 @@ def train() -> None:
 
 def evaluate() -> None:
     _run("evaluate")
+
+
+def example() -> None:
+    _run("example")

@@ -1,16 +1,16 @@
 """The commands' output policy: every file a run writes is checked before any work starts,
-never replaces one of the run's inputs (however the path names it), and is written
-atomically by the library."""
+never replaces one of the run's inputs (however the path names it), and all of a run's
+files are written together by the library, every one or none, once the run has succeeded."""
 
 from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from rlpgo_gtsam.errors import OutputError
-from rlpgo_gtsam.files import check_output, write_bytes, write_text, write_together
+from rlpgo_gtsam.files import Folders, check_output, is_stream, write_together
 
 
 def _same_place(a: Path, b: Path) -> bool:
@@ -76,31 +76,34 @@ class RunFiles:
                 continue
         return False
 
-    def check(self, *paths: str | os.PathLike[str] | None) -> None:
-        """Refuse, before any work, outputs that could not be written or would replace an input."""
+    def check(self, *paths: str | os.PathLike[str] | None, folders: Folders = ()) -> None:
+        """Refuse, before any work, outputs that could not be written or would replace an
+        input. ``folders``: folders the run will make for its files (a plot folder)."""
+        folders = list(folders)
         seen: list[Path] = []
         for path in paths:
             if path is None:
                 continue
             path = Path(path)
-            check_output(path)  # first: a name the system cannot hold fails here, clearly
+            check_output(path, folders)  # first: a name the system cannot hold fails here
             if self.is_input(path):
                 raise OutputError(f"{path}: is an input of this run; refusing to overwrite it")
-            if any(_same_place(path, other) for other in seen):
+            # a device twice (-o /dev/null --json /dev/null) takes each output in turn
+            if not is_stream(path) and any(_same_place(path, other) for other in seen):
                 raise OutputError(f"{path}: given as two different outputs")
             if not self.overwrite and path.is_file():
                 raise OutputError(f"{path}: exists; give --overwrite to replace it")
             seen.append(path)
 
     def write_json(self, path: Path, data: object) -> None:
-        self.check(path)
-        write_text(path, json_text(data))
+        """Write ``data`` as strict JSON (:func:`json_text`): a run's one output."""
+        self.write_together([(path, json_text(data).encode())])
 
-    def write_bytes(self, path: Path, data: bytes) -> None:
-        self.check(path)
-        write_bytes(path, data)
-
-    def write_together(self, items: list[tuple[Path, bytes]]) -> None:
-        """Write several files, every one or none (see :func:`rlpgo_gtsam.files.write_together`)."""
-        self.check(*(path for path, _ in items))
-        write_together(items)
+    def write_together(self, items: Sequence[tuple[Path, bytes]],
+                       folders: Folders = ()) -> None:
+        """Write all of a run's files, every one or none, making ``folders`` where they do
+        not exist (see :func:`rlpgo_gtsam.files.write_together`): the one way a command
+        writes. Call it once, after the run has succeeded: a run that fails writes nothing."""
+        folders = list(folders)
+        self.check(*(path for path, _ in items), folders=folders)
+        write_together(items, folders)

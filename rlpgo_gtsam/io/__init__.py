@@ -36,7 +36,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import gtsam
+import numpy as np
 
+from rlpgo_gtsam.errors import G2oFormatError
 from rlpgo_gtsam.files import write_text
 from rlpgo_gtsam.graph import PoseGraph
 from rlpgo_gtsam.groups import Group, graph_group
@@ -46,8 +48,8 @@ from rlpgo_gtsam.io.read import build, group_of_lines, read_file, warn_changes
 from rlpgo_gtsam.io.write import EDGE_LIST_LINE, text_lines, text_of_extraction
 from rlpgo_gtsam.io.write import edge_list_text as _edge_list_text
 
-__all__ = ["read_g2o", "read_g2o_lines", "read_g2o_extracted", "write_g2o", "g2o_text",
-           "g2o_text_lines", "edge_list_text", "file_group", "EDGE_LIST_LINE",
+__all__ = ["read_g2o", "read_g2o_lines", "read_g2o_extracted", "read_poses", "write_g2o",
+           "g2o_text", "g2o_text_lines", "edge_list_text", "file_group", "EDGE_LIST_LINE",
            "MAX_LINE_BYTES"]
 
 
@@ -113,6 +115,29 @@ def read_g2o_extracted(
         G2oFormatError: as :func:`read_g2o`.
     """
     return _read(Path(path), extract=True)
+
+
+def read_poses(path: str | os.PathLike[str]) -> gtsam.Values:
+    """The poses of a g2o file's vertex lines (``VERTEX_SE2``, or ``VERTEX_SE3:QUAT``), keyed
+    by id: a ground truth, which needs poses and nothing else.
+
+    Edge and ``FIX`` lines may be there (a ground truth written with its graph) and are read
+    like any g2o line (a malformed one is an error), but they make no pose: a file of edges
+    alone holds no poses, however they chain.
+
+    Raises:
+        G2oFormatError: the file is missing, unreadable or malformed, or has no vertex line;
+            the message names the file (and the line).
+    """
+    path = Path(path)
+    form, table = read_file(path)
+    if not len(table.vertex_keys):
+        raise G2oFormatError(path, None, f"holds no {form.vertex_tag} line: a ground truth "
+                             "needs the true poses as vertex lines")
+    order = np.argsort(table.vertex_keys, kind="stable")
+    keys = table.vertex_keys[order]
+    poses = form.take(form.poses(table.vertex_numbers), order)
+    return form.values(keys, poses, table.vertex_text)
 
 
 def _read(path: Path, lines: bool = True, extract: bool = False

@@ -10,13 +10,15 @@ system and weighted solve (:func:`~rlpgo_gtsam.translations.translation_system`)
 from __future__ import annotations
 
 import math
-from typing import cast
+from typing import Any, cast
 
 import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import SolverError, one_line
-from rlpgo_gtsam.graph import PoseGraph
+from rlpgo_gtsam.graph import PoseGraph, component_labels
+from rlpgo_gtsam.linear import WEIGHT_FLOOR
+from rlpgo_gtsam.numerics import eliminating_call
 from rlpgo_gtsam.robust.problem import Problem
 from rlpgo_gtsam.solvers import gauge_prior, solver_params
 from rlpgo_gtsam.translations import translation_system
@@ -26,6 +28,10 @@ __all__ = ["gnc_tls", "tls_weights", "robust_positions", "gnc_lm"]
 _MU_STEP = 1.4  # the control parameter's growth per iteration (GTSAM's GncParams muStep)
 _MU_MIN = 1e-6  # its first value at least: a huge first residual must not make it zero
 _WEIGHTS_TOL = 1e-4  # weights this close to 0 or 1 have converged (GTSAM's weightsTol)
+# The weight of an edge out that places a pose no edge in weight joins to a held pose: far
+# below any weight in (its pull on the rest is a millionth of an inlier's), far above the
+# weighted solve's WEIGHT_FLOOR.
+_PLACING = 1e-6
 
 
 def robust_positions(g: PoseGraph, rotations: np.ndarray, known: np.ndarray,
@@ -45,7 +51,23 @@ def robust_positions(g: PoseGraph, rotations: np.ndarray, known: np.ndarray,
         r = np.einsum("eab,eb->ea", a_j, t[j] - t[i]) - b
         return np.einsum("ea,ea->e", r, r)
 
-    return gnc_tls(solve, residuals, known, excluded, threshold, iterations)
+    return gnc_tls(lambda weights: solve(_placing(g, weights)), residuals, known, excluded,
+                   threshold, iterations)
+
+
+def _placing(g: PoseGraph, weights: np.ndarray) -> np.ndarray:
+    """``weights``, except that where the edges in weight leave poses joined to no held pose
+    (untrusted odometry on both sides of a pose misfits), the edges out at those poses get
+    :data:`_PLACING`: they place them and move nothing else."""
+    live = weights > WEIGHT_FLOOR
+    if live.all():
+        return weights
+    labels = component_labels(g.num_poses, g.edges[live])
+    loose = ~np.isin(labels, labels[g.held[0]])
+    if not loose.any():
+        return weights
+    lifted = ~live & (loose[g.edges[:, 0]] | loose[g.edges[:, 1]])
+    return np.where(lifted, _PLACING, weights)
 
 
 def gnc_tls(solve, residuals, known: np.ndarray, excluded: np.ndarray, threshold: float,
@@ -91,27 +113,49 @@ def gnc_lm(problem: Problem, start: gtsam.Values, kept: np.ndarray,
            known: np.ndarray) -> tuple[gtsam.Values, np.ndarray]:
     """GTSAM's GNC-LM (TLS, super-linear schedule, the project's LM settings) from ``start`` on
     the ``kept`` edges, the ``known`` ones (and the gauge prior) as known inliers; returns its
-    values and the weight of every edge (0 for edges not kept).
+    values, every held pose exactly where it is held, and the weight of every edge (0 for
+    edges not kept).
 
     Edges rejected before are left out of its graph: kept in, their residuals set GNC's first
     control parameter near zero, and it spends dozens of outer iterations re-deriving what
-    the steps before found."""
+    the steps before found. A FIXed pose is held by a prior as tight as the gauge's: GNC
+    reweighs every factor through its information, which a constrained model does not have
+    (kept as it is, GNC moved MIT's FIXed pose 400 by 110 m)."""
     settings = problem.settings
     optimized = problem.kept_graph(kept)
-    inliers = [k for k in range(optimized.size()) if optimized.at(k) is not None]
-    inliers = sorted(set(inliers) - set(problem.factor_of_edge[~known].tolist()))
+    if len(problem.g.fixed):
+        optimized = _softly_held(optimized, problem, settings.anchor_sigma)
     optimized.add(gauge_prior(problem.g, start, settings.anchor_sigma))
+    judged = set(problem.factor_of_edge[~known].tolist())
+    inliers = [k for k in range(optimized.size())
+               if optimized.at(k) is not None and k not in judged]
     lm = cast(gtsam.LevenbergMarquardtParams, solver_params("lm", settings.lm_iterations))
     params = gtsam.GncLMParams(lm)
     params.setLossType(gtsam.GncLossType.TLS)
     params.setScheduler(gtsam.GncScheduler.SuperLinear)
     params.maxIterations = settings.gnc_iterations  # the setter prints a warning to stdout
-    params.setKnownInliers(inliers + [optimized.size() - 1])
+    params.setKnownInliers(inliers)
     try:
         optimizer = gtsam.GncLMOptimizer(optimized, start, params)
         optimizer.setInlierCostThresholdsAtProbability(settings.inlier_probability)
-        result = optimizer.optimize()
+        result = eliminating_call(start.size(), optimizer.optimize)
     except RuntimeError as error:
         raise SolverError(f"GNC-LM failed: {one_line(error)}") from None
     weights = np.asarray(optimizer.getWeights(), dtype=float).ravel()[problem.factor_of_edge]
-    return result, np.where(kept, weights, 0.0)
+    return problem.holding(result), np.where(kept, weights, 0.0)
+
+
+def _softly_held(graph: gtsam.NonlinearFactorGraph, problem: Problem,
+                 sigma: float) -> gtsam.NonlinearFactorGraph:
+    """``graph`` with each constrained prior replaced by a prior of isotropic ``sigma`` at the
+    pose the graph holds it at (its slot left empty, the new prior appended)."""
+    softened = gtsam.NonlinearFactorGraph(graph)
+    prior: Any = problem.group.prior_factor
+    tight = gtsam.noiseModel.Isotropic.Sigma(problem.group.dof, sigma)
+    for k in range(graph.size()):
+        factor: Any = graph.at(k)  # GTSAM's stubs type it as the base class
+        if isinstance(factor, prior) and isinstance(factor.noiseModel(),
+                                                    gtsam.noiseModel.Constrained):
+            softened.remove(k)
+            softened.add(prior(factor.keys()[0], factor.prior(), tight))
+    return softened

@@ -3,7 +3,8 @@
 The verify step judges every closure (and sets of them) at the optimum of the kept edges by
 the chi2 of its residual under the map's own uncertainty. With GTSAM's linearization at that
 optimum (whitened rows ``A_S``, residuals ``b_S``), ``P`` the map's covariance (inverse
-Hessian of the kept edges, held poses fixed) and ``C_S = A_S P A_S^T``:
+Hessian of the kept edges, held poses fixed, and so are poses no kept edge joins to a held
+one: untrusted odometry rejected on both sides of a pose) and ``C_S = A_S P A_S^T``:
 
 - edges left out: ``b_S^T (I + C_S)^-1 b_S``, the innovation: how far their measurements lie
   from what the map predicts, given how well the map knows their poses;
@@ -77,7 +78,7 @@ def innovation_draws(problem: Problem, values: gtsam.Values, kept: np.ndarray) -
     b_rows[rows[is_b]] = entries[is_b]
     b = b_rows.reshape(-1, dof)
     free = np.ones(size, bool)
-    free[(dof * g.held[0][:, None] + np.arange(dof)).ravel()] = False
+    free[(dof * problem.unplaced(kept)[:, None] + np.arange(dof)).ravel()] = False
     a_edges = sp.csr_matrix((entries[~is_b], (rows[~is_b], cols[~is_b])),
                             shape=(dof * len(kept), size))[:, free]
     a_kept = a_edges[np.repeat(kept, dof)]

@@ -7,6 +7,14 @@ and lets GTSAM's GNC-LM (truncated least squares) finish from it. A closure is r
 on evidence against it, never for lack of support. The steps, each reported in
 :attr:`RobustResult.steps`:
 
+- ``reach``, before the others and only where it rejects something: an edge no map of the
+  other edges can fit (its measured translation far beyond their summed reach,
+  :mod:`~rlpgo_gtsam.robust.reach`: a closure of 1e20 m on a 300 m map) is rejected at once,
+  trusted or not; its scale would break the steps' arithmetic. An edge that no cycle checks
+  and that is too long for the rest of the map to keep its digits beside it is refused.
+- ``held``, instead of every other step, where the anchor and the FIX lines hold every pose:
+  the map is the held poses, and each edge is judged by its chi2 there.
+
 0. ``all edges``: the clean default on every edge (the certified relaxation at its lowest
    rank, then LM to convergence). Where it is certified and every edge's chi2 lies within
    the inlier bound (at the noise level the odometry chain shows, where that is above the
@@ -35,9 +43,12 @@ on evidence against it, never for lack of support. The steps, each reported in
 
 With ``trust_odometry=True`` (the default) the odometry chain (the spanning tree
 :func:`~rlpgo_gtsam.graph.odometry_edges` finds) is known inliers in every step; without it
-those edges are judged like closures in steps 2-4. The anchor (and any FIXed pose) keeps its
-pose. Thresholds are chi-square quantiles at ``inlier_probability``: the group's dof for an
-edge or a cycle (3 planar, 6 in 3D), the translation dimension in step 2 (2 or 3). They bound
+those edges are judged like closures in steps 2-4; an edge that alone places a pose (rejected
+on both sides of it) stays. The anchor and every FIXed pose keep their poses in every step,
+exactly in the map handed over, and the steps judge with them held: a closure that only a held
+pose's move would fit is rejected. Thresholds are chi-square quantiles at
+``inlier_probability``: the group's dof for an edge or a cycle (3 planar, 6 in 3D), the
+translation dimension in step 2 (2 or 3). They bound
 the noise the covariances state; ``covariance_scale`` judges with the covariances times a
 factor (docs/robust.md, "When the covariances are too small"). 3D graphs run the same steps in
 SE(3) (:mod:`rlpgo_gtsam.groups`). Every tuning constant is a field of
@@ -48,14 +59,14 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import gtsam
 import numpy as np
 
-from rlpgo_gtsam.errors import GraphError, SolverError
-from rlpgo_gtsam.graph import PoseGraph, chi2, extract_pose_graph, odometry_edges
+from rlpgo_gtsam.errors import GraphError, SolverError, one_line
+from rlpgo_gtsam.graph import PoseGraph, chi2, extract_pose_graph
 from rlpgo_gtsam.groups import group_of
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.robust.consistency import Consistency, pairwise_consistency
@@ -72,6 +83,7 @@ from rlpgo_gtsam.robust.problem import (
     relaxation_rotations,
     without_factors,
 )
+from rlpgo_gtsam.robust.reach import check_scale, out_of_reach
 from rlpgo_gtsam.robust.results import (
     AllEdgesStep,
     ConsistencyStep,
@@ -141,24 +153,86 @@ def robust_initialize(
     if not (math.isfinite(covariance_scale) and covariance_scale > 0.0):
         raise SolverError(f"covariance_scale must be a positive number, got {covariance_scale}")
     reported, problem = _judged_problem(graph, values, pose_graph, covariance_scale, settings)
-    return _robust_run(problem, reported, trust_odometry, began)
+    if len(np.unique(problem.g.held[0])) == problem.g.num_poses:
+        return _every_pose_held(problem, reported, trust_odometry, began)
+    problem, before = _within_reach(problem)
+    try:
+        return _robust_run(problem, reported, trust_odometry, began, before)
+    except (RuntimeError, ArithmeticError, ValueError, np.linalg.LinAlgError) as error:
+        # a numerical failure inside GTSAM, SciPy or numpy on extreme input that no step
+        # guards (a bridge measured 1e50 m: no cycle judges it, and the map cannot hold it)
+        raise SolverError(f"robust initialization failed: {type(error).__name__}: "
+                          f"{one_line(error)}") from None
+
+
+@dataclass
+class _Before:
+    """What was decided before the steps: their records and the factors rejected."""
+
+    steps: list[Step] = field(default_factory=list)
+    rejected: list[int] = field(default_factory=list)
+
+
+def _within_reach(problem: Problem) -> tuple[Problem, _Before]:
+    """The problem without the edges no map of the others can fit
+    (:func:`~rlpgo_gtsam.robust.reach.out_of_reach`; their factor slots left empty) and the
+    record of their rejection; ``problem`` itself where there is none.
+
+    Raises:
+        GraphError: an edge left so long that the rest of the map loses its digits beside it
+            (:func:`~rlpgo_gtsam.robust.reach.check_scale`).
+    """
+    began = time.perf_counter()
+    g, settings = problem.g, problem.settings
+    out = out_of_reach(g, chi2_quantile(settings.inlier_probability, problem.group.dof),
+                       settings.reach_margin)
+    check_scale(g, out)
+    if not out.any():
+        return problem, _Before()
+    graph = without_factors(problem.graph, problem.factor_of_edge[out].tolist())
+    within = Problem(graph, replace(problem.group.subgraph(g, ~out), graph=graph),
+                     problem.factor_of_edge[~out], settings)
+    step = JudgedStep.counted("reach", time.perf_counter() - began, None, ~out,
+                              np.zeros(g.num_edges, bool))  # trusted or not, out of reach
+    return within, _Before([step], sorted(problem.factor_of_edge[out].tolist()))
+
+
+def _every_pose_held(problem: Problem, reported: gtsam.NonlinearFactorGraph,
+                     trust_odometry: bool, began: float) -> RobustResult:
+    """Every pose held (the anchor and FIX lines cover them all): nothing to estimate. The
+    map is the held poses, and each edge that is not trusted is judged by its chi2 there:
+    a map without uncertainty leaves a residual only its own noise, the verify step's
+    statistic with no map covariance."""
+    g, group, settings = problem.g, problem.group, problem.settings
+    held, held_poses = g.held
+    poses = np.empty((g.num_poses, *held_poses.shape[1:]))
+    poses[held] = held_poses
+    known = problem.chain if trust_odometry else np.zeros(g.num_edges, bool)
+    fits = group.edge_chi2(g, poses) < chi2_quantile(settings.inlier_probability, group.dof)
+    kept = known | fits  # a non-finite chi2 (a wild measurement) does not fit
+    step = JudgedStep.counted("held", time.perf_counter() - began, None, kept, known)
+    return _robust_result(reported, problem, problem.holding(group.to_values(g, poses)), kept,
+                          np.ones(g.num_edges), known, began, [step], [],
+                          "every pose is held: each edge judged by its chi2 at the held poses")
 
 
 def _robust_run(problem: Problem, reported: gtsam.NonlinearFactorGraph, trust_odometry: bool,
-                began: float) -> RobustResult:
-    """The steps on the judged ``problem``; the result's chi2 and weights on ``reported``."""
+                began: float, before: _Before) -> RobustResult:
+    """The steps on the judged ``problem`` after what was decided ``before`` them; the
+    result's chi2 and weights on ``reported``."""
     g, settings = problem.g, problem.settings
-    chain = odometry_edges(g)
+    chain = problem.chain
     known = chain if trust_odometry else np.zeros(g.num_edges, bool)
     bar = chi2_quantile(settings.inlier_probability, problem.group.dof)  # an edge's, a cycle's
-    steps: list[Step] = []
+    steps: list[Step] = list(before.steps)
 
     consistency, consistency_s = _consistency_first(problem, chain, bar)
     clean = _all_edges_step(problem, chain, bar, consistency, steps)
     if clean is not None:  # no evidence against any edge: keep them all
         steps[-1] = replace(steps[-1], seconds=steps[-1].seconds + consistency_s)
         return _robust_result(reported, problem, clean, np.ones(g.num_edges, bool),
-                              np.ones(g.num_edges), known, began, steps, [], _EVERY_EDGE_FITS)
+                              np.ones(g.num_edges), known, began, steps, [], _EVERY_EDGE_FITS,
+                              before=before)
     if consistency is None:
         consistency, consistency_s = _timed_consistency(problem, chain, bar)
     kept = consistency.seed | chain
@@ -183,11 +257,12 @@ def _robust_run(problem: Problem, reported: gtsam.NonlinearFactorGraph, trust_od
 
     step_began = time.perf_counter()
     result, gnc_weights = gnc_lm(problem, verified.values, kept, known)
-    kept = kept & (gnc_weights >= settings.rejected_below)
+    kept = problem.spanning(kept & (gnc_weights >= settings.rejected_below), kept,
+                            np.argsort(-gnc_weights, kind="stable"))
     steps.append(JudgedStep.counted("gnc", time.perf_counter() - step_began, None, kept, known))
     return _robust_result(reported, problem, result, kept, gnc_weights, known, began, steps,
                           ambiguous, "GNC-LM from the consistent set's verified optimum",
-                          _doubtful(problem, verified.fits, kept & ~known))
+                          _doubtful(problem, verified.fits, kept & ~known), before)
 
 
 def _settings_with(settings: RobustSettings | None, **given: Any) -> RobustSettings:
@@ -317,7 +392,8 @@ def _start(problem: Problem, kept: np.ndarray, known: np.ndarray) -> _Start:
                                      settings)
     positions, weights, iterations = robust_positions(g, rotations, known, ~kept,
                                                       translation_bar, settings.gnc_iterations)
-    kept = kept & (weights >= settings.rejected_below)
+    kept = problem.spanning(kept & (weights >= settings.rejected_below), kept,
+                            np.argsort(-weights, kind="stable"))
     if settings.relaxed_start(g.dimension):
         relaxed = _kept_edges_relaxation(problem, kept, None, settings.round_iterations,
                                          settings.round_tolerance)
@@ -418,17 +494,25 @@ def _robust_result(graph: gtsam.NonlinearFactorGraph, problem: Problem, values: 
                    kept: np.ndarray, edge_weights: np.ndarray, known: np.ndarray,
                    began: float, steps: list[Step],
                    ambiguous: list[tuple[list[int], list[int]]], stopped: str,
-                   doubtful: list[tuple[int, float]] | None = None) -> RobustResult:
+                   doubtful: list[tuple[int, float]] | None = None,
+                   before: _Before | None = None) -> RobustResult:
     """The result on ``graph`` (the caller's, or its printed blocks read): every factor's
-    weight, the rejected factors and the chi2 without them."""
+    weight, the rejected factors (with those rejected ``before`` the steps) and the chi2
+    without them, at ``values`` with every held pose exactly where it is held."""
     factor_of_edge = problem.factor_of_edge
+    before = before if before is not None else _Before()
     weights = np.full(graph.size(), np.nan)
     for k in range(graph.size()):
         if graph.at(k) is not None:
             weights[k] = 1.0
     weights[factor_of_edge] = np.where(kept, np.maximum(edge_weights, 0.0), 0.0)
     weights[factor_of_edge[known]] = 1.0
-    rejected = sorted(factor_of_edge[~kept].tolist())
+    weights[before.rejected] = 0.0
+    rejected = sorted(factor_of_edge[~kept].tolist() + before.rejected)
+    if before.rejected:
+        stopped = (f"{stopped}; before the steps, {len(before.rejected)} edges that no map of "
+                   "the others can fit were rejected")
+    values = problem.holding(values)
     return RobustResult(
         values=values,
         rejected=rejected,

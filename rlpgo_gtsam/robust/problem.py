@@ -14,7 +14,7 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError, SolverError
-from rlpgo_gtsam.graph import PoseGraph, chi2
+from rlpgo_gtsam.graph import PoseGraph, chi2, component_labels, odometry_edges
 from rlpgo_gtsam.groups import Group, group_of
 from rlpgo_gtsam.initializers import Initializer, make_initializer
 from rlpgo_gtsam.robust.settings import RobustSettings
@@ -59,6 +59,72 @@ class Problem:
         MIT's 827 edges took 4 ms a round of about 30)."""
         rng = np.random.default_rng(self.settings.draw_seed)
         return rng.standard_normal((self.g.num_edges, self.group.dof, self.settings.samples))
+
+    @cached_property
+    def chain(self) -> np.ndarray:
+        """(m,) the odometry chain (:func:`~rlpgo_gtsam.graph.odometry_edges`): it spans the
+        graph."""
+        return odometry_edges(self.g)
+
+    def unplaced(self, kept: np.ndarray) -> np.ndarray:
+        """Indices of the poses the ``kept`` edges do not estimate: the held ones, and those
+        they join to no held pose (where untrusted odometry on both sides of a pose was
+        rejected; held where the map left them)."""
+        held = self.g.held[0]
+        if (kept | ~self.chain).all():  # the chain is kept: every pose is joined
+            return held
+        labels = component_labels(self.g.num_poses, self.g.edges[kept])
+        return np.union1d(held, np.flatnonzero(~np.isin(labels, labels[held])))
+
+    def spanning(self, kept: np.ndarray, back: np.ndarray, order: np.ndarray) -> np.ndarray:
+        """``kept``, with the fewest edges of ``back`` (tried in ``order``, edge indices best
+        first) that join every pose to a held one again: no map places a pose without an
+        edge, so the last that could place it stays, whatever the evidence against it
+        (untrusted odometry around a FIXed pose). ``kept`` itself where every pose is
+        joined."""
+        if (kept | ~self.chain).all():
+            return kept
+        n = self.g.num_poses
+        labels = component_labels(n, self.g.edges[kept])
+        parent = list(range(n))
+        placed = np.zeros(n, bool)
+        placed[labels[self.g.held[0]]] = True
+        loose = len(set(labels[~placed[labels]].tolist()))
+        if loose == 0:
+            return kept
+
+        def root(a: int) -> int:
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            return a
+
+        grown = kept.copy()
+        for e in np.asarray(order)[back[order]].tolist():
+            a, b = root(int(labels[self.g.edges[e, 0]])), root(int(labels[self.g.edges[e, 1]]))
+            if a == b or (placed[a] and placed[b]):
+                continue
+            loose -= 1  # a loose piece joins another piece
+            parent[a] = b
+            placed[b] = placed[a] or placed[b]
+            grown[e] = True
+            if loose == 0:
+                break
+        return grown
+
+    def holding(self, values: gtsam.Values) -> gtsam.Values:
+        """``values`` with every held pose (the anchor, each FIXed pose) exactly where the
+        graph holds it. GTSAM's solvers hold a constrained prior to its linearization's
+        precision and GNC-LM by a tight prior: this makes the handed-over map keep them to
+        the last digit. Unchanged (the same object) where the graph fixes no pose."""
+        if len(self.g.fixed) == 0:
+            return values
+        held, poses = self.g.held
+        exact = gtsam.Values(values)
+        group = self.group
+        for index, pose in zip(held.tolist(), poses, strict=True):
+            exact.update(int(self.g.keys[index]), group.gtsam_pose(pose))
+        return exact
 
     def kept_graph(self, kept: np.ndarray) -> gtsam.NonlinearFactorGraph:
         """The judged graph without the edges not ``kept`` (their slots left empty)."""
@@ -129,15 +195,18 @@ def relaxation_rotations(g: PoseGraph, max_iterations: int,
     """The rotations of the relaxation's estimate of ``g`` at its group's lowest rank, from
     the chordal estimate, after at most ``max_iterations`` trust-region iterations: planar,
     the descent alone (no verification); 3D, the staircase held at rank 3 (at most
-    ``relaxation_iterations_3d``), held poses at their rotations."""
+    ``relaxation_iterations_3d``). Held poses (the anchor, FIXed poses) at their rotations:
+    the translation step holds their positions, and a FIXed pose turned would misplace the
+    closures at it."""
     from rlpgo_gtsam.relaxation import descend, synchronize
 
     group = group_of(g)
     if group.dimension != 3:
-        return descend(g, max_iterations=max_iterations)
-    rotations, _ = synchronize(g, max_rank=group.lowest_rank,
-                               max_iterations=min(settings.relaxation_iterations_3d,
-                                                  max_iterations))
+        rotations = descend(g, max_iterations=max_iterations)
+    else:
+        rotations, _ = synchronize(g, max_rank=group.lowest_rank,
+                                   max_iterations=min(settings.relaxation_iterations_3d,
+                                                      max_iterations))
     held, held_poses = g.held
     rotations[held] = group.rotations(held_poses)
     return rotations

@@ -32,6 +32,11 @@ class RobustSettings:
     gnc_iterations: int = 100
     """Outer iterations of each GNC at most (the translation step's and GTSAM's)."""
 
+    # --- before the steps
+    reach_margin: float = 10.0
+    """Edges beyond this times the others' summed reach are out (1 is proof; the margin is the
+    steps' room: they judge what merely conflicts)."""
+
     # --- step 0, all edges
     all_edges_iterations: int = 25
     """Relaxation iterations: clean shared files certify within 19; wrong closures cost more."""
@@ -154,6 +159,8 @@ class RobustSettings:
                 f"inlier_probability must lie in (0, 1), got {self.inlier_probability}")
         if self.gnc_iterations < 1:
             raise SolverError(f"gnc_iterations must be >= 1, got {self.gnc_iterations}")
+        if not self.reach_margin >= 1.0:
+            raise SolverError(f"reach_margin must be at least 1, got {self.reach_margin}")
         if not 0.0 <= self.false_rejection_rate < 1.0:
             raise SolverError(
                 f"false_rejection_rate must lie in [0, 1), got {self.false_rejection_rate}")

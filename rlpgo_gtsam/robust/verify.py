@@ -169,7 +169,7 @@ def _round(bars: _Bars, state: _Rounds) -> _Outcome:
     """One round: refute, else admit, else the false-rejection bar, else the solves."""
     candidates = bars.judged & (state.kept | ~state.banned)
     verdict = _verdict(bars, state, candidates)
-    refuted = state.kept & verdict.fails
+    refuted = _placing_kept(bars.problem, state, state.kept & verdict.fails)
     if refuted.any() and (refuted & state.batch).any() and state.batch.sum() > 1:
         # the last admissions clash: the batch's misfits go back out, unjudged (not banned)
         back = state.batch & refuted
@@ -188,6 +188,13 @@ def _round(bars: _Bars, state: _Rounds) -> _Outcome:
             return _after_the_bars(bars, state, candidates, verdict)
         _admit(bars, state, admit, verdict)
     return "changed"
+
+
+def _placing_kept(problem: Problem, state: _Rounds, out: np.ndarray) -> np.ndarray:
+    """``out`` (kept closures to reject) without those the kept edges need to place every
+    pose (:meth:`~rlpgo_gtsam.robust.problem.Problem.spanning`), the best-fitting first."""
+    kept = problem.spanning(state.kept & ~out, out, np.argsort(state.fits, kind="stable"))
+    return out & ~kept
 
 
 def _verdict(bars: _Bars, state: _Rounds, candidates: np.ndarray) -> _Verdict:
@@ -261,6 +268,7 @@ def _after_the_bars(bars: _Bars, state: _Rounds, candidates: np.ndarray,
     doubted = adaptive_bh_rejections(verdict.chi2, verdict.sets, state.kept,
                                      bars.judged & ~candidates, problem.group.dof,
                                      settings.false_rejection_rate, settings.samples)
+    doubted = _placing_kept(problem, state, doubted)
     if doubted.any():  # as refuted ones, but not banned: they come back where they fit well
         state.unlikely |= doubted
         state.was_refuted |= doubted
