@@ -54,6 +54,7 @@ __all__ = [
     "disconnection",
     "component_labels",
     "format_ranges",
+    "find_root",
     "PoseArrays",
     "poses_of_values",
     "pose2_inserter",
@@ -440,12 +441,7 @@ def odometry_edges(pose_graph: PoseGraph) -> np.ndarray:
     """
     g = pose_graph
     parent = list(range(g.num_poses))
-
-    def root(a: int) -> int:
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
+    root = functools.partial(find_root, parent)
 
     adjacent = np.abs(g.edges[:, 1] - g.edges[:, 0]) == 1
     order = np.concatenate([np.flatnonzero(adjacent), np.flatnonzero(~adjacent)])
@@ -467,6 +463,14 @@ def _soft_priors(factors: Factors, rows: Callable[[list[Any]], np.ndarray]) -> d
     return {"priors": np.array([k for k, _ in factors.soft], dtype=np.int64),
             "prior_poses": rows([pose for _, pose in factors.soft]),
             "prior_information": np.array(factors.soft_information).reshape(-1, size, size)}
+
+
+def find_root(parent: list[int], a: int) -> int:
+    """The root of ``a`` in a union-find forest ``parent`` (paths halved on the way)."""
+    while parent[a] != a:
+        parent[a] = parent[parent[a]]
+        a = parent[a]
+    return a
 
 
 def poses_of_values(values: gtsam.Values, keys: list[int]) -> np.ndarray:

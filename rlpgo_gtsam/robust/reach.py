@@ -24,11 +24,13 @@ arithmetic cannot hold the rest of the map beside it, :func:`check_scale` refuse
 
 from __future__ import annotations
 
+import functools
+
 import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
-from rlpgo_gtsam.graph import PoseGraph
+from rlpgo_gtsam.graph import PoseGraph, find_root
 from rlpgo_gtsam.groups import group_of
 
 __all__ = ["out_of_reach", "check_scale"]
@@ -101,12 +103,7 @@ def _lengths(g: PoseGraph) -> np.ndarray:
 def _spanning_prefix(g: PoseGraph, order: np.ndarray) -> int | None:
     """How many edges of ``order`` from its start span the graph (None: all do not)."""
     parent = list(range(g.num_poses))
-
-    def root(a: int) -> int:
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
+    root = functools.partial(find_root, parent)
 
     pieces = g.num_poses
     for count, (i, j) in enumerate(g.edges[order].tolist(), start=1):
