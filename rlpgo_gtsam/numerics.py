@@ -22,9 +22,18 @@ Stack. GTSAM's elimination walks its Bayes tree recursively (``BayesTree::fillNo
 about 100 bytes of stack a level), and a tree is as deep as the elimination order makes it:
 on a 100,000-pose chain with a closure every 1000 poses COLAMD gives a tree 87,000 levels
 deep, past the main thread's 8 MiB, and the process dies of SIGSEGV (GTSAM's own LM from
-Python does the same). :func:`eliminating_call` runs such a call on a thread whose stack is
-sized for the graph (:func:`elimination_stack_bytes`): the same ordering and the same
-numbers, only a stack deep enough for them.
+Python does the same). :func:`eliminating_call` runs such a call where the stack holds the
+graph's deepest tree (:func:`elimination_stack_bytes`): in place where the calling thread's
+stack is known to, else on a thread started with that stack. The same ordering and the
+same numbers, only a stack deep enough for them.
+
+Memory. glibc's malloc keeps what a large graph's temporaries freed (GTSAM's linearized
+graph and Bayes tree, SciPy's factorizations) on its free lists, scattered between live
+blocks, and the next step does not reuse most of it: on 2 poses joined by 10^6 edges each
+comparison row left 150-600 MB more resident than the one before (2.78 GB in all). After
+an elimination or a row of a large graph (:data:`RELEASE_SIZE` variables and factors or
+more) :func:`release_free_memory` hands those pages back (``malloc_trim``: 2-7 ms and
+page faults after, which the shared benchmark files, all smaller, never pay).
 """
 
 from __future__ import annotations
@@ -37,7 +46,8 @@ from contextlib import contextmanager
 from typing import Any, TypeVar
 
 __all__ = ["numeric_call", "bounded_threads", "one_thread_from_start", "eliminating_call",
-           "elimination_stack_bytes", "USER_THREAD_VARIABLES"]
+           "elimination_stack_bytes", "release_free_memory", "RELEASE_SIZE",
+           "USER_THREAD_VARIABLES"]
 
 USER_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
                          "BLIS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")
@@ -132,32 +142,61 @@ def numeric_call(function: _F) -> _F:
     return call  # type: ignore[return-value]
 
 
-# A tree level took 96-105 bytes of stack (a 10,000-pose chain ran in 1 MiB, 40,000 in 4 MiB);
-# 512 a variable leaves five times that, and the base covers the frames above the recursion.
-_STACK_PER_VARIABLE = 512
-_STACK_BASE = 16 << 20
+# A tree level took 80-100 bytes of stack (chains of 40,000 poses, planar and 3D, LM and
+# InitializePose3: 3 MiB crashed, 5 MiB ran); 256 a variable is 2.5 times that, and the
+# base holds the frames above the recursion.
+_STACK_PER_VARIABLE = 256
+_STACK_BASE = 1 << 20
+# A thread started for an elimination has at least what a main thread usually has.
+_THREAD_STACK_MIN = 8 << 20
 _stack_size_lock = threading.Lock()  # threading.stack_size is process-wide: set, start, restore
 
 
 def elimination_stack_bytes(variables: int) -> int:
-    """The stack :func:`eliminating_call` gives an elimination of ``variables`` variables:
-    16 MiB plus 512 bytes a variable (five times the deepest tree's need), in whole MiB.
-    Reserved address space; only the pages the recursion reaches are used."""
+    """The stack an elimination of ``variables`` variables is given: 1 MiB plus 256 bytes
+    a variable (2.5 times what the deepest tree, one level a variable, took), in whole MiB.
+    """
     size = _STACK_BASE + _STACK_PER_VARIABLE * max(0, int(variables))
     return -(-size // (1 << 20)) << 20
 
 
-def eliminating_call(variables: int, function: Callable[[], _T]) -> _T:
-    """``function()`` (a GTSAM call that eliminates a graph of ``variables`` variables: an
-    optimizer's ``optimize``, Shonan's ``run``, ``InitializePose3``, LAGO) on a thread with
-    :func:`elimination_stack_bytes` of stack; returns its result or raises its exception.
+def eliminating_call(variables: int, function: Callable[[], _T], factors: int = 0) -> _T:
+    """``function()``: a GTSAM call that eliminates a graph of ``variables`` variables and
+    ``factors`` factors (an optimizer's ``optimize``, Shonan's ``run``,
+    ``InitializePose3``, LAGO), on a stack of :func:`elimination_stack_bytes` at least;
+    returns its result or raises its exception, then releases the free memory of a large
+    graph (:func:`release_free_memory`).
 
-    The caller waits for it; a call from inside such a thread with stack enough runs in
-    place. Raises RuntimeError where the system refuses a thread of that stack.
+    Where the calling thread's stack is known to hold that (the main thread's limit, or a
+    thread started here) it runs in place: every shared benchmark file does. Otherwise it
+    runs on a thread started with that stack (8 MiB at least) while the caller waits.
+    Raises RuntimeError where the system refuses a thread of that stack.
     """
+    try:
+        return _on_deep_stack(variables, function)
+    finally:
+        release_free_memory(variables + factors)
+
+
+def _stack_here() -> int:
+    """The calling thread's stack in bytes where it is known: a thread started by
+    :func:`eliminating_call`, or the main thread (its resource limit); 0 otherwise."""
+    started = getattr(_inside, "stack", 0)
+    if started or threading.current_thread() is not threading.main_thread():
+        return started
+    try:
+        import resource
+    except ImportError:  # no resource limits to read (Windows)
+        return 0
+    limit = resource.getrlimit(resource.RLIMIT_STACK)[0]
+    return 1 << 62 if limit == resource.RLIM_INFINITY else limit
+
+
+def _on_deep_stack(variables: int, function: Callable[[], _T]) -> _T:
     size = elimination_stack_bytes(variables)
-    if getattr(_inside, "stack", 0) >= size:
+    if _stack_here() >= size:
         return function()
+    size = max(size, _THREAD_STACK_MIN)
     outcome: list[Any] = []
 
     def run() -> None:
@@ -183,3 +222,26 @@ def eliminating_call(variables: int, function: Callable[[], _T]) -> _T:
     if not succeeded:
         raise result
     return result  # type: ignore[no-any-return]
+
+
+# Variables and factors from which a step's freed memory is handed back: City10K, the
+# largest shared planar file, has 30,697; 10^6 parallel edges freed 600 MB a row.
+RELEASE_SIZE = 100_000
+_trim: list[Any] = []  # glibc's malloc_trim, or None where the C library has none
+
+
+def release_free_memory(size: int) -> None:
+    """After a step on a problem of ``size`` variables and factors, at least
+    :data:`RELEASE_SIZE` of them: hand the C heap's free pages back to the system (glibc's
+    ``malloc_trim(0)``; nothing where the C library has no such call)."""
+    if size < RELEASE_SIZE:
+        return
+    if not _trim:
+        import ctypes
+
+        try:
+            _trim.append(ctypes.CDLL(None).malloc_trim)
+        except (AttributeError, OSError):
+            _trim.append(None)
+    if _trim[0] is not None:
+        _trim[0](0)

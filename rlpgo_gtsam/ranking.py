@@ -16,6 +16,7 @@ import numpy as np
 from rlpgo_gtsam.errors import RlpgoError, one_line
 from rlpgo_gtsam.graph import extract_pose_graph
 from rlpgo_gtsam.initializers import InitResult, make_initializer, start_names
+from rlpgo_gtsam.numerics import release_free_memory
 from rlpgo_gtsam.solvers import RefineResult, refine
 
 if TYPE_CHECKING:
@@ -125,6 +126,7 @@ def initialize_row(
         row.failure = f"{type(error).__name__}: {one_line(error)}"
     if row.init is None:
         row.failed_after_s = time.perf_counter() - began
+    release_free_memory(pose_graph.num_poses + pose_graph.num_edges)
     return row
 
 

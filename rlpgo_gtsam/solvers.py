@@ -145,7 +145,7 @@ def refine(
         if solver == "gn":
             run = functools.partial(_iterate_through_increases, optimizer,
                                     params.getMaxIterations(), tolerance, record)
-        eliminating_call(values.size(), run)
+        eliminating_call(values.size(), run, optimized.size())
     except RuntimeError as error:
         failure = f"{name} failed: {one_line(error)}"
     finally:

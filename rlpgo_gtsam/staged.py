@@ -58,7 +58,7 @@ from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import extract_pose_graph
 from rlpgo_gtsam.groups import SE3
 from rlpgo_gtsam.initializers import InitResult, check_method, initializer_names
-from rlpgo_gtsam.numerics import numeric_call
+from rlpgo_gtsam.numerics import RELEASE_SIZE, numeric_call, release_free_memory
 from rlpgo_gtsam.ranking import MethodResult, best_of, initialize_row, refine_row, start_from
 from rlpgo_gtsam.residuals import outlier_suspicion
 
@@ -172,6 +172,12 @@ def staged_initialize(
               start: InitResult | None = None) -> MethodResult:
         row = initialize_row(g, method, solver, dataset, method_options, start)
         row.method = label
+        if g.num_poses + g.num_edges >= RELEASE_SIZE:
+            # what the stage derived and kept (the translation step's system and factor: a
+            # 216,000-pose chain's 225 MB) is not held through GTSAM's refinement; a later
+            # stage derives it again
+            g.cache.clear()
+            release_free_memory(g.num_poses + g.num_edges)
         refine_row(row, graph, g, iters, deadline, (method_options or {}).get("progress"))
         if row.cut is not None:
             cuts.append(f"{label}: {row.cut}")

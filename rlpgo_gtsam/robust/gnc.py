@@ -138,7 +138,7 @@ def gnc_lm(problem: Problem, start: gtsam.Values, kept: np.ndarray,
     try:
         optimizer = gtsam.GncLMOptimizer(optimized, start, params)
         optimizer.setInlierCostThresholdsAtProbability(settings.inlier_probability)
-        result = eliminating_call(start.size(), optimizer.optimize)
+        result = eliminating_call(start.size(), optimizer.optimize, optimized.size())
     except RuntimeError as error:
         raise SolverError(f"GNC-LM failed: {one_line(error)}") from None
     weights = np.asarray(optimizer.getWeights(), dtype=float).ravel()[problem.factor_of_edge]
