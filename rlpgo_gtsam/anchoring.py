@@ -25,13 +25,16 @@ FIX line and every prior.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any, TypeVar
 
 import numpy as np
 
 from rlpgo_gtsam.graph import PoseGraph
 
 __all__ = ["Anchoring", "anchoring"]
+
+_Proof = TypeVar("_Proof", bound=Any)
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,6 +71,10 @@ class Anchoring:
         full[self.free] = rotations[1:]
         full[self.held] = group.rotations(self.held_poses)
         return full
+
+    def covering(self, proof: _Proof) -> _Proof:
+        """A certificate of the rewritten graph, saying which FIX lines and priors it held."""
+        return replace(proof, fixed_poses=len(self.held), priors=self.priors)
 
     def reduced_rotations(self, rotations: np.ndarray) -> np.ndarray:
         """The rewritten graph's rotations from the original graph's (the world frame's: the

@@ -29,7 +29,7 @@ import importlib
 import inspect
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import gtsam
@@ -527,8 +527,7 @@ class CertifiedInitializer(Initializer):
         poses = poses_with_rotations(solved, rotations)
         if anchored is not None:
             poses = anchored.lifted(poses)
-            certificate = replace(certificate, fixed_poses=len(anchored.held),
-                                  priors=anchored.priors)
+            certificate = anchored.covering(certificate)
         return Estimate(poses, certificate=certificate)
 
 

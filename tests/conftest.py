@@ -19,6 +19,14 @@ DATASETS = Path(
 )
 
 
+def with_factors(graph: gtsam.NonlinearFactorGraph, *factors) -> gtsam.NonlinearFactorGraph:
+    """A copy of ``graph`` with ``factors`` appended (``graph`` itself unchanged)."""
+    grown = gtsam.NonlinearFactorGraph(graph)
+    for factor in factors:
+        grown.add(factor)
+    return grown
+
+
 def dataset(name: str) -> Path:
     """Path of a shared benchmark file; the test is skipped where ../shared is absent."""
     path = DATASETS / name

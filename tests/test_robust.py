@@ -7,6 +7,7 @@ import hashlib
 import gtsam
 import numpy as np
 import pytest
+from conftest import with_factors
 
 from rlpgo_gtsam.errors import GraphError, RlpgoError, SolverError
 from rlpgo_gtsam.graph import PoseGraph2D, chi2, component_labels, edge_chi2, odometry_edges
@@ -690,13 +691,6 @@ def test_clusters_link_nearby_closures_of_several_diagonals():
 FIXED = gtsam.noiseModel.Constrained.All(3)
 
 
-def _with_factors(graph: gtsam.NonlinearFactorGraph, *factors) -> gtsam.NonlinearFactorGraph:
-    grown = gtsam.NonlinearFactorGraph(graph)
-    for factor in factors:
-        grown.add(factor)
-    return grown
-
-
 def _held_moved_by(graph: gtsam.NonlinearFactorGraph, before: gtsam.Values,
                    after: gtsam.Values) -> float:
     """The largest change of a FIXed pose (translation or angle) from ``before``."""
@@ -721,7 +715,7 @@ def _held_moved_by(graph: gtsam.NonlinearFactorGraph, before: gtsam.Values,
 def test_a_measurement_no_map_can_fit_is_rejected_before_the_steps(wild, where, trust):
     clean = generate(*ARGS, np.random.default_rng(3), noisy_measurements=True)
     noise = gtsam.noiseModel.Diagonal.Sigmas([0.05, 0.05, 0.01])
-    graph = _with_factors(clean.graph, *(gtsam.BetweenFactorPose2(i, j, gtsam.Pose2(x, y, 0.3),
+    graph = with_factors(clean.graph, *(gtsam.BetweenFactorPose2(i, j, gtsam.Pose2(x, y, 0.3),
                                                                   noise)
                                          for (x, y), (i, j) in zip(wild, where, strict=True)))
     added = list(range(clean.graph.size(), graph.size()))
@@ -739,7 +733,7 @@ def test_a_closure_beyond_the_map_on_mit_leaves_mit_as_it_was():
     for length in (1e20, 1e300):
         wild = gtsam.BetweenFactorPose2(1, 500, gtsam.Pose2(length, 0.0, 0.0),
                                         gtsam.noiseModel.Unit.Create(3))
-        result = robust_initialize(_with_factors(graph, wild), values)
+        result = robust_initialize(with_factors(graph, wild), values)
         assert result.rejected == [graph.size()]
         assert result.chi2 == pytest.approx(clean.chi2, rel=1e-9)
 
@@ -749,7 +743,7 @@ def test_a_bridge_too_long_for_the_arithmetic_is_a_one_line_error():
     # the map keeps none of its digits (every true closure was rejected, chi2 1e14)
     sample = generate(40, 0.05, 0.05, 1.0, 0.5, np.random.default_rng(0),
                       noisy_measurements=True)
-    graph = _with_factors(sample.graph, gtsam.BetweenFactorPose2(
+    graph = with_factors(sample.graph, gtsam.BetweenFactorPose2(
         3, 1000, gtsam.Pose2(1e50, 0.0, 0.0), gtsam.noiseModel.Unit.Create(3)))
     values = gtsam.Values(sample.initial)
     values.insert(1000, gtsam.Pose2())
@@ -794,7 +788,7 @@ def test_poses_fixed_where_they_are_leave_the_decisions_as_they_were(mode, trust
     # closures go, and the held poses stay to the last digit
     sample = generate(*ARGS, np.random.default_rng(3), noisy_measurements=True, outliers=0.1,
                       outlier_mode=mode)
-    graph = _with_factors(sample.graph, *(gtsam.PriorFactorPose2(
+    graph = with_factors(sample.graph, *(gtsam.PriorFactorPose2(
         k, sample.ground_truth.atPose2(k), FIXED) for k in (0, 120, 250)))
     result = robust_initialize(graph, sample.initial, trust_odometry=trust)
     assert _held_moved_by(graph, sample.ground_truth, result.values) <= 1e-9
@@ -808,7 +802,7 @@ def test_mit_with_fixed_poses_rejects_only_closures_the_fix_contradicts():
     rises from 71 to above 2000 (alone, each raises the optimum by 208 to 914 against its
     bar of 21); without the FIX every closure is kept."""
     graph, values = read_g2o(dataset("MIT.g2o"))
-    fixed = _with_factors(graph, *(gtsam.PriorFactorPose2(k, values.atPose2(k), FIXED)
+    fixed = with_factors(graph, *(gtsam.PriorFactorPose2(k, values.atPose2(k), FIXED)
                                    for k in (1, 400, 800)))
     result = robust_initialize(fixed, values)
     assert _held_moved_by(fixed, values, result.values) <= 1e-9
@@ -824,7 +818,7 @@ def test_untrusted_odometry_beside_fixed_poses_places_every_pose():
     # the FIX strains the odometry next to the held poses: rejected there on both sides of a
     # pose, nothing would place it; the edge that fits it best stays
     graph, values = read_g2o(dataset("MIT.g2o"))
-    fixed = _with_factors(graph, *(gtsam.PriorFactorPose2(k, values.atPose2(k), FIXED)
+    fixed = with_factors(graph, *(gtsam.PriorFactorPose2(k, values.atPose2(k), FIXED)
                                    for k in (1, 400, 800)))
     result = robust_initialize(fixed, values, trust_odometry=False)
     assert _held_moved_by(fixed, values, result.values) <= 1e-9
@@ -840,7 +834,7 @@ def test_every_pose_held_is_judged_at_the_held_poses(trust):
     graph, values = _ring(10, list(range(10)), wrong=True)
     wild = gtsam.BetweenFactorPose2(2, 7, gtsam.Pose2(1e300, 0.0, 0.0),
                                     gtsam.noiseModel.Unit.Create(3))
-    graph = _with_factors(graph, wild)
+    graph = with_factors(graph, wild)
     result = robust_initialize(graph, values, trust_odometry=trust)
     assert [step.name for step in result.steps] == ["held"]
     for k in range(10):

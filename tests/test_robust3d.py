@@ -9,6 +9,7 @@ from dataclasses import replace
 import gtsam
 import numpy as np
 import pytest
+from conftest import with_factors
 
 from rlpgo_gtsam.errors import GraphError
 from rlpgo_gtsam.graph import PoseGraph3D, extract_pose_graph
@@ -182,13 +183,6 @@ def test_the_robust_steps_judge_cubicle_by_its_printed_blocks(tmp_path):
 FIXED = gtsam.noiseModel.Constrained.All(6)
 
 
-def _with_factors(graph: gtsam.NonlinearFactorGraph, *factors) -> gtsam.NonlinearFactorGraph:
-    grown = gtsam.NonlinearFactorGraph(graph)
-    for factor in factors:
-        grown.add(factor)
-    return grown
-
-
 def _moved(before: gtsam.Values, after: gtsam.Values, keys) -> float:
     return max(float(np.abs(gtsam.Pose3.Logmap(
         before.atPose3(k).between(after.atPose3(k)))).max()) for k in keys)
@@ -200,7 +194,7 @@ def test_a_3d_closure_no_map_can_fit_is_rejected_before_the_steps(translation, t
     sample = generate(*ARGS, np.random.default_rng(1), noisy_measurements=True, group=SE3)
     wild = gtsam.BetweenFactorPose3(5, 150, gtsam.Pose3(gtsam.Rot3(), np.array(translation)),
                                     gtsam.noiseModel.Unit.Create(6))
-    graph = _with_factors(sample.graph, wild)
+    graph = with_factors(sample.graph, wild)
     expected = robust_initialize(sample.graph, sample.initial, trust_odometry=trust)
     result = robust_initialize(graph, sample.initial, trust_odometry=trust)
     assert result.steps[0].name == "reach"
@@ -213,7 +207,7 @@ def test_3d_poses_fixed_where_they_are_stay_and_leave_the_decisions(trust):
     sample = generate(*ARGS, np.random.default_rng(1), noisy_measurements=True, outliers=0.1,
                       outlier_mode="random", group=SE3)
     held = (0, 70, 140)
-    graph = _with_factors(sample.graph, *(gtsam.PriorFactorPose3(
+    graph = with_factors(sample.graph, *(gtsam.PriorFactorPose3(
         k, sample.ground_truth.atPose3(k), FIXED) for k in held))
     result = robust_initialize(graph, sample.initial, trust_odometry=trust)
     assert _moved(sample.ground_truth, result.values, held) <= 1e-9
@@ -224,7 +218,7 @@ def test_fixed_3d_poses_away_from_the_optimum_do_not_move():
     # held where the start guess puts them, off the map the closures want: still held
     graph, values = read_g2o(dataset("3d/smallGrid3D.g2o"))
     held = (0, 40, 80)
-    graph = _with_factors(graph, *(gtsam.PriorFactorPose3(k, values.atPose3(k), FIXED)
+    graph = with_factors(graph, *(gtsam.PriorFactorPose3(k, values.atPose3(k), FIXED)
                                    for k in held))
     result = robust_initialize(graph, values)
     assert _moved(values, result.values, held) <= 1e-9
@@ -234,7 +228,7 @@ def test_a_3d_graph_with_every_pose_fixed_hands_over_the_held_poses():
     graph, values = read_g2o(dataset("3d/tinyGrid3D.g2o"))
     wild = gtsam.BetweenFactorPose3(0, 5, gtsam.Pose3(gtsam.Rot3(), np.array([1e300, 0, 0])),
                                     gtsam.noiseModel.Unit.Create(6))
-    graph = _with_factors(graph, wild, *(gtsam.PriorFactorPose3(k, values.atPose3(k), FIXED)
+    graph = with_factors(graph, wild, *(gtsam.PriorFactorPose3(k, values.atPose3(k), FIXED)
                                          for k in values.keys()))
     result = robust_initialize(graph, values)
     assert [step.name for step in result.steps] == ["held"]
@@ -244,7 +238,7 @@ def test_a_3d_graph_with_every_pose_fixed_hands_over_the_held_poses():
 
 def test_a_3d_bridge_too_long_for_the_arithmetic_is_a_one_line_error():
     sample = generate(60, 0.02, 0.05, 1.0, 0.5, np.random.default_rng(0), group=SE3)
-    graph = _with_factors(sample.graph, gtsam.BetweenFactorPose3(
+    graph = with_factors(sample.graph, gtsam.BetweenFactorPose3(
         3, 1000, gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, 1e40])),
         gtsam.noiseModel.Unit.Create(6)))
     values = gtsam.Values(sample.initial)

@@ -18,12 +18,11 @@ import functools
 import math
 import time
 from collections.abc import Callable
-from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rlpgo_gtsam.anchoring import Anchoring, anchoring
+from rlpgo_gtsam.anchoring import anchoring
 from rlpgo_gtsam.errors import GraphError, SolverError
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.relaxation.certificate import Certificate, Check, Status, certificate
@@ -106,7 +105,7 @@ def synchronize(pose_graph: PoseGraph, start: np.ndarray | None = None, *,
             initial_rank=initial_rank, max_iterations=max_iterations,
             gradient_tolerance=gradient_tolerance, time_limit_s=time_limit_s,
             progress=progress, finish_per_start=finish_per_start)
-        return anchored.lifted_rotations(rotations), _covering(proof, anchored)
+        return anchored.lifted_rotations(rotations), anchored.covering(proof)
     kind = relaxation_type(pose_graph)  # its first call imports the module: not the solve's time
     started = time.perf_counter()
     lowest = kind.lowest_rank
@@ -150,8 +149,8 @@ def certify(pose_graph: PoseGraph, rotations: np.ndarray, *,
     """
     anchored = anchoring(pose_graph)
     if anchored is not None:
-        return _covering(certify(anchored.graph, anchored.reduced_rotations(rotations),
-                                 tolerance=tolerance), anchored)
+        return anchored.covering(certify(anchored.graph, anchored.reduced_rotations(rotations),
+                                         tolerance=tolerance))
     started = time.perf_counter()
     problem = relaxation_type(pose_graph)(pose_graph)
     eta = problem.tolerance(tolerance)
@@ -191,11 +190,6 @@ def descend(pose_graph: PoseGraph, *, max_iterations: int,
     y = polish(problem, problem.manifold(), problem.start(None), eta, max_iterations, grad_tol,
                None)
     return problem.anchored(problem.unstacked(y))[0]
-
-
-def _covering(proof: Certificate, anchored: Anchoring) -> Certificate:
-    """``proof`` of the one-anchor problem, saying which FIX lines and priors it covers."""
-    return replace(proof, fixed_poses=len(anchored.held), priors=anchored.priors)
 
 
 def relaxation_type(pose_graph: PoseGraph) -> type[Relaxation]:
