@@ -31,6 +31,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from rlpgo_gtsam.graph import PoseGraph
+from rlpgo_gtsam.landmarks import Points
 
 __all__ = ["Anchoring", "anchoring"]
 
@@ -47,7 +48,8 @@ class Anchoring:
         free: (f,) the original indices of the rewritten poses 1..f.
         held: (h,) the original indices of the held (FIXed) poses.
         held_poses: (h, ...) their held poses, in the group's form.
-        priors: how many soft priors entered the problem as edges.
+        priors: how many soft priors (on poses and on landmarks) entered the problem as
+            edges.
     """
 
     graph: PoseGraph
@@ -94,7 +96,9 @@ def anchoring(pose_graph: PoseGraph) -> Anchoring | None:
         return g.cache["anchoring"]
     fixed = np.unique(g.fixed)
     priors = len(g.priors)
-    plain = (len(fixed) <= 1 and priors == 0) or (len(fixed) == 0 and priors <= 1)
+    point_priors = 0 if g.points is None else len(g.points.priors)
+    plain = point_priors == 0 and ((len(fixed) <= 1 and priors == 0)
+                                   or (len(fixed) == 0 and priors <= 1))
     result = None if plain else _rewritten(g, fixed)
     g.cache["anchoring"] = result
     return result
@@ -138,4 +142,40 @@ def _rewritten(g: PoseGraph, fixed: np.ndarray) -> Anchoring:
     poses = np.concatenate([group.identity(1), g.poses[free]])
     graph = group.anchored_graph(g, keys, poses, np.concatenate(edges).astype(np.int64),
                                  np.concatenate(measurements), np.concatenate(informations))
-    return Anchoring(graph, free, held, np.asarray(held_poses), int(on_free.sum()))
+    if g.points is not None:
+        graph = replace(graph, points=_anchored_points(g, g.points, is_held, position,
+                                                       held_at, np.asarray(held_poses)))
+    priors = int(on_free.sum()) + (0 if g.points is None else len(g.points.priors))
+    return Anchoring(graph, free, held, np.asarray(held_poses), priors)
+
+
+def _anchored_points(g: PoseGraph, points: Points, is_held: np.ndarray, position: np.ndarray,
+                     held_at: np.ndarray, held_poses: np.ndarray) -> Points:
+    """The landmarks of the one-anchor problem: a measurement from a free pose keeps its
+    pose's new index; one from a held pose ``k`` is one from the world frame measuring
+    ``t_k + R_k z`` with information ``R_k I R_k^T`` (its residual ``R_k^T (l - t_k) - z`` is
+    ``R_k^T`` times the world frame's); a point prior is a measurement from the world frame."""
+    group = g.group
+    i = points.edges[:, 0]
+    from_held = is_held[i]
+    held = held_poses[held_at[i[from_held]]]
+    rotations = group.rotation_matrices(group.rotations(held))
+    measured = points.measured.copy()
+    measured[from_held] = group.translations(held) + np.einsum("kab,kb->ka", rotations,
+                                                               measured[from_held])
+    information = points.information.copy()
+    information[from_held] = rotations @ information[from_held] @ np.transpose(rotations,
+                                                                               (0, 2, 1))
+    pose = np.where(from_held, 0, position[i])
+    d = points.dimension
+    prior_values = np.zeros((0, d)) if points.prior_values is None else points.prior_values
+    prior_information = (np.zeros((0, d, d)) if points.prior_information is None
+                         else points.prior_information)
+    return replace(
+        points,
+        edges=np.concatenate([np.column_stack([pose, points.edges[:, 1]]),
+                              np.column_stack([np.zeros(len(points.priors), np.int64),
+                                               points.priors])]).astype(np.int64),
+        measured=np.concatenate([measured, prior_values]),
+        information=np.concatenate([information, prior_information]),
+        priors=np.zeros(0, np.int64), prior_values=None, prior_information=None)

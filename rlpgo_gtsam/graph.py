@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any, ClassVar
 
@@ -38,6 +38,7 @@ import numpy as np
 from rlpgo_gtsam.errors import GraphError
 from rlpgo_gtsam.groups import SE2, SE3, Group, graph_group, pose3_arrays
 from rlpgo_gtsam.information import Factors, printed_of, sort_factors
+from rlpgo_gtsam.landmarks import Carried, Points, place_points, split_graph
 from rlpgo_gtsam.se3 import pose_matrices
 
 __all__ = [
@@ -100,6 +101,9 @@ class PoseArrays:
     prior_poses: np.ndarray | None = None
     prior_information: np.ndarray | None = None
     world_frame: bool = False
+    points: Points | None = field(default=None, repr=False, compare=False)
+    carried: tuple[Carried, ...] = ()
+    carried_values: gtsam.Values | None = field(default=None, repr=False, compare=False)
     graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
     cache: dict[str, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -126,6 +130,27 @@ class PoseArrays:
     @property
     def num_edges(self) -> int:
         return len(self.edges)
+
+    @property
+    def whole(self) -> bool:
+        """Whether the graph holds more than poses: landmarks, carried factors or other
+        variables (their values complete :meth:`to_values`)."""
+        return self.points is not None or self.carried_values is not None
+
+    def with_others(self, values: gtsam.Values, poses: np.ndarray) -> gtsam.Values:
+        """``values`` (the poses) completed with the other variables: the landmarks placed
+        given ``poses`` (:func:`~rlpgo_gtsam.landmarks.place_points`), every other variable at
+        its value in the user's values."""
+        if self.points is not None:
+            group = self.group
+            rotations = group.rotation_matrices(group.rotations(poses))
+            placed = place_points(self.points, rotations, group.translations(poses))
+            point = gtsam.Point2 if self.points.dimension == 2 else gtsam.Point3
+            for key, position in zip(self.points.keys.tolist(), placed, strict=True):
+                values.insert(key, point(*position))
+        if self.carried_values is not None and self.carried_values.size():
+            values.insert(self.carried_values)
+        return values
 
     def check_connected(self) -> None:
         """Raise :class:`GraphError` naming the components if the graph is not connected.
@@ -224,7 +249,7 @@ class PoseGraph2D(PoseArrays):
         insert, pose2 = pose2_inserter(values), gtsam.Pose2
         for key, x, y, theta in zip(self.keys.tolist(), *poses.T.tolist(), strict=True):
             insert(key, pose2(x, y, theta))
-        return values
+        return self.with_others(values, poses) if self.whole else values
 
     def poses_of(self, values: gtsam.Values) -> np.ndarray:
         """(n, 3) x, y, theta of ``values`` in this graph's pose order."""
@@ -387,7 +412,7 @@ class PoseGraph3D(PoseArrays):
         pose3, rot3 = gtsam.Pose3, gtsam.Rot3
         for key, pose in zip(self.keys.tolist(), np.asarray(poses, float), strict=True):
             insert(key, pose3=pose3(rot3(pose[:, :3]), pose[:, 3]))
-        return values
+        return self.with_others(values, poses) if self.whole else values
 
     def poses_of(self, values: gtsam.Values) -> np.ndarray:
         """(n, 3, 4) ``[R | t]`` of ``values`` in this graph's order."""
@@ -402,8 +427,56 @@ _GRAPH_OF_GROUP: dict[Group, type[PoseGraph2D] | type[PoseGraph3D]] = {
 def extract_pose_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> PoseGraph:
     """The one extraction of a pose graph of either group, by what it holds
     (:func:`~rlpgo_gtsam.groups.graph_group`): :class:`PoseGraph2D` or :class:`PoseGraph3D`.
-    A graph mixing both is the chosen one's ``GraphError``."""
-    return _GRAPH_OF_GROUP[graph_group(graph)].from_gtsam(graph, values)
+    A graph mixing both is the chosen one's ``GraphError``.
+
+    A whole graph (landmarks measured by bearing and range, point priors, factors of other
+    kinds, other variables) is taken apart (:func:`~rlpgo_gtsam.landmarks.split_graph`): its
+    pose factors make the pose graph, the landmarks its ``points``, the rest is ``carried``
+    (refined, not modeled); ``graph`` stays the user's whole graph, and
+    :meth:`~PoseArrays.to_values` completes every estimate with the other variables.
+    """
+    group = graph_group(graph)
+    extraction = _GRAPH_OF_GROUP[group]
+    try:
+        return extraction.from_gtsam(graph, values)
+    except GraphError as error:
+        refused = error
+    split = split_graph(graph, values, group)
+    if not (split.measurements or split.point_priors or split.carried
+            or split.carried_values.size()):
+        raise refused
+    pose_graph = extraction.from_gtsam(split.pose_factors, split.pose_values)
+    return replace(pose_graph, graph=graph, points=_points(pose_graph, split),
+                   carried=split.carried, carried_values=split.carried_values)
+
+
+def _points(pose_graph: PoseGraph, split: Any) -> Points | None:
+    """The landmarks of a split graph as arrays indexed by ``pose_graph``'s poses."""
+    if not split.measurements and not split.point_priors:
+        return None
+    d = pose_graph.group.d
+    pose_index = {int(key): k for k, key in enumerate(pose_graph.keys)}
+    point_index = {key: k for k, key in enumerate(split.point_keys)}
+    rotations = pose_graph.group.rotation_matrices(pose_graph.group.rotations(pose_graph.poses))
+    positions = pose_graph.group.translations(pose_graph.poses)
+    values = np.zeros((len(split.point_keys), d))
+    have = np.zeros(len(split.point_keys), bool)
+    for key, value in split.point_values.items():
+        values[point_index[key]], have[point_index[key]] = value, True
+    edges = np.array([(pose_index[pose], point_index[point])
+                      for pose, point, _, _ in split.measurements], np.int64).reshape(-1, 2)
+    measured = np.array([p for _, _, p, _ in split.measurements]).reshape(-1, d)
+    for (i, k), z in zip(edges, measured, strict=True):
+        if not have[k]:  # no value: where its first sighting puts it
+            values[k], have[k] = positions[i] + rotations[i] @ z, True
+    priors = split.point_priors
+    return Points(
+        keys=np.array(split.point_keys, np.uint64), values=values, edges=edges,
+        measured=measured,
+        information=np.array([info for _, _, _, info in split.measurements]).reshape(-1, d, d),
+        priors=np.array([point_index[key] for key, _, _ in priors], np.int64),
+        prior_values=np.array([value for _, value, _ in priors]).reshape(-1, d),
+        prior_information=np.array([info for _, _, info in priors]).reshape(-1, d, d))
 
 
 def _poses(values: gtsam.Values, keys: list[int]) -> tuple[np.ndarray, np.ndarray]:

@@ -107,6 +107,10 @@ class Group:
         """The poses' rotations: angles (k,) or matrices (k, 3, 3)."""
         raise NotImplementedError
 
+    def rotation_matrices(self, rotations: np.ndarray) -> np.ndarray:
+        """(n, d, d) matrices of rotations in the group's form (angles or matrices)."""
+        return se2.rotation_matrices(rotations) if self.d == 2 else np.asarray(rotations)
+
     def with_positions(self, rotations: np.ndarray, positions: np.ndarray) -> np.ndarray:
         """Poses of the given rotations and (k, d) positions."""
         raise NotImplementedError

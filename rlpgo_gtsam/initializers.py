@@ -29,7 +29,7 @@ import importlib
 import inspect
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import gtsam
@@ -47,6 +47,7 @@ from rlpgo_gtsam.graph import (
     rotation_weights,
 )
 from rlpgo_gtsam.groups import GROUPS, SE2, SE3, Group
+from rlpgo_gtsam.landmarks import outside_kinds
 from rlpgo_gtsam.numerics import eliminating_call, numeric_call
 from rlpgo_gtsam.translations import poses_with_rotations
 
@@ -528,7 +529,23 @@ class CertifiedInitializer(Initializer):
         if anchored is not None:
             poses = anchored.lifted(poses)
             certificate = anchored.covering(certificate)
-        return Estimate(poses, certificate=certificate)
+        return Estimate(poses, certificate=covering_whole(pose_graph, certificate))
+
+
+def covering_whole(pose_graph: PoseGraph, certificate: Any) -> Any:
+    """A certificate that says how many landmarks it held, and, where the graph holds factors
+    the relaxation does not model, that it does not apply (``not_applicable``, naming them,
+    what the relaxation found on the rest kept in ``relaxed``)."""
+    from rlpgo_gtsam.relaxation import Status
+
+    points = pose_graph.points
+    if points is not None:
+        certificate = replace(certificate, points=points.count)
+    if pose_graph.carried:
+        certificate = replace(certificate, status=Status.NOT_APPLICABLE,
+                              outside=outside_kinds(pose_graph.carried),
+                              relaxed=str(certificate.status))
+    return certificate
 
 
 # The planar comparison's classical rows.

@@ -198,8 +198,13 @@ def staged_initialize(
         run.stopped = (f"time budget of {budget_s:g} s spent during the certified stage: its "
                        "best estimate so far, not certified")
     else:
-        why = "relaxation not certified" if certificate is not None else \
-            f"certified stage failed ({first.failure})"
+        if certificate is None:
+            why = f"certified stage failed ({first.failure})"
+        elif certificate.outside:
+            why = (f"the certificate does not apply ({', '.join(certificate.outside)} outside "
+                   "the relaxation)")
+        else:
+            why = "relaxation not certified"
         planned = list(searches)
         if certificate is None and all(m != _FALLBACK for m, _ in planned):
             planned.insert(0, (_FALLBACK, False))  # something must give a result

@@ -111,6 +111,29 @@ class TranslationStep:
         """The step :meth:`shared` keeps (the planar one may reuse its factorization)."""
         return cls(pose_graph)
 
+    def with_points(self, rotations: np.ndarray) -> np.ndarray:
+        """(n, d) positions of least cost for ``rotations`` (used as given) where the graph
+        has landmarks: the poses' and the points' positions solved together, each
+        measurement a whitened residual ``W R_i^T (l - t_i) - W z`` (``W^T W`` its
+        information), the points left out of the result (:meth:`PoseGraph2D.to_values`
+        places them again, at the same positions, as they depend on the poses alone)."""
+        g = self.pose_graph
+        points, n = g.points, g.num_poses
+        a_j, b = self.whitened(rotations)
+        turned = np.transpose(g.group.rotation_matrices(rotations)[points.edges[:, 0]],
+                              (0, 2, 1))
+        try:
+            w = np.transpose(np.linalg.cholesky(points.information), (0, 2, 1))
+        except np.linalg.LinAlgError:
+            raise SolverError("a landmark measurement's information is not positive "
+                              "definite") from None
+        a = np.concatenate([a_j, w @ turned])
+        edges = np.concatenate([g.edges, np.column_stack([points.edges[:, 0],
+                                                          n + points.edges[:, 1]])])
+        rhs = np.concatenate([b, np.einsum("kab,kb->ka", w, points.measured)])
+        return solve_block_pairwise(n + points.count, edges, -a, a, rhs, self.held,
+                                    self.held_positions)[:n]
+
     def whitened(self, rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The residuals ``A_e (t_j - t_i) - b_e`` at ``rotations`` (whitened, d dof:
         ``W (e_t + Lambda_tt^-1 Lambda_tR e_R)``): (m, d, d) blocks ``A_e``, (m, d) ``b_e``."""
@@ -214,6 +237,8 @@ class _PlanarStep(TranslationStep):
     def positions(self, rotations, gauge=True):
         if gauge:
             rotations = self.in_gauge(rotations)
+        if self.pose_graph.points is not None:
+            return self.with_points(rotations)
         a, b = self.whitened(rotations)
         return self.system.solve(-a, a, b, self.held_positions)
 
@@ -263,6 +288,8 @@ class _SpatialStep(TranslationStep):
         if gauge:
             rotations = self.in_gauge(rotations)
         g = self.pose_graph
+        if g.points is not None:
+            return self.with_points(rotations)
         a_j, b = self.whitened(rotations)
         positions = solve_isotropic(g.num_poses, g.edges, a_j, b, self.held,
                                     self.held_positions)

@@ -49,6 +49,10 @@ class Status(str, Enum):
     """``time_limit_s`` passed: the best ``Y`` so far was rounded. Stopped inside a trust
     region, nothing was verified: ``min_eigenvalue``, ``lower_bound`` and
     ``suboptimality_bound`` are NaN."""
+    NOT_APPLICABLE = "not_applicable"
+    """The graph holds factors the relaxation does not model (``outside``): whatever the
+    relaxation proved of the part it models (``relaxed``), it says nothing of the whole
+    graph's optimum."""
     NOT_OPTIMAL = "not_optimal"
     """:func:`~rlpgo_gtsam.relaxation.certify` only: ``S`` has an eigenvalue below ``-eta``
     at the estimate given, which is not the relaxation's optimum (no optimization was
@@ -97,7 +101,13 @@ class Certificate:
         seconds: wall time of the call.
         fixed_poses: how many FIXed poses the relaxation held beside its gauge's frame (0: the
             graph's one anchor fixed the gauge; see :mod:`rlpgo_gtsam.anchoring`).
-        priors: how many soft priors it holds as edges from the world frame.
+        priors: how many soft priors (on poses and landmarks) it holds as edges from the
+            world frame.
+        points: how many landmarks it holds (translation-only variables).
+        outside: the factors of the graph it does not model, by kind (``"RangeFactor2D x
+            3"``); where there are any the status is ``not_applicable``.
+        relaxed: where ``outside`` is not empty, what the relaxation found on the part it
+            models (a :class:`Status` value); empty otherwise.
     """
 
     status: Status
@@ -110,6 +120,9 @@ class Certificate:
     seconds: float
     fixed_poses: int = 0
     priors: int = 0
+    points: int = 0
+    outside: tuple[str, ...] = ()
+    relaxed: str = ""
 
     @property
     def certified(self) -> bool:
@@ -123,14 +136,24 @@ class Certificate:
         record: dict = {"status": Status(self.status).value, "certified": self.certified}
         for item in fields(self)[1:]:
             value = getattr(self, item.name)
-            record[item.name] = value if isinstance(value, int) else \
-                (float(value) if math.isfinite(value) else None)
+            if isinstance(value, (int, str)):
+                record[item.name] = value
+            elif isinstance(value, tuple):
+                record[item.name] = list(value)
+            else:
+                record[item.name] = float(value) if math.isfinite(value) else None
         return record
 
     def describe(self) -> str:
         """One line: the verdict (the reason when not certified), the numbers, the time."""
         if self.certified:
             verdict, rank = "certified optimal", f"rank {self.rank}, "
+        elif self.status == Status.NOT_APPLICABLE:
+            found = "exact" if self.relaxed == Status.CERTIFIED.value else \
+                f"not exact: {_REASONS[Status(self.relaxed)]}"
+            verdict = (f"not applicable: {', '.join(self.outside)} outside the relaxation (on "
+                       f"the part it models: {found})")
+            rank = f"rank {self.rank}, "
         else:
             reason = _REASONS[Status(self.status)]
             verdict, rank = f"NOT certified: {reason} at rank {self.rank}", ""
@@ -139,9 +162,10 @@ class Certificate:
         else:
             bounds = (f"lower bound {self.lower_bound:.6g}, suboptimality bound "
                       f"{self.suboptimality_bound:.3g}; lambda_min {self.min_eigenvalue:.3g}")
-        covers = ""
-        if self.fixed_poses or self.priors:
-            covers = f"with {self.fixed_poses} FIXed poses and {self.priors} priors inside, "
+        inside = [f"{count} {what}" for count, what in
+                  ((self.fixed_poses, "FIXed poses"), (self.priors, "priors"),
+                   (self.points, "landmarks")) if count]
+        covers = f"with {' and '.join(inside)} inside, " if inside else ""
         return (f"{verdict} (relaxation cost {self.estimate_cost:.6g}, {bounds}, tolerance "
                 f"{self.tolerance:.3g}, {rank}{covers}{self.seconds:.2f} s)")
 

@@ -125,17 +125,22 @@ class PlanarProblem(Relaxation):
         rows, cols = np.concatenate([i, j, j, i]), np.concatenate([i, j, i, j])
         rot = sp.coo_matrix((np.concatenate([a, a, -a * r, -a * np.conj(r)]), (rows, cols)),
                             shape=(n, n)).tocsr()
+        # landmarks: translation-only nodes n.. measured from pose i as t_l - t_i - c z_i,
+        # the same translation term as an edge's, without a rotation term
+        i, j, tau, c = self.translation_terms(i, j, tau, c)
+        size = self.translation_nodes
         diag = sp.coo_matrix((tau * np.abs(c) ** 2, (i, i)), shape=(n, n)).tocsr()
         self.anchor = g.anchor
         self.rot = rot
         self.d = (rot + diag).tocsr()
-        keep = np.delete(np.arange(n), g.anchor)
+        keep = np.delete(np.arange(size), g.anchor)
+        rows, cols = np.concatenate([i, j, j, i]), np.concatenate([i, j, i, j])
         lap = sp.coo_matrix((np.concatenate([tau, tau, -tau, -tau]), (rows, cols)),
-                            shape=(n, n)).tocsr()
+                            shape=(size, size)).tocsr()
         # residual t_j - t_i - c z_i: coupling -2 Re(t^H B z), B[j, i] += tau c, B[i, i] -= tau c
         coupling = sp.coo_matrix((np.concatenate([tau * c, -tau * c]),
                                   (np.concatenate([j, i]), np.concatenate([i, i]))),
-                                 shape=(n, n)).tocsr()
+                                 shape=(size, n)).tocsr()
         self.lap = lap[keep][:, keep].tocsc()
         self.b = coupling[keep].tocsr()
         self.bh = self.b.conj().T.tocsr()
@@ -151,6 +156,34 @@ class PlanarProblem(Relaxation):
             raise SolverError("every edge has zero information: nothing to synchronize")
         self._layout: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._tangent: tuple | None = None
+
+    def translation_terms(self, i: np.ndarray, j: np.ndarray, tau: np.ndarray,
+                          c: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The edges' translation terms (i, j, tau, c complex) and the landmarks' after them
+        (:meth:`Relaxation.point_terms`)."""
+        pose, node, weight, measured = self.point_terms()
+        return (np.concatenate([i, pose]), np.concatenate([j, node]),
+                np.concatenate([tau, weight]),
+                np.concatenate([c, measured[:, 0] + 1j * measured[:, 1]]))
+
+    def _interleaved(self, width: int) -> tuple[np.ndarray, np.ndarray]:
+        """Positions in a block matrix of the translation rows (``width`` rows each) and of
+        the rotation rows (n,): each pose's rotation row right after its translation's,
+        landmarks' translations alone, in the translation Laplacian's fill-reducing order
+        (its factor's column order), the anchor's rotation last. SuperLU's own ordering of
+        the whole block found the same fill at about twice the time."""
+        n = self.n
+        order = np.argsort(self.lap_lu.perm_c)  # translation rows in elimination order
+        node = np.delete(np.arange(self.translation_nodes), self.anchor)[order]
+        is_pose = node < n
+        span = width + is_pose
+        start = np.concatenate([[0], np.cumsum(span)[:-1]])
+        pos_t = np.empty(len(node), np.int64)
+        pos_t[order] = start
+        pos_z = np.empty(n, np.int64)
+        pos_z[node[is_pose]] = start[is_pose] + width
+        pos_z[self.anchor] = int(np.sum(span))
+        return pos_t, pos_z
 
     def apply(self, y: np.ndarray) -> np.ndarray:
         """Q y for y (n, r) complex: one solve of the translation Laplacian's factor with the
@@ -173,14 +206,7 @@ class PlanarProblem(Relaxation):
         translation Laplacian's own fill-reducing order (its factor's column order, anchor's
         rotation last); and the positions of the rotation rows. SuperLU's own ordering of the
         2n - 1 rows found the same fill at about twice the time."""
-        n, m = self.n, self.n - 1
-        order = np.argsort(self.lap_lu.perm_c)  # translation rows in elimination order
-        keep = np.delete(np.arange(n), self.anchor)
-        pos_t = np.empty(m, np.int64)
-        pos_t[order] = 2 * np.arange(m)
-        pos_z = np.empty(n, np.int64)
-        pos_z[keep[order]] = 2 * np.arange(m) + 1
-        pos_z[self.anchor] = 2 * m
+        pos_t, pos_z = self._interleaved(1)
         lap, b, d = self.lap.tocoo(), self.b.tocoo(), self.d.tocoo()
         rows = np.concatenate([pos_t[lap.row], pos_t[b.row], pos_z[b.col], pos_z[d.row]])
         cols = np.concatenate([pos_t[lap.col], pos_z[b.col], pos_t[b.row], pos_z[d.col]])
@@ -193,7 +219,7 @@ class PlanarProblem(Relaxation):
         if self._layout is None:
             self._layout = self._block_layout()
         rows, cols, data, pos_z = self._layout
-        size = 2 * self.n - 1
+        size = self.translation_nodes - 1 + self.n
         block = sp.coo_matrix((np.concatenate([data, shift.astype(complex)]),
                                (np.concatenate([rows, pos_z]), np.concatenate([cols, pos_z]))),
                               shape=(size, size)).tocsc()
@@ -230,7 +256,7 @@ class PlanarProblem(Relaxation):
         diagonal = np.real(np.conj(z[d.row]) * d.data * z[d.col])
         data = np.concatenate([lap.data, lap.data, -w.real, -w.real, -w.imag, -w.imag,
                                diagonal, delta - lam])
-        size = 3 * self.n - 2
+        size = 2 * (self.translation_nodes - 1) + self.n
         block = sp.coo_matrix((data, (rows, cols)), shape=(size, size)).tocsc()
         try:
             lu = splu(block, permc_spec="NATURAL", diag_pivot_thresh=0.0,
@@ -243,15 +269,8 @@ class PlanarProblem(Relaxation):
         """The index arrays of :meth:`tangent_factor`'s matrix (its data in that order: L
         twice, -Wr twice, -Wi twice, Re(Z^H D Z), the diagonal), the angle rows' positions,
         and L, B and D as COO."""
-        n, m = self.n, self.n - 1
-        order = np.argsort(self.lap_lu.perm_c)  # translation rows in elimination order
-        keep = np.delete(np.arange(n), self.anchor)
-        pos_x = np.empty(m, np.int64)
-        pos_x[order] = 3 * np.arange(m)
+        pos_x, pos_a = self._interleaved(2)
         pos_y = pos_x + 1
-        pos_a = np.empty(n, np.int64)
-        pos_a[keep[order]] = 3 * np.arange(m) + 2
-        pos_a[self.anchor] = 3 * m
         lap, b, d = self.lap.tocoo(), self.b.tocoo(), self.d.tocoo()
         rows = np.concatenate([pos_x[lap.row], pos_y[lap.row], pos_x[b.row], pos_a[b.col],
                                pos_y[b.row], pos_a[b.col], pos_a[d.row], pos_a])

@@ -77,6 +77,28 @@ class Relaxation:
                 and np.isfinite(g.group.measured(g)).all()):
             raise GraphError("the relaxation needs finite measurements and information")
         self.pose_graph, self.n, self.kappa, self.tau = g, g.num_poses, kappa, tau
+        points = g.points
+        if points is not None:
+            if len(points.priors):
+                raise GraphError("point priors enter the relaxation as edges from a world "
+                                 "frame (rlpgo_gtsam.anchoring), not as given")
+            if not (np.isfinite(points.measured).all() and np.isfinite(points.weights()).all()):
+                raise GraphError("the relaxation needs finite landmark measurements and "
+                                 "information")
+        self.translation_nodes = self.n + (0 if points is None else points.count)
+
+    def point_terms(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The landmarks' translation terms ``tau || t_l - t_i - R_i z ||^2`` as edges between
+        translation nodes: measuring pose (k,), the point's node (k,) (``n`` + its index),
+        ``tau`` (k,) (:func:`~rlpgo_gtsam.landmarks.point_weights`) and ``z`` (k, d); empty
+        without landmarks."""
+        points = self.pose_graph.points
+        if points is None:
+            d = self.pose_graph.group.d
+            return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0),
+                    np.zeros((0, d)))
+        return (points.edges[:, 0], self.n + points.edges[:, 1], points.weights(),
+                points.measured)
 
     # Q as an operator, the methods of a subclass (see the class docstring)
     apply: Callable[[np.ndarray], np.ndarray]

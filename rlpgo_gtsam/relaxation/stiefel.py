@@ -91,7 +91,6 @@ _REFLECT = np.diag([1.0, 1.0, -1.0])
 _EYE, _AXES = np.eye(3), np.arange(3)
 # an edge's translation terms: v = (-t~, -1, 1) on the places (X_i, t_i, t_j) of its 8
 _STEP = np.array([[-1.0, 1.0]])
-_TRANSLATION_AXES = np.array([0, 1, 2, 6, 7])
 # (Q + delta I)^-1 preconditions the Hessian; delta / mean(diag D). 1e-3 takes 1.5x the
 # inner iterations on parking-garage; 1e-7 stalls at round-off.
 _PRECONDITIONER_SHIFT = 1e-5
@@ -200,28 +199,32 @@ class SpatialProblem(Relaxation):
         matrix's blocks are the ``tau t~ t~^T`` sums on D's diagonal, ``-B^T`` and ``L``
         (the anchor's row and column left out). ``Q = D - W^T W`` with ``W = C^-1 B``, ``C
         C^T = L`` (LAPACK's Cholesky and triangular solve)."""
-        n, size = self.n, 3 * self.n
+        size, nodes = 3 * self.n, self.translation_nodes
         i, j = g.edges[:, 0], g.edges[:, 1]
         m = len(i)
-        column = np.arange(n) - (np.arange(n) > g.anchor)  # t's columns, the anchor's last
-        column[g.anchor] = n - 1
-        rows = np.concatenate([3 * i[:, None] + _AXES, 3 * j[:, None] + _AXES,
-                               size + column[i][:, None], size + column[j][:, None]], axis=1)
+        at = np.concatenate([3 * i[:, None] + _AXES, 3 * j[:, None] + _AXES], axis=1)
         rotation = np.empty((m, 6, 6))
         rotation[:, :3, :3] = rotation[:, 3:, 3:] = _EYE
         rotation[:, :3, 3:] = -g.measured_rotations
         rotation[:, 3:, :3] = -np.transpose(g.measured_rotations, (0, 2, 1))
         rotation *= kappa[:, None, None]
-        v = np.concatenate([-g.measured_translations, _STEP.repeat(m, axis=0)], axis=1)
-        translation = (tau[:, None, None] * v[:, :, None]) * v[:, None, :]
-        at = rows[:, :6]
         self.connection = np.bincount((at[:, :, None] * size + at[:, None, :]).ravel(),
                                       weights=rotation.ravel(),
                                       minlength=size * size).reshape(size, size)
-        at = rows[:, _TRANSLATION_AXES]
-        terms = np.bincount((at[:, :, None] * (size + n) + at[:, None, :]).ravel(),
+        # the edges' translation terms and the landmarks' (translation nodes n..)
+        pose, node, weight, measured = self.point_terms()
+        i, j = np.concatenate([i, pose]), np.concatenate([j, node])
+        tau = np.concatenate([tau, weight])
+        column = np.arange(nodes) - (np.arange(nodes) > g.anchor)  # t's columns, anchor's last
+        column[g.anchor] = nodes - 1
+        at = np.concatenate([3 * i[:, None] + _AXES, size + column[i][:, None],
+                             size + column[j][:, None]], axis=1)
+        v = np.concatenate([-np.concatenate([g.measured_translations, measured]),
+                            _STEP.repeat(len(i), axis=0)], axis=1)
+        translation = (tau[:, None, None] * v[:, :, None]) * v[:, None, :]
+        terms = np.bincount((at[:, :, None] * (size + nodes) + at[:, None, :]).ravel(),
                             weights=translation.ravel(),
-                            minlength=(size + n) ** 2).reshape(size + n, size + n)
+                            minlength=(size + nodes) ** 2).reshape(size + nodes, size + nodes)
         lower, info = dpotrf(terms[size:-1, size:-1], lower=1, clean=1)
         if info != 0:
             raise SolverError("the measurements do not determine the translations")
@@ -238,27 +241,33 @@ class SpatialProblem(Relaxation):
         import scipy.sparse as sp  # the sparse problems' only (a dense one needs no more
         from scipy.sparse.linalg import splu  # of scipy than scipy.linalg's LAPACK)
 
-        n = self.n
+        n, nodes = self.n, self.translation_nodes
         i, j = g.edges[:, 0], g.edges[:, 1]
         eye = np.broadcast_to(np.eye(3), (len(i), 3, 3))
-        t = g.measured_translations
-        anchored = tau[:, None, None] * t[:, :, None] * t[:, None, :]  # tau t~ t~^T at (i, i)
+        # the edges' translation terms and the landmarks' (translation nodes n..)
+        pose, node, weight, measured = self.point_terms()
+        t = np.concatenate([g.measured_translations, measured])
+        tau_all = np.concatenate([tau, weight])
+        anchored = tau_all[:, None, None] * t[:, :, None] * t[:, None, :]  # tau t~ t~^T at (i, i)
+        m = len(i)
         parts = [
-            _blocks(i, i, kappa[:, None, None] * eye + anchored),
+            _blocks(i, i, kappa[:, None, None] * eye + anchored[:m]),
             _blocks(j, j, kappa[:, None, None] * eye),
             _blocks(i, j, -kappa[:, None, None] * g.measured_rotations),
             _blocks(j, i, -kappa[:, None, None] * np.transpose(g.measured_rotations, (0, 2, 1))),
+            _blocks(pose, pose, anchored[m:]),
         ]
+        i, j, tau = np.concatenate([i, pose]), np.concatenate([j, node]), tau_all
         data, rows, cols = (np.concatenate(p) for p in zip(*parts, strict=True))
-        keep = np.delete(np.arange(n), g.anchor)
+        keep = np.delete(np.arange(nodes), g.anchor)
         cols3 = (3 * i[:, None] + np.arange(3)).ravel()
         matrices = [
             ((data, (rows, cols)), (3 * n, 3 * n)),  # D
             ((np.concatenate([tau, tau, -tau, -tau]),  # the translation Laplacian
-              (np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i]))), (n, n)),
+              (np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i]))), (nodes, nodes)),
             ((np.concatenate([(tau[:, None] * t).ravel(), -(tau[:, None] * t).ravel()]),
               (np.concatenate([np.repeat(j, 3), np.repeat(i, 3)]),  # the coupling
-               np.concatenate([cols3, cols3]))), (n, 3 * n)),
+               np.concatenate([cols3, cols3]))), (nodes, 3 * n)),
         ]
         d, lap, coupling = (sp.coo_matrix(entries, shape=shape).tocsr()
                             for entries, shape in matrices)
@@ -335,7 +344,7 @@ class SpatialProblem(Relaxation):
         and which of its entries lie in the D block."""
         import scipy.sparse as sp
 
-        m, index = self.n - 1, np.arange(self.n)
+        m, index = self.translation_nodes - 1, np.arange(self.n)
         _, rows, cols = _blocks(index, index, np.zeros((self.n, 3, 3)))
         marks = np.arange(1.0, len(rows) + 1.0)
         stacked = sp.bmat([[self.lap, -self.b], [-self.bt, self.d]], format="coo")
@@ -355,7 +364,7 @@ class SpatialProblem(Relaxation):
     def solve_shifted(self, lu: Any, v: np.ndarray) -> np.ndarray:
         if self.dense:
             return lu @ v if isinstance(lu, np.ndarray) else lu.solve(v)
-        m = self.n - 1
+        m = self.translation_nodes - 1
         return lu.solve(np.vstack([np.zeros((m, v.shape[1])), v]))[m:]
 
     # --- the driver's questions (see Relaxation) --------------------------------------------
