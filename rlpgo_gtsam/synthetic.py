@@ -59,6 +59,24 @@ GTSAM's tangent order (rotation first), the information
 policies and pairs as in the plane; Vertigo's small relative pose in 3D is a translation
 N(0, 0.3 m) per axis and roll, pitch, yaw N(0, 10 deg) each (its ``generateDataset.py``);
 ``"uniform"`` draws the translation in ``[-s, s]^3`` and the rotation uniformly on SO(3).
+
+Landmarks (:func:`generate_landmarks`, :class:`LandmarkSettings`): the same lawn mower (the
+same draws, so a seed gives the pose graph :func:`generate` gives without wrong closures),
+then ``count`` points, each placed near a pose drawn uniformly from the path, uniformly in
+the shell between the blind zone and the sensor range around it: in the plane with
+``group=SE2``, in space with ``group=SE3``. Every pose measures every point between its blind
+zone and its sensor range (its nearest ``max_per_pose`` of them when capped) by bearing and
+range: GTSAM's ``BearingRangeFactor2D`` / ``BearingRangeFactor3D``, noise model
+``diag(sigma_bearing^2 x (d - 1), sigma_range^2)`` in bearing-range coordinates (the bearing's
+angle in the plane, the ``Unit3`` tangent plane in 3D, then the range). The blind zone's
+radius is the larger of ``MIN_RANGE_FRACTION x sensor_range`` and ``RANGE_SIGMAS x
+sigma_range``, so that bearings are well defined and a noisy range is positive. Points are
+named ``l0, l1, ...`` in the order the path first sees them (by pose, then nearest first);
+a point that no pose sees is dropped. Measurements are exact by default (the ground truth is
+the optimum); with ``noisy_measurements=True`` each is perturbed by a draw from its noise
+model (``Rot2`` / ``Unit3`` retraction of the bearing, the range plus its noise). The
+initial guess puts each point where its first measurement places it from the chained
+initial pose. Landmark factors follow every pose-graph factor, by pose, then nearest first.
 """
 
 from __future__ import annotations
@@ -73,10 +91,12 @@ from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import PoseGraph, extract_pose_graph, odometry_edges
 from rlpgo_gtsam.groups import SE2, SE3, Group
 from rlpgo_gtsam.information import MAX_CONDITION, scaled_informations, with_informations
+from rlpgo_gtsam.landmarks import landmark_key, relative_point
 
-__all__ = ["SyntheticGraph", "generate", "add_outliers", "scaled_informations",
-           "with_informations", "OUTLIER_MODES", "VERTIGO_MODES", "ROW_LENGTH", "LAYER_ROWS",
-           "GROUP_SIZE", "LOCAL_RANGE"]
+__all__ = ["SyntheticGraph", "generate", "generate_landmarks", "LandmarkSettings",
+           "add_outliers", "scaled_informations", "with_informations", "OUTLIER_MODES",
+           "VERTIGO_MODES", "ROW_LENGTH", "LAYER_ROWS", "GROUP_SIZE", "LOCAL_RANGE",
+           "MIN_RANGE_FRACTION", "RANGE_SIGMAS"]
 
 ROW_LENGTH = 10
 LAYER_ROWS = 10  # 3D: rows of a layer
@@ -89,6 +109,12 @@ _VERTIGO_SIGMA_T_M = 0.3
 _VERTIGO_SIGMA_R_RAD = np.deg2rad(10.0)
 # Pairs tried per wrong closure before giving up on a graph too small for the request.
 _TRIES_PER_OUTLIER = 1000
+# The blind zone around a pose, as a fraction of its sensor range: nearer points, whose
+# bearing swings with millimetres of motion, are not measured.
+MIN_RANGE_FRACTION = 0.05
+# ... and in range noise sigmas: a Gaussian range drawn 6 sigmas from the truth (1e-9 a
+# measurement) is what it takes for a noisy range to come out negative.
+RANGE_SIGMAS = 6.0
 
 
 @dataclass
@@ -104,6 +130,32 @@ class SyntheticGraph:
     initial: gtsam.Values
     ground_truth: gtsam.Values
     outlier_edges: list[int] = field(default_factory=list)
+    num_landmarks: int = 0
+    """Points in the graph, keyed ``landmark_key(0) ... landmark_key(num_landmarks - 1)``
+    (``l0, l1, ...``); 0 for a pose graph."""
+
+
+@dataclass(frozen=True)
+class LandmarkSettings:
+    """How :func:`generate_landmarks` places and measures points (see the module docstring)."""
+
+    count: int
+    """Points placed (>= 1); those no pose sees are dropped, so the graph may hold fewer."""
+    sensor_range_m: float = 10.0
+    """The farthest a pose measures a point, metres (> 0)."""
+    sigma_bearing_rad: float = 0.05
+    """Bearing noise, radians (> 0): the angle in the plane, each tangent axis of the
+    ``Unit3`` bearing in 3D."""
+    sigma_range_m: float = 0.1
+    """Range noise, metres (> 0); at most ``sensor_range_m / RANGE_SIGMAS``, so that the
+    blind zone leaves a shell to measure in."""
+    max_per_pose: int | None = None
+    """Measure only the nearest this many points from each pose (>= 1); None: every point
+    in range."""
+
+    def blind_range_m(self) -> float:
+        """The blind zone's radius: points nearer than this to a pose are not measured."""
+        return max(MIN_RANGE_FRACTION * self.sensor_range_m, RANGE_SIGMAS * self.sigma_range_m)
 
 
 def _planar_poses(n: int, d: float) -> list[gtsam.Pose2]:
@@ -209,6 +261,18 @@ def generate(
             factors) or :data:`~rlpgo_gtsam.groups.SE3` (``Pose3``, ``BetweenFactorPose3``).
     """
     _check_settings(n, sigma_r, sigma_t, d, lc, outliers, outlier_mode, group_size)
+    sample = _pose_graph(n, sigma_r, sigma_t, d, lc, rng, noisy_measurements, group)
+    if outliers > 0:
+        sample.graph, sample.outlier_edges = add_outliers(
+            sample.graph, sample.ground_truth, outliers, rng, outlier_mode, group_size)
+    return sample
+
+
+def _pose_graph(n: int, sigma_r: float, sigma_t: float, d: float, lc: float,
+                rng: np.random.Generator, noisy_measurements: bool,
+                group: Group) -> SyntheticGraph:
+    """The lawn mower without wrong closures: the path, its odometry and loop closures, the
+    chained initial guess and the ground truth (settings already checked)."""
     true_poses, candidates = _PATHS[group]
     truth = true_poses(n, d)
     sigmas = np.full(group.dof, float(sigma_t))  # in the tangent order of the poses' Expmap
@@ -246,11 +310,118 @@ def generate(
         initial.insert(k + 1, pose)
     for k, true_pose in enumerate(truth):
         ground_truth.insert(k, true_pose)
-    outlier_edges: list[int] = []
-    if outliers > 0:
-        graph, outlier_edges = add_outliers(graph, ground_truth, outliers, rng, outlier_mode,
-                                            group_size)
-    return SyntheticGraph(graph, initial, ground_truth, outlier_edges)
+    return SyntheticGraph(graph, initial, ground_truth)
+
+
+def generate_landmarks(
+    n: int,
+    sigma_r: float,
+    sigma_t: float,
+    d: float,
+    lc: float,
+    rng: np.random.Generator,
+    landmarks: LandmarkSettings,
+    noisy_measurements: bool = False,
+    group: Group = SE2,
+) -> SyntheticGraph:
+    """Generate a lawn mower (:func:`generate`'s, without wrong closures) that also measures
+    points by bearing and range (see the module docstring).
+
+    Args:
+        n, sigma_r, sigma_t, d, lc, rng, group: as for :func:`generate`; the poses are
+            integer keys ``0 ... n - 1``.
+        landmarks: how the points are placed and measured.
+        noisy_measurements: perturb every measurement, odometry, loop closures and
+            landmarks, by a draw from its noise model (the ground truth is then not the
+            optimum); by default measurements are exact and only the initial guess is noisy.
+
+    Returns:
+        The graph (between factors, then bearing-range factors), the initial guess (chained
+        odometry; each point from its first measurement) and the ground truth, poses and
+        points; ``num_landmarks`` says how many points were seen.
+
+    Raises:
+        RlpgoError: settings out of range.
+    """
+    _check_settings(n, sigma_r, sigma_t, d, lc, 0.0, OUTLIER_MODES[0], GROUP_SIZE)
+    _check_landmarks(landmarks)
+    sample = _pose_graph(n, sigma_r, sigma_t, d, lc, rng, noisy_measurements, group)
+    truth = [group.pose_at(sample.ground_truth, k) for k in range(n)]
+    positions = np.array([np.asarray(pose.translation(), float) for pose in truth])
+    inner, outer = landmarks.blind_range_m(), landmarks.sensor_range_m
+    points = _scatter(positions, landmarks.count, inner, outer, rng)
+    sightings = _sightings(positions, points, inner, outer, landmarks.max_per_pose)
+
+    sigmas = np.array([landmarks.sigma_bearing_rad] * (group.d - 1) + [landmarks.sigma_range_m])
+    noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
+    errors = rng.normal(0.0, sigmas, size=(len(sightings), len(sigmas))) \
+        if noisy_measurements else np.zeros((len(sightings), len(sigmas)))
+    factor_type = _BEARING_RANGE_FACTORS[group]
+    names: dict[int, int] = {}  # placed point -> its index in the graph, by first sighting
+    for (k, j), error in zip(sightings, errors, strict=True):
+        bearing = truth[k].bearing(points[j])
+        if noisy_measurements:
+            bearing = bearing.retract(error[:-1])
+        measured_range = truth[k].range(points[j]) + float(error[-1])
+        key = landmark_key(names.setdefault(j, len(names)))
+        factor = factor_type(k, key, bearing, measured_range, noise)
+        sample.graph.add(factor)
+        if not sample.initial.exists(key):
+            seen_from = group.pose_at(sample.initial, k)
+            sample.initial.insert(key, seen_from.transformFrom(relative_point(factor)[0]))
+            sample.ground_truth.insert(key, points[j])
+    sample.num_landmarks = len(names)
+    return sample
+
+
+# Each group's point measurement.
+_BEARING_RANGE_FACTORS: dict[Group, type] = {
+    SE2: gtsam.BearingRangeFactor2D, SE3: gtsam.BearingRangeFactor3D}
+
+
+def _scatter(centres: np.ndarray, count: int, inner: float, outer: float,
+             rng: np.random.Generator) -> np.ndarray:
+    """(count, dim) points, each uniform in the shell ``inner <= r <= outer`` around a
+    centre drawn uniformly from ``centres`` (n, dim)."""
+    dim = centres.shape[1]
+    anchors = rng.integers(len(centres), size=count)
+    directions = rng.normal(size=(count, dim))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    # uniform in volume: the radius's dim-th power is uniform between the shell's
+    radii = (inner ** dim + rng.uniform(size=count) * (outer ** dim - inner ** dim)) ** (1 / dim)
+    return centres[anchors] + radii[:, None] * directions
+
+
+def _sightings(positions: np.ndarray, points: np.ndarray, inner: float, outer: float,
+               max_per_pose: int | None) -> list[tuple[int, int]]:
+    """(pose, point) pairs within ``[inner, outer]`` of each other: by pose, then nearest
+    first (then by point), at most ``max_per_pose`` a pose."""
+    from scipy.spatial import cKDTree
+
+    near = cKDTree(points).query_ball_point(positions, outer, return_sorted=True)
+    pairs: list[tuple[int, int]] = []
+    for k, candidates in enumerate(near):
+        seen = np.asarray(candidates, np.int64)
+        distances = np.linalg.norm(points[seen] - positions[k], axis=1)
+        in_range = (distances >= inner) & (distances <= outer)
+        seen, distances = seen[in_range], distances[in_range]
+        seen = seen[np.lexsort((seen, distances))][:max_per_pose]
+        pairs.extend((k, int(j)) for j in seen)
+    return pairs
+
+
+def _check_landmarks(landmarks: LandmarkSettings) -> None:
+    if landmarks.count < 1:
+        raise RlpgoError(f"a landmark graph needs at least 1 landmark, got {landmarks.count}")
+    if min(landmarks.sensor_range_m, landmarks.sigma_bearing_rad, landmarks.sigma_range_m) <= 0:
+        raise RlpgoError("the sensor range, sigma_bearing and sigma_range must be positive")
+    if landmarks.blind_range_m() >= landmarks.sensor_range_m:
+        raise RlpgoError(f"sigma_range = {landmarks.sigma_range_m:g} m leaves nothing to "
+                         f"measure within the sensor range of {landmarks.sensor_range_m:g} m: "
+                         f"nearer than {RANGE_SIGMAS:g} sigma_range a range may come out "
+                         "negative; lower sigma_range or raise the sensor range")
+    if landmarks.max_per_pose is not None and landmarks.max_per_pose < 1:
+        raise RlpgoError(f"max_per_pose must be >= 1 (or None), got {landmarks.max_per_pose}")
 
 
 def add_outliers(

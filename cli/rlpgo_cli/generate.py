@@ -1,7 +1,10 @@
 """rlpgo-generate: write one of the paper's synthetic lawn-mower pose graphs as g2o (planar,
-or its layers in 3D with ``--dim 3``)."""
+or its layers in 3D with ``--dim 3``), with points measured by bearing and range with
+``--landmarks N``."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import click
 import numpy as np
@@ -18,11 +21,15 @@ from rlpgo_gtsam.synthetic import (
     LOCAL_RANGE,
     OUTLIER_MODES,
     ROW_LENGTH,
+    LandmarkSettings,
     generate,
+    generate_landmarks,
 )
 
 # --dim: the pose group
 _GROUPS = {2: SE2, 3: SE3}
+# options that shape the landmarks, refused without --landmarks
+_LANDMARK_OPTIONS = ("sensor_range", "sigma_bearing", "sigma_range", "max_sightings")
 
 
 @click.command(cls=RlpgoCommand)
@@ -66,14 +73,42 @@ _GROUPS = {2: SE2, 3: SE3}
                    f"'{EDGE_LIST_LINE}' (EDGE_SE3:QUAT with --dim 3; L: the edge's line in "
                    "OUTPUT, from 1), after one '#' line: the format of rlpgo-init "
                    "--outliers-out.")
-def main(dim, n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_truth,
-         outliers, outlier_mode, group_size, outliers_out):
-    """Generate a lawn-mower pose graph as in the RL-PGO paper (in layers in 3D: --dim 3)."""
+@click.option("--landmarks", type=click.IntRange(0, 1_000_000), default=0, show_default=True,
+              help="Points to place near the path (in the plane; in space with --dim 3), "
+                   "each measured by bearing and range from every pose within "
+                   "--sensor-range (EDGE_SE2_XY, VERTEX_XY; EDGE_SE3_TRACKXYZ, "
+                   "VERTEX_TRACKXYZ); points no pose sees are dropped. 0: a pose graph.")
+@click.option("--sensor-range", type=FiniteFloat(1e-6, 1e6),
+              default=LandmarkSettings.sensor_range_m, show_default=True,
+              help="The farthest a pose measures a point, metres.")
+@click.option("--sigma-bearing", type=FiniteFloat(1e-9, 3.2),
+              default=LandmarkSettings.sigma_bearing_rad, show_default=True,
+              help="Bearing noise, radians (per tangent axis in 3D).")
+@click.option("--sigma-range", type=FiniteFloat(1e-9, 1e6),
+              default=LandmarkSettings.sigma_range_m, show_default=True,
+              help="Range noise, metres.")
+@click.option("--max-sightings", type=click.IntRange(1, 1_000_000),
+              help="Measure only the nearest this many points from each pose (default: "
+                   "every point in range).")
+@click.pass_context
+def main(ctx, dim, n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_truth,
+         outliers, outlier_mode, group_size, outliers_out, landmarks, sensor_range,
+         sigma_bearing, sigma_range, max_sightings):
+    """Generate a lawn-mower pose graph as in the RL-PGO paper (in layers in 3D: --dim 3),
+    with points measured by bearing and range with --landmarks N."""
+    _check_landmark_options(ctx, landmarks, outliers, outliers_out)
     run = RunFiles()
     run.check(output, ground_truth, outliers_out)
-    sample = generate(n, sigma_r, sigma_t, d, lc, np.random.default_rng(seed),
-                      noisy_measurements=noisy_measurements, outliers=outliers,
-                      outlier_mode=outlier_mode, group_size=group_size, group=_GROUPS[dim])
+    rng = np.random.default_rng(seed)
+    if landmarks > 0:
+        settings = LandmarkSettings(landmarks, sensor_range, sigma_bearing, sigma_range,
+                                    max_sightings)
+        sample = generate_landmarks(n, sigma_r, sigma_t, d, lc, rng, settings,
+                                    noisy_measurements=noisy_measurements, group=_GROUPS[dim])
+    else:
+        sample = generate(n, sigma_r, sigma_t, d, lc, rng,
+                          noisy_measurements=noisy_measurements, outliers=outliers,
+                          outlier_mode=outlier_mode, group_size=group_size, group=_GROUPS[dim])
     text, lines = g2o_text_lines(sample.graph, sample.initial)
     files = [(output, text.encode())]
     if ground_truth is not None:
@@ -83,7 +118,8 @@ def main(dim, n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, grou
                                 title="wrong loop closures that rlpgo-generate added")
         files.append((outliers_out, listed.encode("utf-8", "surrogateescape")))
     run.write_together(files)  # every file or none
-    click.echo(f"{output}: {n} poses, {sample.graph.size()} edges, initial chi2 "
+    points = f"{sample.num_landmarks} landmarks, " if landmarks > 0 else ""
+    click.echo(f"{output}: {n} poses, {points}{sample.graph.size()} edges, initial chi2 "
                f"{chi2(sample.graph, sample.initial):.6g}, ground-truth chi2 "
                f"{chi2(sample.graph, sample.ground_truth):.6g}")
     if outliers > 0 or outliers_out is not None:
@@ -92,6 +128,25 @@ def main(dim, n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, grou
         click.echo(f"added {len(sample.outlier_edges)} wrong loop closures ({outlier_mode}"
                    f"{grouped})"
                    f"{listed}")
+
+
+def _check_landmark_options(ctx: click.Context, landmarks: int, outliers: float,
+                            outliers_out: Path | None) -> None:
+    """Usage errors for landmark options without --landmarks, and for wrong loop closures
+    with it (the generator adds them to pose graphs only)."""
+
+    def given(name: str) -> bool:
+        return ctx.get_parameter_source(name) not in (
+            None, click.core.ParameterSource.DEFAULT, click.core.ParameterSource.DEFAULT_MAP)
+
+    if landmarks == 0:
+        unused = [f"--{name.replace('_', '-')}" for name in _LANDMARK_OPTIONS if given(name)]
+        if unused:
+            raise click.UsageError(f"{', '.join(unused)}: options of the landmarks; give "
+                                   "--landmarks N too")
+    elif outliers > 0 or outliers_out is not None:
+        raise click.UsageError("--outliers and --outliers-out make pose graphs; they do not "
+                               "combine with --landmarks")
 
 
 if __name__ == "__main__":
