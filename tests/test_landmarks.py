@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import L, X
 
-from rlpgo_gtsam import staged_initialize
+from rlpgo_gtsam import robust_initialize, staged_initialize
 from rlpgo_gtsam.errors import GraphError
 from rlpgo_gtsam.graph import extract_pose_graph
 from rlpgo_gtsam.groups import SE2, SE3
@@ -213,3 +213,28 @@ def test_a_landmark_without_a_value_starts_at_its_first_sighting():
     assert g.points is not None and g.points.count == 2
     full_graph, full_values = planar_slam_example()
     assert _chi2(graph, run.values) <= _chi2(full_graph, _lm(full_graph, full_values)) + 1e-9
+
+
+def test_the_robust_path_refuses_a_graph_with_landmarks_by_name():
+    graph, values = planar_slam_example()
+    with pytest.raises(GraphError, match="robust path judges pose graphs.*2 landmarks"):
+        robust_initialize(graph, values)
+
+
+def test_bearing_only_range_only_point_betweens_and_robust_sightings_are_carried():
+    """What the relaxation does not model is named, and LM still refines it with the rest."""
+    graph, values = planar_slam_example()
+    sensor = gtsam.noiseModel.Diagonal.Sigmas([0.1, 0.2])
+    robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.345),
+                                            sensor)
+    graph.add(gtsam.BearingFactor2D(X(3), L(1), gtsam.Rot2.fromDegrees(135),
+                                    gtsam.noiseModel.Isotropic.Sigma(1, 0.1)))
+    graph.add(gtsam.BetweenFactorPoint2(L(1), L(2), gtsam.Point2(2.0, 0.0),
+                                       gtsam.noiseModel.Isotropic.Sigma(2, 0.1)))
+    graph.add(gtsam.BearingRangeFactor2D(X(2), L(2), gtsam.Rot2.fromDegrees(45), np.sqrt(8),
+                                         robust))
+    run = staged_initialize(graph, values)
+    assert run.certificate.outside == ("BearingFactor2D x 1", "BetweenFactorPoint2 x 1",
+                                       "BearingRangeFactor2D x 1")
+    assert not run.certified
+    assert _chi2(graph, run.values) <= _chi2(graph, _lm(graph, values)) * (1 + 1e-6)

@@ -68,6 +68,7 @@ import numpy as np
 from rlpgo_gtsam.errors import GraphError, SolverError, one_line
 from rlpgo_gtsam.graph import PoseGraph, chi2, extract_pose_graph
 from rlpgo_gtsam.groups import group_of
+from rlpgo_gtsam.landmarks import outside_kinds
 from rlpgo_gtsam.numerics import numeric_call
 from rlpgo_gtsam.robust.consistency import Consistency, pairwise_consistency
 from rlpgo_gtsam.robust.gnc import gnc_lm, robust_positions
@@ -279,6 +280,14 @@ def _judged_problem(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     its covariances scaled by ``covariance_scale`` and 3D edges read by their printed blocks
     (:mod:`rlpgo_gtsam.robust.noise`)."""
     g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
+    if g.whole:
+        held = [f"{g.points.count} landmarks"] if g.points is not None else []
+        held += [f"{kind}" for kind in outside_kinds(g.carried)]
+        if g.carried_values is not None and g.carried_values.size() and not g.carried:
+            held.append("values of other variables")
+        raise GraphError("the robust path judges pose graphs (between factors, priors, FIX "
+                         f"lines); this graph also holds {', '.join(held)}: run the default "
+                         "path, or give the robust path its pose factors")
     graph, g = graph_with_printed_blocks(graph, values, g)
     reported = graph
     if covariance_scale != 1.0:
