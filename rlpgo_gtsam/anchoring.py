@@ -30,8 +30,9 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from rlpgo_gtsam.errors import SolverError
 from rlpgo_gtsam.graph import PoseGraph
-from rlpgo_gtsam.landmarks import Points
+from rlpgo_gtsam.landmarks import Points, Ranges
 
 __all__ = ["Anchoring", "anchoring"]
 
@@ -145,8 +146,30 @@ def _rewritten(g: PoseGraph, fixed: np.ndarray) -> Anchoring:
     if g.points is not None:
         graph = replace(graph, points=_anchored_points(g, g.points, is_held, position,
                                                        held_at, np.asarray(held_poses)))
+    if g.ranges is not None:
+        graph = replace(graph, ranges=_anchored_ranges(g, g.ranges, is_held, position))
     priors = int(on_free.sum()) + (0 if g.points is None else len(g.points.priors))
     return Anchoring(graph, free, held, np.asarray(held_poses), priors)
+
+
+def _anchored_ranges(g: PoseGraph, ranges: Ranges, is_held: np.ndarray,
+                     position: np.ndarray) -> Ranges:
+    """The ranges of the one-anchor problem, between the rewritten nodes (free poses'
+    new indices, the points after them).
+
+    Raises:
+        SolverError: a range from a held pose, which would couple its direction with the
+            world frame's rotation in one term (outside the relaxation's form).
+    """
+    n = g.num_poses
+    nodes = ranges.nodes
+    on_pose = nodes < n
+    if np.any(is_held[nodes[on_pose]]):
+        raise SolverError("a range measured from a FIXed pose of a graph with several held "
+                          "poses or priors is outside the relaxation")
+    free = len(position) - int(is_held.sum()) + 1  # the rewritten poses, world frame first
+    moved = np.where(on_pose, position[np.minimum(nodes, n - 1)], nodes - n + free)
+    return replace(ranges, nodes=moved.astype(np.int64))
 
 
 def _anchored_points(g: PoseGraph, points: Points, is_held: np.ndarray, position: np.ndarray,

@@ -38,7 +38,7 @@ import numpy as np
 from rlpgo_gtsam.errors import GraphError
 from rlpgo_gtsam.groups import SE2, SE3, Group, graph_group, pose3_arrays
 from rlpgo_gtsam.information import Factors, printed_of, sort_factors
-from rlpgo_gtsam.landmarks import Carried, Points, place_points, split_graph
+from rlpgo_gtsam.landmarks import Carried, Points, Ranges, key_text, place_points, split_graph
 from rlpgo_gtsam.se3 import pose_matrices
 
 __all__ = [
@@ -102,6 +102,7 @@ class PoseArrays:
     prior_information: np.ndarray | None = None
     world_frame: bool = False
     points: Points | None = field(default=None, repr=False, compare=False)
+    ranges: Ranges | None = field(default=None, repr=False, compare=False)
     carried: tuple[Carried, ...] = ()
     carried_values: gtsam.Values | None = field(default=None, repr=False, compare=False)
     graph: gtsam.NonlinearFactorGraph | None = field(default=None, repr=False, compare=False)
@@ -137,14 +138,19 @@ class PoseArrays:
         variables (their values complete :meth:`to_values`)."""
         return self.points is not None or self.carried_values is not None
 
-    def with_others(self, values: gtsam.Values, poses: np.ndarray) -> gtsam.Values:
-        """``values`` (the poses) completed with the other variables: the landmarks placed
-        given ``poses`` (:func:`~rlpgo_gtsam.landmarks.place_points`), every other variable at
-        its value in the user's values."""
+    def with_others(self, values: gtsam.Values, poses: np.ndarray,
+                    points: np.ndarray | None = None) -> gtsam.Values:
+        """``values`` (the poses) completed with the other variables: the landmarks at
+        ``points`` (p, d), or by default placed given ``poses``
+        (:func:`~rlpgo_gtsam.landmarks.place_points`), every other variable at its value in
+        the user's values."""
         if self.points is not None:
             group = self.group
-            rotations = group.rotation_matrices(group.rotations(poses))
-            placed = place_points(self.points, rotations, group.translations(poses))
+            if points is not None:
+                placed = points
+            else:
+                rotations = group.rotation_matrices(group.rotations(poses))
+                placed = place_points(self.points, rotations, group.translations(poses))
             point = gtsam.Point2 if self.points.dimension == 2 else gtsam.Point3
             for key, position in zip(self.points.keys.tolist(), placed, strict=True):
                 values.insert(key, point(*position))
@@ -243,13 +249,15 @@ class PoseGraph2D(PoseArrays):
         det = info[:, 0, 0] * info[:, 1, 1] - info[:, 0, 1] * info[:, 1, 0]
         return np.divide(2.0 * det, trace, out=np.zeros_like(trace), where=trace > 0)
 
-    def to_values(self, poses: np.ndarray) -> gtsam.Values:
-        """GTSAM values of the given (n, 3) poses under this graph's keys."""
+    def to_values(self, poses: np.ndarray, points: np.ndarray | None = None) -> gtsam.Values:
+        """GTSAM values of the given (n, 3) poses under this graph's keys, completed with the
+        other variables (:meth:`PoseArrays.with_others`; ``points``: the landmarks' positions,
+        else placed given the poses)."""
         values = gtsam.Values()
         insert, pose2 = pose2_inserter(values), gtsam.Pose2
         for key, x, y, theta in zip(self.keys.tolist(), *poses.T.tolist(), strict=True):
             insert(key, pose2(x, y, theta))
-        return self.with_others(values, poses) if self.whole else values
+        return self.with_others(values, poses, points) if self.whole else values
 
     def poses_of(self, values: gtsam.Values) -> np.ndarray:
         """(n, 3) x, y, theta of ``values`` in this graph's pose order."""
@@ -405,14 +413,15 @@ class PoseGraph3D(PoseArrays):
         translational block of the information (of :attr:`weighed`)."""
         return 3.0 / np.trace(np.linalg.inv(self.weighed[:, 3:, 3:]), axis1=1, axis2=2)
 
-    def to_values(self, poses: np.ndarray) -> gtsam.Values:
-        """GTSAM values of the given (n, 3, 4) ``[R | t]`` poses under this graph's keys."""
+    def to_values(self, poses: np.ndarray, points: np.ndarray | None = None) -> gtsam.Values:
+        """GTSAM values of the given (n, 3, 4) ``[R | t]`` poses under this graph's keys,
+        completed as :meth:`PoseGraph2D.to_values` says."""
         values = gtsam.Values()
         insert = values.insert  # pose3= passes over insert's other overloads
         pose3, rot3 = gtsam.Pose3, gtsam.Rot3
         for key, pose in zip(self.keys.tolist(), np.asarray(poses, float), strict=True):
             insert(key, pose3=pose3(rot3(pose[:, :3]), pose[:, 3]))
-        return self.with_others(values, poses) if self.whole else values
+        return self.with_others(values, poses, points) if self.whole else values
 
     def poses_of(self, values: gtsam.Values) -> np.ndarray:
         """(n, 3, 4) ``[R | t]`` of ``values`` in this graph's order."""
@@ -442,17 +451,34 @@ def extract_pose_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) 
     except GraphError as error:
         refused = error
     split = split_graph(graph, values, group)
-    if not (split.measurements or split.point_priors or split.carried
+    if not (split.measurements or split.point_priors or split.ranges or split.carried
             or split.carried_values.size()):
         raise refused
     pose_graph = extraction.from_gtsam(split.pose_factors, split.pose_values)
     return replace(pose_graph, graph=graph, points=_points(pose_graph, split),
-                   carried=split.carried, carried_values=split.carried_values)
+                   ranges=_ranges(pose_graph, split), carried=split.carried,
+                   carried_values=split.carried_values)
+
+
+def _ranges(pose_graph: PoseGraph, split: Any) -> Ranges | None:
+    """The ranges of a split graph between translation nodes (poses, then points)."""
+    if not split.ranges:
+        return None
+    node = {int(key): k for k, key in enumerate(pose_graph.keys)}
+    node.update({key: pose_graph.num_poses + k for k, key in enumerate(split.point_keys)})
+    return Ranges(nodes=np.array([(node[a], node[b]) for a, b, _, _ in split.ranges],
+                                 np.int64).reshape(-1, 2),
+                  measured=np.array([r for _, _, r, _ in split.ranges], float),
+                  weights=np.array([w for _, _, _, w in split.ranges], float))
 
 
 def _points(pose_graph: PoseGraph, split: Any) -> Points | None:
-    """The landmarks of a split graph as arrays indexed by ``pose_graph``'s poses."""
-    if not split.measurements and not split.point_priors:
+    """The landmarks of a split graph as arrays indexed by ``pose_graph``'s poses.
+
+    Raises:
+        GraphError: a point measured by ranges alone without a value.
+    """
+    if not split.point_keys:
         return None
     d = pose_graph.group.d
     pose_index = {int(key): k for k, key in enumerate(pose_graph.keys)}
@@ -469,6 +495,10 @@ def _points(pose_graph: PoseGraph, split: Any) -> Points | None:
     for (i, k), z in zip(edges, measured, strict=True):
         if not have[k]:  # no value: where its first sighting puts it
             values[k], have[k] = positions[i] + rotations[i] @ z, True
+    if not have.all():
+        key = split.point_keys[int(np.flatnonzero(~have)[0])]
+        raise GraphError(f"landmark {key_text(key)} is measured by ranges alone and has no "
+                         "value: give it one")
     priors = split.point_priors
     return Points(
         keys=np.array(split.point_keys, np.uint64), values=values, edges=edges,

@@ -49,7 +49,7 @@ from rlpgo_gtsam.graph import (
 from rlpgo_gtsam.groups import GROUPS, SE2, SE3, Group
 from rlpgo_gtsam.landmarks import outside_kinds
 from rlpgo_gtsam.numerics import eliminating_call, numeric_call
-from rlpgo_gtsam.translations import poses_with_rotations
+from rlpgo_gtsam.translations import TranslationStep, poses_with_rotations
 
 __all__ = [
     "InitResult",
@@ -82,11 +82,14 @@ class Estimate:
         poses: the guess in pose-index order: (n, 3) x, y, theta, or (n, 3, 4) ``[R | t]``.
         details: JSON-ready facts the method learned (rollout costs, chosen rollout, ...).
         certificate: an optimality certificate, for methods that give one.
+        points: the landmarks' positions (p, d) where the method solved them with the poses;
+            None: placed given the poses (:meth:`~rlpgo_gtsam.graph.PoseGraph2D.to_values`).
     """
 
     poses: np.ndarray
     details: dict[str, Any] = field(default_factory=dict)
     certificate: Any = None
+    points: np.ndarray | None = None
 
 
 @dataclass(eq=False)
@@ -149,7 +152,7 @@ class Initializer:
             start = make_initializer(self.start).run(pose_graph)
         estimate = self.estimate(pose_graph, None if start is None else start.poses)
         seconds = time.perf_counter() - began + (0.0 if start is None else start.seconds)
-        values = pose_graph.to_values(estimate.poses)
+        values = pose_graph.to_values(estimate.poses, estimate.points)
         return InitResult(self.name, values, estimate.poses, chi2(pose_graph.factor_graph, values),
                           seconds, estimate.details, estimate.certificate)
 
@@ -525,11 +528,22 @@ class CertifiedInitializer(Initializer):
                                              time_limit_s=self.time_limit_s,
                                              progress=self.progress,
                                              finish_per_start=FINISH_PER_START)
-        poses = poses_with_rotations(solved, rotations)
+        points = None
+        if solved.whole and (solved.points is not None or solved.ranges is not None):
+            # poses, landmarks and ranges' directions from the relaxation: positions together
+            n = solved.num_poses
+            step = TranslationStep.shared(solved)
+            aligned = step.aligned(np.asarray(rotations[:n], dtype=float))
+            directions = rotations[n:] if solved.ranges is not None else None
+            positions, points = step.solve_with_points(aligned, directions)
+            poses = solved.group.with_positions(aligned, positions)
+        else:
+            poses = poses_with_rotations(solved, rotations)
         if anchored is not None:
             poses = anchored.lifted(poses)
             certificate = anchored.covering(certificate)
-        return Estimate(poses, certificate=covering_whole(pose_graph, certificate))
+        return Estimate(poses, certificate=covering_whole(pose_graph, certificate),
+                        points=points)
 
 
 def covering_whole(pose_graph: PoseGraph, certificate: Any) -> Any:

@@ -29,7 +29,7 @@ from rlpgo_gtsam.errors import GraphError
 
 __all__ = ["bearing_range_factor", "relative_point", "point_jacobian", "landmark_key",
            "POINT_FACTORS", "point_weights", "Points", "Carried", "Split", "split_graph",
-           "place_points", "key_text", "outside_kinds"]
+           "place_points", "key_text", "outside_kinds", "Ranges"]
 
 
 def landmark_key(index: int) -> int:
@@ -175,6 +175,27 @@ class Points:
         return point_weights(self.information)
 
 
+@dataclass(frozen=True, eq=False)
+class Ranges:
+    """Range measurements between translation nodes: poses ``0..n-1``, then the points
+    ``n..n+p-1`` (GTSAM's ``RangeFactor2D`` from a pose to a point, ``RangeFactorPose2``
+    between two poses: ``(||t_b - t_a|| - r)^2 / sigma^2``).
+
+    Attributes:
+        nodes: (k, 2) the two nodes of each range.
+        measured: (k,) the ranges.
+        weights: (k,) their precisions ``1 / sigma^2``.
+    """
+
+    nodes: np.ndarray
+    measured: np.ndarray
+    weights: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return len(self.measured)
+
+
 @dataclass(frozen=True)
 class Carried:
     """A factor outside what the initializers model: LM refines it with the rest."""
@@ -190,8 +211,8 @@ class Carried:
 @dataclass(frozen=True, eq=False)
 class Split:
     """A whole graph taken apart (:func:`split_graph`): the pose graph's factors and values,
-    the landmarks (pose keys, not yet indices), the carried factors and their variables'
-    values."""
+    the landmarks and ranges (by key, not yet indices), the carried factors and their
+    variables' values."""
 
     pose_factors: gtsam.NonlinearFactorGraph
     pose_values: gtsam.Values
@@ -201,6 +222,7 @@ class Split:
     point_priors: list[tuple[int, np.ndarray, np.ndarray]]  # point key, value, information
     carried: tuple[Carried, ...]
     carried_values: gtsam.Values
+    ranges: list[tuple[int, int, float, float]]  # key, key, range, weight (1 / variance)
 
 
 def outside_kinds(carried: tuple[Carried, ...]) -> tuple[str, ...]:
@@ -211,48 +233,46 @@ def outside_kinds(carried: tuple[Carried, ...]) -> tuple[str, ...]:
 
 def split_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, group: Any) -> Split:
     """Take a whole GTSAM graph apart: the group's between and prior factors (the pose
-    graph), bearing-range measurements of points (:data:`POINT_FACTORS`, Gaussian noise) and
-    point priors on those points (the landmarks), and every other factor, carried.
+    graph); bearing-range measurements of points (:data:`POINT_FACTORS`), in the plane range
+    measurements from a pose to a point (``RangeFactor2D``) or between two poses
+    (``RangeFactorPose2``), and point priors on those points (the landmarks), each with a
+    Gaussian noise model; every other factor, carried.
 
-    Poses are the keys of the pose factors and the measuring ends of the point measurements;
-    points the measured ends. A carried factor's other keys keep the user's values.
+    Poses are the keys of the pose factors and the measuring ends of the point and range
+    measurements; points the measured ends. A carried factor's other keys keep the user's
+    values.
 
     Raises:
         GraphError: a pose factor's key without a pose value, or a carried factor's key
             without a value (naming the factor and the key).
     """
     pose_types = (group.between_factor, group.prior_factor)
-    point_type = gtsam.BearingRangeFactor2D if group.d == 2 else gtsam.BearingRangeFactor3D
     prior_type = gtsam.PriorFactorPoint2 if group.d == 2 else gtsam.PriorFactorPoint3
-    factors = [graph.at(position) for position in range(graph.size())]
+    factors: list[Any] = [graph.at(position) for position in range(graph.size())]
     pose_keys: set[int] = set()
-    measured: list[tuple[int, Any]] = []
     for factor in factors:
         if isinstance(factor, pose_types):
             pose_keys.update(int(key) for key in factor.keys())
-    for position, factor in enumerate(factors):
-        if type(factor) is point_type:
-            pose_key, point_key = (int(key) for key in factor.keys())
-            if point_key not in pose_keys and not isinstance(
-                    factor.noiseModel(), (gtsam.noiseModel.Robust, gtsam.noiseModel.Constrained)):
-                pose_keys.add(pose_key)
-                measured.append((position, factor))
-    point_keys = sorted({int(factor.keys()[1]) for _, factor in measured} - pose_keys)
+    modeled = _measurements(factors, group, pose_keys)
+    point_keys = sorted({keys[1] for kind, keys in modeled.values() if kind != "pose range"}
+                        - pose_keys)
     is_point = set(point_keys)
     pose_factors = gtsam.NonlinearFactorGraph()
-    measurements, point_priors, carried = [], [], []
-    taken = {position for position, _ in measured}
+    measurements, ranges, point_priors, carried = [], [], [], []
     for position, factor in enumerate(factors):
         if factor is None:
             continue
         keys = [int(key) for key in factor.keys()]
+        kind = modeled.get(position, ("", ()))[0]
         if isinstance(factor, pose_types):
             pose_factors.add(factor)
-        elif position in taken:
+        elif kind == "bearing-range":
             point, information = relative_point(factor)
             measurements.append((keys[0], keys[1], point, information))
-        elif type(factor) is prior_type and keys[0] in is_point and not isinstance(
-                factor.noiseModel(), (gtsam.noiseModel.Robust, gtsam.noiseModel.Constrained)):
+        elif kind:
+            ranges.append((keys[0], keys[1], float(factor.measured()),
+                           float(_information(factor)[0, 0])))
+        elif type(factor) is prior_type and keys[0] in is_point and _gaussian(factor):
             point_priors.append((keys[0], np.asarray(factor.prior(), float),
                                  _information(factor)))
         else:
@@ -270,7 +290,37 @@ def split_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, group: 
     point_values = {key: _point_value(values, key, group.d) for key in point_keys
                     if values.exists(key)}
     return Split(pose_factors, pose_values, point_keys, point_values, measurements,
-                 point_priors, tuple(carried), carried_values)
+                 point_priors, tuple(carried), carried_values, ranges)
+
+
+def _gaussian(factor: Any) -> bool:
+    return not isinstance(factor.noiseModel(),
+                          (gtsam.noiseModel.Robust, gtsam.noiseModel.Constrained))
+
+
+def _measurements(factors: list[Any], group: Any, pose_keys: set[int]
+                  ) -> dict[int, tuple[str, tuple[int, ...]]]:
+    """The factors the relaxation models besides the pose factors, by position: their kind
+    (``"bearing-range"``, ``"point range"``, ``"pose range"``) and keys. Their measuring
+    poses join ``pose_keys`` (a pose range's both ends)."""
+    point_type = gtsam.BearingRangeFactor2D if group.d == 2 else gtsam.BearingRangeFactor3D
+    # ranges enter the planar relaxation only (a unit complex number per range)
+    point_range = gtsam.RangeFactor2D if group.d == 2 else None
+    pose_range = gtsam.RangeFactorPose2 if group.d == 2 else None
+    found: dict[int, tuple[str, tuple[int, ...]]] = {}
+    for position, factor in enumerate(factors):
+        kind = type(factor)
+        if factor is None or kind not in (point_type, point_range, pose_range) \
+                or not _gaussian(factor):
+            continue
+        keys = tuple(int(key) for key in factor.keys())
+        if kind is pose_range:
+            found[position] = ("pose range", keys)
+        elif keys[1] not in pose_keys:
+            found[position] = ("bearing-range" if kind is point_type else "point range", keys)
+    for name, keys in found.values():
+        pose_keys.update(keys if name == "pose range" else keys[:1])
+    return found
 
 
 def _check_carried(factor: Any, keys: list[int], values: gtsam.Values,

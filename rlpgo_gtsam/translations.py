@@ -113,26 +113,56 @@ class TranslationStep:
 
     def with_points(self, rotations: np.ndarray) -> np.ndarray:
         """(n, d) positions of least cost for ``rotations`` (used as given) where the graph
-        has landmarks: the poses' and the points' positions solved together, each
-        measurement a whitened residual ``W R_i^T (l - t_i) - W z`` (``W^T W`` its
-        information), the points left out of the result (:meth:`PoseGraph2D.to_values`
-        places them again, at the same positions, as they depend on the poses alone)."""
+        has landmarks: the poses' and the measured points' positions solved together
+        (:meth:`solve_with_points`), the points left out of the result
+        (:meth:`PoseGraph2D.to_values` places them again, at the same positions, as they
+        depend on the poses alone)."""
+        return self.solve_with_points(rotations)[0]
+
+    def solve_with_points(self, rotations: np.ndarray, directions: np.ndarray | None = None
+                          ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Positions of least cost for ``rotations`` (used as given) with the landmarks: each
+        landmark measurement a whitened residual ``W R_i^T (l - t_i) - W z`` (``W^T W`` its
+        information), and, given the ranges' ``directions`` (planar angles (k,)), each range
+        the residual ``(t_b - t_a - r u) / sigma`` (CORA's, linear once the direction ``u`` is
+        fixed). Returns (n, d) pose positions and (p, d) point positions (a point that
+        nothing here measures keeps its value), None without landmarks."""
         g = self.pose_graph
-        points, n = g.points, g.num_poses
+        points, ranges, n = g.points, g.ranges, g.num_poses
         a_j, b = self.whitened(rotations)
-        turned = np.transpose(g.group.rotation_matrices(rotations)[points.edges[:, 0]],
-                              (0, 2, 1))
-        try:
-            w = np.transpose(np.linalg.cholesky(points.information), (0, 2, 1))
-        except np.linalg.LinAlgError:
-            raise SolverError("a landmark measurement's information is not positive "
-                              "definite") from None
-        a = np.concatenate([a_j, w @ turned])
-        edges = np.concatenate([g.edges, np.column_stack([points.edges[:, 0],
-                                                          n + points.edges[:, 1]])])
-        rhs = np.concatenate([b, np.einsum("kab,kb->ka", w, points.measured)])
-        return solve_block_pairwise(n + points.count, edges, -a, a, rhs, self.held,
-                                    self.held_positions)[:n]
+        a, rhs, edges = [a_j], [b], [g.edges]
+        d = g.group.d
+        if points is not None and len(points.edges):
+            turned = np.transpose(g.group.rotation_matrices(rotations)[points.edges[:, 0]],
+                                  (0, 2, 1))
+            try:
+                w = np.transpose(np.linalg.cholesky(points.information), (0, 2, 1))
+            except np.linalg.LinAlgError:
+                raise SolverError("a landmark measurement's information is not positive "
+                                  "definite") from None
+            a.append(w @ turned)
+            rhs.append(np.einsum("kab,kb->ka", w, points.measured))
+            edges.append(np.column_stack([points.edges[:, 0], n + points.edges[:, 1]]))
+        if ranges is not None and directions is not None:
+            root = np.sqrt(ranges.weights)
+            a.append(root[:, None, None] * np.eye(d))
+            rhs.append((root * ranges.measured)[:, None]
+                       * np.column_stack([np.cos(directions), np.sin(directions)]))
+            edges.append(ranges.nodes)
+        pairs = np.concatenate(edges).astype(np.int64)
+        blocks, rhs_all = np.concatenate(a), np.concatenate(rhs)
+        if points is None:
+            return solve_block_pairwise(n, pairs, -blocks, blocks, rhs_all, self.held,
+                                        self.held_positions), None
+        # the points some residual measures, numbered after the poses
+        measured = np.unique(pairs[pairs >= n]) - n
+        node = np.arange(n + points.count)
+        node[n + measured] = n + np.arange(len(measured))
+        solved = solve_block_pairwise(n + len(measured), node[pairs], -blocks, blocks,
+                                      rhs_all, self.held, self.held_positions)
+        placed = points.values.copy()
+        placed[measured] = solved[n:]
+        return solved[:n], placed
 
     def whitened(self, rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The residuals ``A_e (t_j - t_i) - b_e`` at ``rotations`` (whitened, d dof:

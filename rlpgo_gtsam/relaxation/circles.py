@@ -125,11 +125,11 @@ class PlanarProblem(Relaxation):
         rows, cols = np.concatenate([i, j, j, i]), np.concatenate([i, j, i, j])
         rot = sp.coo_matrix((np.concatenate([a, a, -a * r, -a * np.conj(r)]), (rows, cols)),
                             shape=(n, n)).tocsr()
-        # landmarks: translation-only nodes n.. measured from pose i as t_l - t_i - c z_i,
-        # the same translation term as an edge's, without a rotation term
-        i, j, tau, c = self.translation_terms(i, j, tau, c)
+        # landmarks and ranges (Relaxation.extra_terms): translation terms like an edge's,
+        # without a rotation term; a range's unit row is its direction
+        i, j, column, tau, c = self.translation_terms(i, j, tau, c)
         size = self.translation_nodes
-        diag = sp.coo_matrix((tau * np.abs(c) ** 2, (i, i)), shape=(n, n)).tocsr()
+        diag = sp.coo_matrix((tau * np.abs(c) ** 2, (column, column)), shape=(n, n)).tocsr()
         self.anchor = g.anchor
         self.rot = rot
         self.d = (rot + diag).tocsr()
@@ -137,9 +137,9 @@ class PlanarProblem(Relaxation):
         rows, cols = np.concatenate([i, j, j, i]), np.concatenate([i, j, i, j])
         lap = sp.coo_matrix((np.concatenate([tau, tau, -tau, -tau]), (rows, cols)),
                             shape=(size, size)).tocsr()
-        # residual t_j - t_i - c z_i: coupling -2 Re(t^H B z), B[j, i] += tau c, B[i, i] -= tau c
+        # residual t_j - t_i - c z_k: coupling -2 Re(t^H B z), B[j, k] += tau c, B[i, k] -= tau c
         coupling = sp.coo_matrix((np.concatenate([tau * c, -tau * c]),
-                                  (np.concatenate([j, i]), np.concatenate([i, i]))),
+                                  (np.concatenate([j, i]), np.concatenate([column, column]))),
                                  shape=(size, n)).tocsr()
         self.lap = lap[keep][:, keep].tocsc()
         self.b = coupling[keep].tocsr()
@@ -150,8 +150,11 @@ class PlanarProblem(Relaxation):
         except RuntimeError:
             raise SolverError("the measurements do not determine the translations (a pose "
                               "without translational information?)") from None
-        # a one-anchor problem's world frame carries its FIX lines' and priors' weights
-        self.scale = float(np.mean(np.real(self.d.diagonal())[int(g.world_frame):]))
+        # a one-anchor problem's world frame carries its FIX lines' and priors' weights; a
+        # range's row carries w r^2, most of which its translations take back (Q's diagonal
+        # is far below D's there): the poses' rows set the scale
+        self.scale = float(np.mean(np.real(self.d.diagonal())[int(g.world_frame):
+                                                              self.num_poses]))
         if not self.scale > 0:
             raise SolverError("every edge has zero information: nothing to synchronize")
         self._layout: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -159,30 +162,33 @@ class PlanarProblem(Relaxation):
 
     def translation_terms(self, i: np.ndarray, j: np.ndarray, tau: np.ndarray,
                           c: np.ndarray) -> tuple[np.ndarray, ...]:
-        """The edges' translation terms (i, j, tau, c complex) and the landmarks' after them
-        (:meth:`Relaxation.point_terms`)."""
-        pose, node, weight, measured = self.point_terms()
+        """The edges' translation terms (i, j, the unit row i, tau, c complex) and the
+        landmarks' and ranges' after them (:meth:`Relaxation.extra_terms`)."""
+        pose, node, column, weight, measured = self.extra_terms()
         return (np.concatenate([i, pose]), np.concatenate([j, node]),
-                np.concatenate([tau, weight]),
+                np.concatenate([i, column]), np.concatenate([tau, weight]),
                 np.concatenate([c, measured[:, 0] + 1j * measured[:, 1]]))
 
     def _interleaved(self, width: int) -> tuple[np.ndarray, np.ndarray]:
         """Positions in a block matrix of the translation rows (``width`` rows each) and of
         the rotation rows (n,): each pose's rotation row right after its translation's,
         landmarks' translations alone, in the translation Laplacian's fill-reducing order
-        (its factor's column order), the anchor's rotation last. SuperLU's own ordering of
-        the whole block found the same fill at about twice the time."""
-        n = self.n
+        (its factor's column order), then the ranges' directions, the anchor's rotation
+        last. SuperLU's own ordering of the whole block found the same fill at about twice
+        the time."""
+        poses = self.num_poses
         order = np.argsort(self.lap_lu.perm_c)  # translation rows in elimination order
         node = np.delete(np.arange(self.translation_nodes), self.anchor)[order]
-        is_pose = node < n
+        is_pose = node < poses
         span = width + is_pose
         start = np.concatenate([[0], np.cumsum(span)[:-1]])
         pos_t = np.empty(len(node), np.int64)
         pos_t[order] = start
-        pos_z = np.empty(n, np.int64)
+        pos_z = np.empty(self.n, np.int64)
         pos_z[node[is_pose]] = start[is_pose] + width
-        pos_z[self.anchor] = int(np.sum(span))
+        end = int(np.sum(span))  # the ranges' directions, then the anchor's rotation
+        pos_z[poses:] = end + np.arange(self.n - poses)
+        pos_z[self.anchor] = end + self.n - poses
         return pos_t, pos_z
 
     def apply(self, y: np.ndarray) -> np.ndarray:
@@ -286,11 +292,28 @@ class PlanarProblem(Relaxation):
     def start(self, rotations: np.ndarray | None) -> np.ndarray:
         if rotations is not None:
             return self.given(rotations)
-        return np.exp(1j * chordal_rotations(self.pose_graph))[:, None]
+        return self.given(chordal_rotations(self.pose_graph))
 
     def given(self, rotations: np.ndarray) -> np.ndarray:
-        """``z = exp(i theta)`` (n, 1) of angles (n,)."""
-        return np.exp(1j * _angles(rotations, self.n))[:, None]
+        """``z = exp(i theta)`` (n, 1) of the poses' angles (poses,), then each range's
+        direction in the values the graph came with (poses and points)."""
+        angles = _angles(rotations, self.num_poses)
+        ranges = self.pose_graph.ranges
+        if ranges is not None:
+            angles = np.concatenate([angles, self.range_directions()])
+        return np.exp(1j * angles)[:, None]
+
+    def range_directions(self) -> np.ndarray:
+        """(k,) the angle of each range's ``t_b - t_a`` in the values the graph came with
+        (0 where the two coincide)."""
+        g, ranges = self.pose_graph, self.pose_graph.ranges
+        if ranges is None:
+            return np.zeros(0)
+        positions = g.poses[:, :2]
+        if g.points is not None:
+            positions = np.concatenate([positions, g.points.values])
+        step = positions[ranges.nodes[:, 1]] - positions[ranges.nodes[:, 0]]
+        return np.arctan2(step[:, 1], step[:, 0])
 
     def rounded(self, y: np.ndarray) -> np.ndarray:
         return _round(y)
@@ -303,7 +326,8 @@ class PlanarProblem(Relaxation):
 
     def anchored(self, rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The angles of unit complex orientations ``z`` (n,), turned (in place) so that
-        the anchor keeps its own angle; and ``z`` (n, 1)."""
+        the anchor keeps its own angle; and ``z`` (n, 1). With ranges, the poses' angles are
+        followed by the ranges' directions."""
         g, z = self.pose_graph, rotations
         z *= np.exp(1j * g.poses[g.anchor, 2]) / z[g.anchor]
         return wrap(np.angle(z)), z[:, None]

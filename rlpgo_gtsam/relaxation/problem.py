@@ -76,8 +76,8 @@ class Relaxation:
         if not (np.isfinite(kappa).all() and np.isfinite(tau).all()
                 and np.isfinite(g.group.measured(g)).all()):
             raise GraphError("the relaxation needs finite measurements and information")
-        self.pose_graph, self.n, self.kappa, self.tau = g, g.num_poses, kappa, tau
-        points = g.points
+        self.pose_graph, self.kappa, self.tau = g, kappa, tau
+        points, ranges = g.points, g.ranges
         if points is not None:
             if len(points.priors):
                 raise GraphError("point priors enter the relaxation as edges from a world "
@@ -85,20 +85,36 @@ class Relaxation:
             if not (np.isfinite(points.measured).all() and np.isfinite(points.weights()).all()):
                 raise GraphError("the relaxation needs finite landmark measurements and "
                                  "information")
-        self.translation_nodes = self.n + (0 if points is None else points.count)
+        if ranges is not None and not (np.isfinite(ranges.measured).all()
+                                       and np.isfinite(ranges.weights).all()):
+            raise GraphError("the relaxation needs finite ranges and weights")
+        self.num_poses = g.num_poses
+        # unit rows: one per pose, then one per range (its direction, a unit vector)
+        self.n = g.num_poses + (0 if ranges is None else ranges.count)
+        self.translation_nodes = g.num_poses + (0 if points is None else points.count)
 
-    def point_terms(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The landmarks' translation terms ``tau || t_l - t_i - R_i z ||^2`` as edges between
-        translation nodes: measuring pose (k,), the point's node (k,) (``n`` + its index),
-        ``tau`` (k,) (:func:`~rlpgo_gtsam.landmarks.point_weights`) and ``z`` (k, d); empty
-        without landmarks."""
-        points = self.pose_graph.points
-        if points is None:
-            d = self.pose_graph.group.d
-            return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0),
-                    np.zeros((0, d)))
-        return (points.edges[:, 0], self.n + points.edges[:, 1], points.weights(),
-                points.measured)
+    def extra_terms(self) -> tuple[np.ndarray, ...]:
+        """The translation terms besides the edges', each ``w || t_b - t_a - U_c m ||^2``
+        between translation nodes ``a`` and ``b`` (poses ``0..n-1``, then the points) with
+        the unit row ``c``: a landmark measurement (``a`` its pose, ``b`` the point's node,
+        ``c = a``, ``m`` the point in the pose's frame, ``w`` its isotropic weight
+        (:func:`~rlpgo_gtsam.landmarks.point_weights`)), and in the plane a range (``a``, ``b``
+        its nodes, ``c`` its own unit row after the poses', ``m = (r, 0)``, ``w = 1 /
+        sigma^2``: CORA's formulation, the direction a unit vector of its own). Returns
+        ``(a, b, c, w, m)``: (k,) arrays and (k, d)."""
+        g, d = self.pose_graph, self.pose_graph.group.d
+        parts = [(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                  np.zeros(0), np.zeros((0, d)))]
+        points, ranges = g.points, g.ranges
+        if points is not None:
+            parts.append((points.edges[:, 0], self.num_poses + points.edges[:, 1],
+                          points.edges[:, 0], points.weights(), points.measured))
+        if ranges is not None:
+            measured = np.zeros((ranges.count, d))
+            measured[:, 0] = ranges.measured
+            parts.append((ranges.nodes[:, 0], ranges.nodes[:, 1],
+                          self.num_poses + np.arange(ranges.count), ranges.weights, measured))
+        return tuple(np.concatenate(column) for column in zip(*parts, strict=True))
 
     # Q as an operator, the methods of a subclass (see the class docstring)
     apply: Callable[[np.ndarray], np.ndarray]

@@ -178,6 +178,8 @@ class SpatialProblem(Relaxation):
 
     def __init__(self, pose_graph: PoseGraph3D) -> None:
         super().__init__(pose_graph)
+        if pose_graph.ranges is not None:
+            raise SolverError("ranges enter the planar relaxation only")
         self.dense = 3 * self.n < max(_DENSE_Q_BELOW, _DENSE_BELOW)
         self._layout: tuple[sp.csc_matrix, np.ndarray, np.ndarray] | None = None
         self._order: np.ndarray | None = None  # the first sparse factor's elimination order
@@ -212,7 +214,7 @@ class SpatialProblem(Relaxation):
                                       weights=rotation.ravel(),
                                       minlength=size * size).reshape(size, size)
         # the edges' translation terms and the landmarks' (translation nodes n..)
-        pose, node, weight, measured = self.point_terms()
+        pose, node, _, weight, measured = self.extra_terms()
         i, j = np.concatenate([i, pose]), np.concatenate([j, node])
         tau = np.concatenate([tau, weight])
         column = np.arange(nodes) - (np.arange(nodes) > g.anchor)  # t's columns, anchor's last
@@ -245,7 +247,7 @@ class SpatialProblem(Relaxation):
         i, j = g.edges[:, 0], g.edges[:, 1]
         eye = np.broadcast_to(np.eye(3), (len(i), 3, 3))
         # the edges' translation terms and the landmarks' (translation nodes n..)
-        pose, node, weight, measured = self.point_terms()
+        pose, node, _, weight, measured = self.extra_terms()
         t = np.concatenate([g.measured_translations, measured])
         tau_all = np.concatenate([tau, weight])
         anchored = tau_all[:, None, None] * t[:, :, None] * t[:, None, :]  # tau t~ t~^T at (i, i)
