@@ -164,14 +164,15 @@ def test_a_certified_whole_graph_is_not_beaten_by_any_method(group):
 
 def test_carried_factors_make_the_certificate_not_applicable():
     graph, values = planar_slam_example()
-    graph.add(gtsam.RangeFactor2D(X(3), L(1), 2.5, gtsam.noiseModel.Isotropic.Sigma(1, 0.1)))
+    graph.add(gtsam.BearingFactor2D(X(3), L(1), gtsam.Rot2.fromDegrees(135),
+                                    gtsam.noiseModel.Isotropic.Sigma(1, 0.1)))
     run = staged_initialize(graph, values)
     certificate = run.certificate
     assert not run.certified and not certificate.certified
     assert str(certificate.status) == "not_applicable"
-    assert certificate.outside == ("RangeFactor2D x 1",)
+    assert certificate.outside == ("BearingFactor2D x 1",)
     assert certificate.relaxed == "certified"
-    assert "not applicable: RangeFactor2D x 1 outside the relaxation" in certificate.describe()
+    assert "not applicable: BearingFactor2D x 1 outside the relaxation" in certificate.describe()
     assert "certified optimal" not in certificate.describe()
     assert "does not apply" in run.stopped
     # LM refined the whole graph, the range included
@@ -179,16 +180,17 @@ def test_carried_factors_make_the_certificate_not_applicable():
 
 
 def test_a_carried_factor_with_its_own_variable_keeps_the_users_value():
-    """A GPS-like prior on a separate Point2 tied to a pose by a carried factor: the other
-    variable keeps its value, LM refines everything."""
+    """A GPS-like prior on a separate Point2 tied to a pose by a bearing: the other variable
+    keeps its value, LM refines everything."""
     graph, values = planar_slam_example()
     other = int(gtsam.symbol("g", 0))
     graph.add(gtsam.PriorFactorPoint2(other, gtsam.Point2(4.0, 0.0),
                                       gtsam.noiseModel.Isotropic.Sigma(2, 0.5)))
-    graph.add(gtsam.RangeFactor2D(X(3), other, 0.1, gtsam.noiseModel.Isotropic.Sigma(1, 0.1)))
+    graph.add(gtsam.BearingFactor2D(X(3), other, gtsam.Rot2.fromDegrees(-90),
+                                    gtsam.noiseModel.Isotropic.Sigma(1, 0.1)))
     values.insert(other, gtsam.Point2(4.2, 0.3))
     g = extract_pose_graph(graph, values)
-    assert [item.kind for item in g.carried] == ["PriorFactorPoint2", "RangeFactor2D"]
+    assert [item.kind for item in g.carried] == ["PriorFactorPoint2", "BearingFactor2D"]
     start = g.to_values(g.poses)
     assert np.allclose(start.atPoint2(other), [4.2, 0.3])
     run = staged_initialize(graph, values)
@@ -198,9 +200,9 @@ def test_a_carried_factor_with_its_own_variable_keeps_the_users_value():
 
 def test_a_carried_factor_on_a_variable_without_a_value_names_both():
     graph, values = planar_slam_example()
-    graph.add(gtsam.RangeFactor2D(X(3), int(gtsam.symbol("b", 7)), 1.0,
-                                  gtsam.noiseModel.Isotropic.Sigma(1, 0.1)))
-    with pytest.raises(GraphError, match="RangeFactor2D on x3 b7: key b7 has no value"):
+    graph.add(gtsam.BearingFactor2D(X(3), int(gtsam.symbol("b", 7)), gtsam.Rot2(0.3),
+                                    gtsam.noiseModel.Isotropic.Sigma(1, 0.1)))
+    with pytest.raises(GraphError, match="BearingFactor2D on x3 b7: key b7 has no value"):
         staged_initialize(graph, values)
 
 
