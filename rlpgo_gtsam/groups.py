@@ -30,7 +30,8 @@ from rlpgo_gtsam.se3 import pose_matrices
 # A pose graph's extraction (:data:`rlpgo_gtsam.graph.PoseGraph`, which imports this module).
 PoseGraph = Any
 
-__all__ = ["Group", "SE2", "SE3", "GROUPS", "group_of", "graph_group", "pose3_arrays"]
+__all__ = ["Group", "SE2", "SE3", "GROUPS", "group_of", "graph_group", "pose3_arrays",
+           "key_text"]
 
 
 class Group:
@@ -328,6 +329,11 @@ def pose3_arrays(poses: list[gtsam.Pose3]) -> tuple[np.ndarray, np.ndarray]:
 def group_of(pose_graph: Any) -> Group:
     """The group of a pose graph's extraction (its ``group``)."""
     return pose_graph.group
+
+
+def key_text(key: int) -> str:
+    """A key as GTSAM prints it (``x2`` for a symbol, ``12`` for a plain integer)."""
+    return str(gtsam.DefaultKeyFormatter(int(key)))
 
 
 def graph_group(graph: gtsam.NonlinearFactorGraph) -> Group:

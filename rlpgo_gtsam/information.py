@@ -14,7 +14,7 @@ edges, hard and soft priors, for :mod:`rlpgo_gtsam.graph`'s extraction.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -22,7 +22,7 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
-from rlpgo_gtsam.groups import SE2, SE3
+from rlpgo_gtsam.groups import SE2, SE3, key_text
 
 if TYPE_CHECKING:
     from rlpgo_gtsam.groups import Group
@@ -170,7 +170,7 @@ def sort_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int], group
     if fast is not None:
         return fast
     factors = Factors()
-    names: list[str] = []
+    names: list[str | tuple[int, int]] = []  # each edge's keys, worded only for an error
 
     def refuse(message: str) -> GraphError:
         # the edges' information is checked in one batch; an edge before this factor whose
@@ -187,8 +187,8 @@ def sort_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int], group
             i, j = factor.keys()
             for key in (i, j):
                 if key not in index:
-                    raise refuse(f"between factor {i}-{j}: key {key} has no value")
-            name = f"between factor {i}-{j}"
+                    raise refuse(f"{_between(i, j)}: key {key_text(key)} has no value")
+            name = (i, j)
             information = _gaussian_information(factor, name, refuse)
             factors.edges.append((index[i], index[j]))
             factors.measured.append(pose(factor.measured()))
@@ -197,7 +197,7 @@ def sort_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int], group
         elif isinstance(factor, prior):
             key = factor.keys()[0]
             if key not in index:
-                raise refuse(f"prior factor on key {key}: the key has no value")
+                raise refuse(f"prior factor on key {key_text(key)}: the key has no value")
             entry = (index[key], pose(factor.prior()))
             if isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
                 factors.hard.append(entry)
@@ -205,7 +205,7 @@ def sort_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int], group
                 _check_information(factors.information, names, size, check_information,
                                    max_condition)
                 factors.soft_information.append(
-                    factor_information(factor, f"prior factor on key {key}", size,
+                    factor_information(factor, f"prior factor on key {key_text(key)}", size,
                                        max_condition=max_condition))
                 factors.soft.append(entry)
         else:
@@ -267,7 +267,7 @@ def _sort_usable_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int
             continue
         try:
             sorted_factors.soft_information.append(
-                factor_information(factor, f"prior factor on key {key}", size,
+                factor_information(factor, f"prior factor on key {key_text(key)}", size,
                                    max_condition=max_condition))
         except GraphError:
             return None
@@ -275,7 +275,17 @@ def _sort_usable_factors(graph: gtsam.NonlinearFactorGraph, index: dict[int, int
     return sorted_factors
 
 
-def _check_information(informations: list[np.ndarray], names: list[str], size: int,
+def _between(i: int, j: int) -> str:
+    return f"between factor {key_text(i)}-{key_text(j)}"
+
+
+def _worded(name: str | tuple[int, int]) -> str:
+    """A factor's name in an error: given, or an edge's keys worded."""
+    return name if isinstance(name, str) else _between(*name)
+
+
+def _check_information(informations: list[np.ndarray], names: Sequence[str | tuple[int, int]],
+                       size: int,
                        check: bool, max_condition: float = MAX_CONDITION) -> None:
     """Raise the error of the first of the edges' information matrices that
     :func:`factor_information` would refuse (all checked at once)."""
@@ -286,12 +296,12 @@ def _check_information(informations: list[np.ndarray], names: list[str], size: i
         problems = information_problems(stack, max_condition)
         first = next((k for k, problem in enumerate(problems) if problem is not None), None)
         if first is not None:
-            raise GraphError(f"{names[first]}: {problems[first]}")
+            raise GraphError(f"{_worded(names[first])}: {problems[first]}")
         return
     bad = np.flatnonzero(~_semidefinite(stack))
     if len(bad):
-        raise GraphError(f"{names[bad[0]]}: information matrix is not finite and positive "
-                         "semidefinite")
+        raise GraphError(f"{_worded(names[bad[0]])}: information matrix is not finite and "
+                         "positive semidefinite")
 
 
 def _semidefinite(stack: np.ndarray) -> np.ndarray:
@@ -304,18 +314,18 @@ def _semidefinite(stack: np.ndarray) -> np.ndarray:
     return result
 
 
-def _gaussian_information(factor, name: str, refuse: Callable[[str], Exception] = GraphError
-                          ) -> np.ndarray:
+def _gaussian_information(factor, name: str | tuple[int, int],
+                          refuse: Callable[[str], Exception] = GraphError) -> np.ndarray:
     """The information of ``factor``'s noise model, which must be Gaussian and not
     constrained (``refuse(message)`` makes the error)."""
     model = factor.noiseModel()
     if not isinstance(model, gtsam.noiseModel.Gaussian):
         raise refuse(
-            f"{name} has a {type(model).__name__} noise model; the initializers need Gaussian "
-            "models (wrap the graph's robust models after initialization)"
+            f"{_worded(name)} has a {type(model).__name__} noise model; the initializers need "
+            "Gaussian models (wrap the graph's robust models after initialization)"
         )
     if isinstance(model, gtsam.noiseModel.Constrained):
-        raise refuse(f"{name} has a constrained noise model; only priors may be hard")
+        raise refuse(f"{_worded(name)} has a constrained noise model; only priors may be hard")
     return model.information()
 
 
@@ -482,7 +492,7 @@ def printed_of(graph: gtsam.NonlinearFactorGraph, information: np.ndarray,
     if check and not found.all():
         first = refused[int(np.flatnonzero(~found)[0])]
         i, j = factors[first].keys()
-        raise GraphError(f"between factor {i}-{j}: {problems[first]}")
+        raise GraphError(f"{_between(i, j)}: {problems[first]}")
     return {information[k].tobytes(): matrix
             for k, matrix in zip(np.array(refused)[found].tolist(), printed[found], strict=True)}
 

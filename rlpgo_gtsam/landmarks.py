@@ -26,6 +26,7 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
+from rlpgo_gtsam.groups import key_text
 
 __all__ = ["bearing_range_factor", "relative_point", "point_jacobian", "landmark_key",
            "POINT_FACTORS", "point_weights", "Points", "Carried", "Split", "split_graph",
@@ -126,11 +127,6 @@ def point_weights(information: np.ndarray) -> np.ndarray:
     ok = det > 0
     weights[ok] = d / np.trace(np.linalg.inv(information[ok]), axis1=1, axis2=2)
     return weights
-
-
-def key_text(key: int) -> str:
-    """A key as GTSAM prints it (``l7`` for a symbol, ``12`` for a plain integer)."""
-    return str(gtsam.DefaultKeyFormatter(int(key)))
 
 
 def _keys(factor: Any) -> str:
@@ -253,6 +249,7 @@ def split_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, group: 
     for factor in factors:
         if isinstance(factor, pose_types):
             pose_keys.update(int(key) for key in factor.keys())
+    in_pose_factors = set(pose_keys)
     modeled = _measurements(factors, group, pose_keys)
     point_keys = sorted({keys[1] for kind, keys in modeled.values() if kind != "pose range"}
                         - pose_keys)
@@ -280,9 +277,13 @@ def split_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, group: 
             carried.append(Carried(position, type(factor).__name__, tuple(keys)))
     pose_values = gtsam.Values()
     for key in sorted(pose_keys):
-        if not values.exists(key):
-            raise GraphError(f"pose key {key_text(key)} has no value")
-        pose_values.insert(key, _pose_value(values, key, group.pose_type))
+        if values.exists(key):
+            pose_values.insert(key, _pose_value(values, key, group.pose_type))
+        elif key not in in_pose_factors:
+            # a pose factor's key without a value: the pose graph's extraction names it
+            factor = next(f for f in factors if f is not None and key in f.keys())
+            raise GraphError(f"{type(factor).__name__} on {_keys(factor)}: key "
+                             f"{key_text(key)} has no value")
     carried_values = gtsam.Values(values)  # every value of the graph's other variables
     for key in pose_keys | is_point:
         if carried_values.exists(key):

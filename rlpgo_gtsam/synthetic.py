@@ -77,6 +77,25 @@ the optimum); with ``noisy_measurements=True`` each is perturbed by a draw from 
 model (``Rot2`` / ``Unit3`` retraction of the bearing, the range plus its noise). The
 initial guess puts each point where its first measurement places it from the chained
 initial pose. Landmark factors follow every pose-graph factor, by pose, then nearest first.
+
+Ranges (:func:`generate_ranges`, :class:`RangeSettings`; planar): CORA's problem, vehicles
+that measure distances (acoustic beacons, UWB). The same lawn mower (the same draws again),
+then ``beacons`` fixed points, each uniform in the bounding box of the true path grown by
+``margin_m`` on every side, redrawn until at least :data:`MIN_BEACON_RANGES` poses range to
+it (one range leaves a beacon anywhere on a circle, two a mirror pair). The poses that
+range, every ``pose_stride``-th from pose 0, each measure the distance to every beacon
+between the blind zone (``RANGE_SIGMAS x sigma_range``: a range noise of 6 sigmas would be
+needed to make a range negative) and ``sensor_range``: GTSAM's ``RangeFactor2D``. Then
+``pose_ranges`` distances between pairs of poses (robots meeting, inter-pose UWB):
+``RangeFactorPose2``, each pair a pose drawn uniformly, then a partner drawn uniformly among
+the other poses between the blind zone and the sensor range from it, no pair twice. Noise model
+``Isotropic.Sigma(1, sigma_range)``. Beacons are named ``l0, l1, ...`` in the order they are
+placed. Measurements are exact by default; with ``noisy_measurements=True`` each range gets
+a Gaussian draw, redrawn in the (1e-9) case that the range comes out non-positive. The
+initial guess puts each beacon at the centroid of the chained initial positions of the poses
+that range to it: what a robot knows before solving, nothing of the truth. Beacon ranges
+follow every pose-graph factor, by pose, then by beacon; the pose-to-pose ranges come last,
+by pair.
 """
 
 from __future__ import annotations
@@ -96,7 +115,8 @@ from rlpgo_gtsam.landmarks import landmark_key, relative_point
 __all__ = ["SyntheticGraph", "generate", "generate_landmarks", "LandmarkSettings",
            "add_outliers", "scaled_informations", "with_informations", "OUTLIER_MODES",
            "VERTIGO_MODES", "ROW_LENGTH", "LAYER_ROWS", "GROUP_SIZE", "LOCAL_RANGE",
-           "MIN_RANGE_FRACTION", "RANGE_SIGMAS"]
+           "MIN_RANGE_FRACTION", "RANGE_SIGMAS", "generate_ranges", "RangeSettings",
+           "MIN_BEACON_RANGES"]
 
 ROW_LENGTH = 10
 LAYER_ROWS = 10  # 3D: rows of a layer
@@ -115,6 +135,11 @@ MIN_RANGE_FRACTION = 0.05
 # ... and in range noise sigmas: a Gaussian range drawn 6 sigmas from the truth (1e-9 a
 # measurement) is what it takes for a noisy range to come out negative.
 RANGE_SIGMAS = 6.0
+# Poses that must range to a beacon: fewer leave it on a circle (one) or a mirror pair (two).
+MIN_BEACON_RANGES = 3
+# Placements tried per beacon, and draws per pose-to-pose range, before giving up on
+# settings that leave too few poses in range.
+_TRIES_PER_RANGE = 1000
 
 
 @dataclass
@@ -156,6 +181,34 @@ class LandmarkSettings:
     def blind_range_m(self) -> float:
         """The blind zone's radius: points nearer than this to a pose are not measured."""
         return max(MIN_RANGE_FRACTION * self.sensor_range_m, RANGE_SIGMAS * self.sigma_range_m)
+
+
+@dataclass(frozen=True)
+class RangeSettings:
+    """How :func:`generate_ranges` places beacons and measures ranges (see the module
+    docstring)."""
+
+    beacons: int
+    """Fixed points placed (>= 0), keyed ``landmark_key(0) ...``; each gets at least
+    :data:`MIN_BEACON_RANGES` ranges, so the graph holds them all."""
+    pose_ranges: int = 0
+    """Distances measured between pairs of poses (>= 0)."""
+    # the landmarks' range sensor: rlpgo-generate's --sigma-range and --sensor-range serve both
+    sigma_range_m: float = LandmarkSettings.sigma_range_m
+    """Range noise, metres (> 0); at most ``sensor_range_m / RANGE_SIGMAS``, so that the
+    blind zone leaves a ring to measure in."""
+    sensor_range_m: float = LandmarkSettings.sensor_range_m
+    """The farthest a range reaches, metres (> 0); beyond the map's diagonal, every pose
+    that ranges reaches every beacon."""
+    pose_stride: int = 1
+    """Only every this-many-th pose (poses 0, k, 2k, ...) ranges to the beacons (>= 1)."""
+    margin_m: float = 5.0
+    """Beacons lie in the true path's bounding box grown by this much on every side, metres
+    (>= 0)."""
+
+    def blind_range_m(self) -> float:
+        """The blind zone's radius: nearer than this, a pair is not measured."""
+        return RANGE_SIGMAS * self.sigma_range_m
 
 
 def _planar_poses(n: int, d: float) -> list[gtsam.Pose2]:
@@ -422,6 +475,164 @@ def _check_landmarks(landmarks: LandmarkSettings) -> None:
                          "negative; lower sigma_range or raise the sensor range")
     if landmarks.max_per_pose is not None and landmarks.max_per_pose < 1:
         raise RlpgoError(f"max_per_pose must be >= 1 (or None), got {landmarks.max_per_pose}")
+
+
+def generate_ranges(
+    n: int,
+    sigma_r: float,
+    sigma_t: float,
+    d: float,
+    lc: float,
+    rng: np.random.Generator,
+    ranges: RangeSettings,
+    noisy_measurements: bool = False,
+) -> SyntheticGraph:
+    """Generate a planar lawn mower (:func:`generate`'s, without wrong closures) that also
+    measures ranges to beacons and between poses (see the module docstring).
+
+    Args:
+        n, sigma_r, sigma_t, d, lc, rng: as for :func:`generate` (``lc = 0``: odometry
+            alone); the poses are integer keys ``0 ... n - 1``, ``Pose2`` values.
+        ranges: how the beacons are placed and the ranges measured.
+        noisy_measurements: perturb every measurement, odometry, loop closures and ranges,
+            by a draw from its noise model (the ground truth is then not the optimum); by
+            default measurements are exact and only the initial guess is noisy.
+
+    Returns:
+        The graph (between factors, then ``RangeFactor2D`` pose-beacon ranges, then
+        ``RangeFactorPose2`` pose-pose ranges), the initial guess (chained odometry; each
+        beacon at the centroid of the initial positions of the poses that range to it) and
+        the ground truth, poses and beacons (``Point2``); ``num_landmarks`` is the number
+        of beacons.
+
+    Raises:
+        RlpgoError: settings out of range, or settings that leave a beacon or a pose-to-pose
+            range without enough poses in range.
+    """
+    _check_settings(n, sigma_r, sigma_t, d, lc, 0.0, OUTLIER_MODES[0], GROUP_SIZE)
+    _check_ranges(ranges)
+    sample = _pose_graph(n, sigma_r, sigma_t, d, lc, rng, noisy_measurements, SE2)
+    positions = np.array([np.asarray(sample.ground_truth.atPose2(k).translation(), float)
+                          for k in range(n)])
+    inner, outer = ranges.blind_range_m(), ranges.sensor_range_m
+    beacons, sightings = _place_beacons(positions, ranges, rng)
+    pairs = _pose_pairs(positions, ranges.pose_ranges, inner, outer, rng)
+
+    noise = gtsam.noiseModel.Isotropic.Sigma(1, ranges.sigma_range_m)
+    beacon_ranges = _measured_ranges(
+        np.linalg.norm(beacons[sightings[:, 1]] - positions[sightings[:, 0]], axis=1),
+        ranges.sigma_range_m, noisy_measurements, rng)
+    pose_ranges = _measured_ranges(
+        np.linalg.norm(positions[pairs[:, 1]] - positions[pairs[:, 0]], axis=1),
+        ranges.sigma_range_m, noisy_measurements, rng)
+    for (k, j), measured in zip(sightings.tolist(), beacon_ranges.tolist(), strict=True):
+        sample.graph.add(gtsam.RangeFactor2D(k, landmark_key(j), measured, noise))
+    for (a, b), measured in zip(pairs.tolist(), pose_ranges.tolist(), strict=True):
+        sample.graph.add(gtsam.RangeFactorPose2(a, b, measured, noise))
+
+    start = np.array([np.asarray(sample.initial.atPose2(k).translation(), float)
+                      for k in range(n)])
+    for j, beacon in enumerate(beacons):
+        ranging = sightings[sightings[:, 1] == j, 0]
+        sample.initial.insert(landmark_key(j), start[ranging].mean(axis=0))
+        sample.ground_truth.insert(landmark_key(j), beacon)
+    sample.num_landmarks = len(beacons)
+    return sample
+
+
+def _place_beacons(positions: np.ndarray, ranges: RangeSettings,
+                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(beacons, 2) positions, each uniform in the grown bounding box of ``positions``
+    (n, 2) until :data:`MIN_BEACON_RANGES` of the ranging poses reach it, and the (pose,
+    beacon) pairs that range, (m, 2), by pose, then beacon."""
+    from scipy.spatial import cKDTree
+
+    low = positions.min(axis=0) - ranges.margin_m
+    high = positions.max(axis=0) + ranges.margin_m
+    if ranges.beacons and np.any(high <= low):
+        raise RlpgoError("the path is a line and the margin is 0: beacons on the path's line "
+                         "cannot be located across it; give a positive margin")
+    ranging = np.arange(0, len(positions), ranges.pose_stride)
+    tree = cKDTree(positions[ranging])
+    inner, outer = ranges.blind_range_m(), ranges.sensor_range_m
+    beacons = np.empty((ranges.beacons, 2))
+    pairs: list[tuple[int, int]] = []
+    for j in range(ranges.beacons):
+        for _ in range(_TRIES_PER_RANGE):
+            beacon = rng.uniform(low, high)
+            near = np.asarray(tree.query_ball_point(beacon, outer), np.int64)
+            near = near[np.linalg.norm(positions[ranging[near]] - beacon, axis=1) >= inner]
+            if len(near) >= MIN_BEACON_RANGES:
+                break
+        else:
+            raise RlpgoError(
+                f"could not place beacon {j + 1} of {ranges.beacons} where at least "
+                f"{MIN_BEACON_RANGES} poses range to it after {_TRIES_PER_RANGE} tries: "
+                "raise the sensor range, or lower the margin or the pose stride")
+        beacons[j] = beacon
+        pairs.extend((int(k), j) for k in ranging[near])
+    sightings = np.array(pairs, np.int64).reshape(-1, 2)
+    return beacons, sightings[np.lexsort((sightings[:, 1], sightings[:, 0]))]
+
+
+def _pose_pairs(positions: np.ndarray, count: int, inner: float, outer: float,
+                rng: np.random.Generator) -> np.ndarray:
+    """(count, 2) pose index pairs (a < b), by pair: a pose drawn uniformly, then a partner
+    uniformly among the poses between ``inner`` and ``outer`` of it, no pair twice."""
+    from scipy.spatial import cKDTree
+
+    if count == 0:
+        return np.empty((0, 2), np.int64)
+    tree = cKDTree(positions)
+    taken: set[tuple[int, int]] = set()
+    for drawn in range(count):
+        for _ in range(_TRIES_PER_RANGE):
+            a = int(rng.integers(len(positions)))
+            near = np.asarray(tree.query_ball_point(positions[a], outer), np.int64)
+            near = near[np.linalg.norm(positions[near] - positions[a], axis=1) >= inner]
+            free = [int(b) for b in near if (min(a, b), max(a, b)) not in taken]
+            if free:
+                b = free[int(rng.integers(len(free)))]
+                taken.add((min(a, b), max(a, b)))
+                break
+        else:
+            raise RlpgoError(
+                f"could not draw pose-to-pose range {drawn + 1} of {count} after "
+                f"{_TRIES_PER_RANGE} tries: too few pose pairs within the sensor range")
+    return np.array(sorted(taken), np.int64).reshape(-1, 2)
+
+
+def _measured_ranges(distances: np.ndarray, sigma: float, noisy: bool,
+                     rng: np.random.Generator) -> np.ndarray:
+    """The true ``distances``, or each plus N(0, sigma), redrawn while it is not positive."""
+    if not noisy:
+        return distances
+    measured = distances + rng.normal(0.0, sigma, size=len(distances))
+    while (bad := measured <= 0).any():
+        measured[bad] = distances[bad] + rng.normal(0.0, sigma, size=int(bad.sum()))
+    return measured
+
+
+def _check_ranges(ranges: RangeSettings) -> None:
+    if ranges.beacons < 0 or ranges.pose_ranges < 0:
+        raise RlpgoError(f"beacons and pose_ranges must be >= 0, got {ranges.beacons} and "
+                         f"{ranges.pose_ranges}")
+    if ranges.beacons == 0 and ranges.pose_ranges == 0:
+        raise RlpgoError("a range graph needs at least 1 beacon or 1 pose-to-pose range")
+    if min(ranges.sensor_range_m, ranges.sigma_range_m) <= 0:
+        raise RlpgoError("the sensor range and sigma_range must be positive")
+    if not np.isfinite(ranges.sensor_range_m):
+        raise RlpgoError("the sensor range must be finite: beyond the map's diagonal, every "
+                         "pose that ranges reaches every beacon")
+    if ranges.blind_range_m() >= ranges.sensor_range_m:
+        raise RlpgoError(f"sigma_range = {ranges.sigma_range_m:g} m leaves nothing to "
+                         f"measure within the sensor range of {ranges.sensor_range_m:g} m: "
+                         f"nearer than {RANGE_SIGMAS:g} sigma_range a range may come out "
+                         "negative; lower sigma_range or raise the sensor range")
+    if ranges.pose_stride < 1:
+        raise RlpgoError(f"pose_stride must be >= 1, got {ranges.pose_stride}")
+    if not ranges.margin_m >= 0:
+        raise RlpgoError(f"the beacons' margin must be >= 0 m, got {ranges.margin_m}")
 
 
 def add_outliers(
