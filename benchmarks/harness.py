@@ -378,7 +378,12 @@ def sesync_binary(given: str | None) -> str | None:
 # --- anchors: GTSAM's own optimizers ----------------------------------------------------------
 
 def _first_key(values) -> int:
-    return int(min(values.keys()))
+    """The lowest pose key (landmarks, ``l``-symbols or not, are never the anchor)."""
+    import gtsam
+
+    poses = gtsam.utilities.allPose3s(values) if _is_spatial(values) else \
+        gtsam.utilities.allPose2s(values)
+    return int(min(poses.keys()))
 
 
 def _is_spatial(values) -> bool:
@@ -401,6 +406,13 @@ def gtsam_lm(graph, values, iterations: int = 30) -> tuple[float | None, float, 
     """GTSAM's Levenberg-Marquardt with its default parameters, ``iterations`` at most and
     the first pose held by a constrained prior: (chi2 = 2 x the graph's error at the result,
     CPU seconds, failure or None)."""
+    _, chi2, seconds, failure = gtsam_lm_result(graph, values, iterations)
+    return chi2, seconds, failure
+
+
+def gtsam_lm_result(graph, values, iterations: int = 30):
+    """:func:`gtsam_lm` with its result: (values or None, chi2 or None, CPU seconds,
+    failure or None)."""
     import gtsam
 
     key = _first_key(values)
@@ -413,8 +425,8 @@ def gtsam_lm(graph, values, iterations: int = 30) -> tuple[float | None, float, 
     try:
         result = gtsam.LevenbergMarquardtOptimizer(fixed, values, params).optimize()
     except RuntimeError as error:
-        return None, time.process_time() - start, str(error).strip().splitlines()[0]
-    return 2.0 * graph.error(result), time.process_time() - start, None
+        return None, None, time.process_time() - start, str(error).strip().splitlines()[0]
+    return result, 2.0 * graph.error(result), time.process_time() - start, None
 
 
 def gnc(graph, start, known_inliers: Sequence[int], params=None):
@@ -511,6 +523,147 @@ def gtsam_staircase(graph, values, max_rank_step: int = 3) -> dict | None:
     return {"certified": bool(result.certified), "rank": int(result.finalRank),
             "seconds": float(result.totalTime), "min_eigenvalue": float(result.minEigenvalue),
             "rotations": found}
+
+
+# GTSAM's certifiable SE(d) notebooks' settings (CertifiableLandmarkSLAMPose2/3): the highest
+# rank, eta, and the augmented Lagrangian's iteration cap and initial penalty (None: its own).
+_SE_STAIRCASE_SETTINGS = {2: (6, 1e-3, 100, None), 3: (7, 1e-3, 200, 300.0)}
+
+
+def gtsam_se_staircase(graph, values) -> dict | None:
+    """GTSAM's ``RiemannianStaircaseOptimizer`` on the whole SE(d) problem of a pose graph,
+    landmarks included, built as GTSAM's ``CertifiableLandmarkSLAMPose2/3`` notebooks build
+    it: per pose edge a ``FrobeniusBetweenFactorRot<d>`` (``Isotropic.Variance(1 | 3,
+    1 / kappa)``) and a ``RelativeTranslationFactor<d>`` (weight tau); per bearing-range
+    factor a ``RelativeTranslationFactor<d>`` from the pose to the point variable (weight nu,
+    the point in the pose's frame by :func:`rlpgo_gtsam.landmarks.relative_point`). The
+    weights are SE-Sync's (:func:`_rotation_weight`; ``d / tr(Sigma)`` of the translation or
+    the point). The lifted start is ``values``: ``R_i^T`` (d x d), ``t_i`` and the points as
+    1 x d rows; the parameters are the notebooks' (pMin = d, pMax 6 | 7, eta 1e-3, the
+    augmented Lagrangian's 100 | 200 iterations, initial penalty 300 in 3D). The rounded
+    solution is turned back as the notebooks do: a global reflection undone where most
+    rotation blocks have a negative determinant, each block projected onto SO(d).
+
+    Returns ``certified``, ``rank``, ``ranks`` (visited), ``seconds`` (its ``totalTime``),
+    ``wall_seconds`` (building the problem, the staircase and the rounding), ``min_eigenvalue``,
+    ``cost`` (its cost at the last level, in its own units), ``values`` (the rounded estimate
+    under ``values``' keys, Pose2/Pose3 and Point2/Point3; None where it rounded none) and
+    ``failure`` (a factor it does not model, or its error; None). None where the gtsam
+    wheel has no such optimizer.
+    """
+    import gtsam
+    import numpy as np
+
+    from rlpgo_gtsam.landmarks import point_weights, relative_point
+
+    if not hasattr(gtsam, "RiemannianStaircaseOptimizer"):
+        return None
+    began = time.perf_counter()
+    spatial = _is_spatial(values)
+    d = 3 if spatial else 2
+    frobenius = getattr(gtsam, f"FrobeniusBetweenFactorRot{d}")
+    relative = getattr(gtsam, f"RelativeTranslationFactor{d}")
+    between, bearing_range, at, point_type = (
+        (gtsam.BetweenFactorPose3, gtsam.BearingRangeFactor3D, values.atPose3, gtsam.Point3)
+        if spatial else
+        (gtsam.BetweenFactorPose2, gtsam.BearingRangeFactor2D, values.atPose2, gtsam.Point2))
+    poses = [int(k) for k in (gtsam.utilities.allPose3s(values) if spatial
+                              else gtsam.utilities.allPose2s(values)).keys()]
+    pose_index = {key: index for index, key in enumerate(poses)}
+    point_index: dict[int, int] = {}
+    lifted = gtsam.NonlinearFactorGraph()
+    for k in range(graph.size()):
+        factor = graph.at(k)
+        if isinstance(factor, between):
+            i, j = (pose_index[int(key)] for key in factor.keys())
+            information = factor.noiseModel().information()
+            kappa = _rotation_weight(information, spatial)
+            block = information[3:, 3:] if spatial else information[:2, :2]
+            tau = float(point_weights(np.array([block]))[0])
+            measured = factor.measured()
+            lifted.add(frobenius(gtsam.symbol("R", i), gtsam.symbol("R", j),
+                                 measured.rotation(),
+                                 gtsam.noiseModel.Isotropic.Variance(1 if d == 2 else 3,
+                                                                     1.0 / kappa)))
+            lifted.add(relative(gtsam.symbol("R", i), gtsam.symbol("T", i),
+                                gtsam.symbol("T", j), np.asarray(measured.translation()), tau))
+        elif isinstance(factor, bearing_range):
+            pose_key, point_key = (int(key) for key in factor.keys())
+            i = pose_index[pose_key]
+            m = point_index.setdefault(point_key, len(point_index))
+            point, information = relative_point(factor)
+            nu = float(point_weights(np.array([information]))[0])
+            lifted.add(relative(gtsam.symbol("R", i), gtsam.symbol("T", i),
+                                gtsam.symbol("L", m), point, nu))
+        elif factor is not None:
+            return {"failure": f"{type(factor).__name__} is not modelled"}
+    initial = gtsam.Values()
+    for key, i in pose_index.items():
+        pose = at(key)
+        initial.insert(gtsam.symbol("R", i), pose.rotation().matrix().T)
+        initial.insert(gtsam.symbol("T", i), np.asarray(pose.translation()).reshape(1, d))
+    for key, m in point_index.items():
+        initial.insert(gtsam.symbol("L", m), _point_row(values, key, d))
+    p_max, eta, alm_iterations, alm_penalty = _SE_STAIRCASE_SETTINGS[d]
+    alm = gtsam.AugmentedLagrangianParams()
+    alm.maxIterations = alm_iterations
+    if alm_penalty is not None:
+        alm.bclInitialPenalty = alm_penalty
+    params = gtsam.RiemannianStaircaseParams()
+    params.pMin, params.pMax, params.eta = d, p_max, eta
+    params.setAlmParams(alm)
+    try:
+        result = gtsam.RiemannianStaircaseOptimizer(lifted, initial, params).optimize()
+    except RuntimeError as error:
+        return {"failure": str(error).strip().splitlines()[0],
+                "wall_seconds": time.perf_counter() - began}
+    found = None
+    if result.hasRoundedSolution():
+        rounded = result.roundedValues()
+        blocks = {key: rounded.atMatrix(gtsam.symbol("R", i)).copy()
+                  for key, i in pose_index.items()}
+        rows = {key: rounded.atMatrix(gtsam.symbol("T", i)).copy().ravel()
+                for key, i in pose_index.items()}
+        rows.update({key: rounded.atMatrix(gtsam.symbol("L", m)).copy().ravel()
+                     for key, m in point_index.items()})
+        if sum(np.linalg.det(block) < 0.0 for block in blocks.values()) > len(blocks) // 2:
+            for block in blocks.values():  # the optimizer works over O(d)
+                block[:, -1] *= -1.0
+            for row in rows.values():
+                row[-1] *= -1.0
+        found = gtsam.Values()
+        for key in pose_index:
+            rotation = _nearest_rotation(blocks[key].T)
+            found.insert(key, gtsam.Pose3(gtsam.Rot3(rotation), gtsam.Point3(rows[key]))
+                         if spatial else
+                         gtsam.Pose2(float(rows[key][0]), float(rows[key][1]),
+                                     float(np.arctan2(rotation[1, 0], rotation[0, 0]))))
+        for key in point_index:
+            found.insert(key, point_type(rows[key]))
+    return {"certified": bool(result.certified), "rank": int(result.finalRank),
+            "ranks": [int(r) for r in np.asarray(result.getRanksVisited()).ravel()],
+            "seconds": float(result.totalTime), "wall_seconds": time.perf_counter() - began,
+            "min_eigenvalue": float(result.minEigenvalue),
+            "cost": float(np.asarray(result.getCostPerLevel()).ravel()[-1]),
+            "values": found, "failure": None}
+
+
+def _point_row(values, key: int, d: int):
+    """The point at ``key`` as a 1 x d row."""
+    import numpy as np
+
+    point = values.atPoint3(key) if d == 3 else values.atPoint2(key)
+    return np.asarray(point, float).reshape(1, d)
+
+
+def _nearest_rotation(matrix):
+    """The rotation nearest to a square matrix (Frobenius norm)."""
+    import numpy as np
+
+    left, _, right_t = np.linalg.svd(matrix)
+    turn = np.eye(len(matrix))
+    turn[-1, -1] = np.linalg.det(left @ right_t)
+    return left @ turn @ right_t
 
 
 # --- results ----------------------------------------------------------------------------------

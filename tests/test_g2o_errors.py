@@ -180,8 +180,8 @@ CASES = [
                                                                   "1", "0", "1"])),
          4, "EDGE_SE3:QUAT: a 3D line in a planar file (a file holds 2D or 3D lines, not "
          "both)"),
-    Case("unknown_tag_vertex_xy", insert(7, "VERTEX_XY 3 1 1"), 7,
-         f"unknown tag 'VERTEX_XY' {UNKNOWN_TAG}"),
+    Case("unmeasured_vertex_xy", insert(7, "VERTEX_XY 3 1 1"), 7,
+         "VERTEX_XY 3: no line measures landmark 3 (an initializer needs a connected graph)"),
     Case("unknown_tag_foo", replace(1, "FOO 1 2 3"), 1, f"unknown tag 'FOO' {UNKNOWN_TAG}"),
     Case("lowercase_tag", replace(2, "vertex_se2 1 1 0 0"), 2,
          f"unknown tag 'vertex_se2' {UNKNOWN_TAG}"),

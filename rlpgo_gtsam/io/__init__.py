@@ -8,8 +8,16 @@ Supported lines (a file holds the lines of one pose group, found by :func:`file_
 
     VERTEX_SE2 id x y theta
     EDGE_SE2 i j dx dy dtheta I_xx I_xy I_xt I_yy I_yt I_tt     (upper triangle, g2o order)
+    VERTEX_XY id x y                                            (landmark l<id>)
+    EDGE_SE2_XY i j dx dy I_xx I_xy I_yy                        (pose i sees landmark j)
+    LANDMARK2 i j dx dy I_xx I_xy I_yy                          (as EDGE_SE2_XY)
+    BR i j bearing range sigma_bearing sigma_range              (GTSAM's)
+    LANDMARK i j dx dy v1 v2 v3                                 (GTSAM's)
     VERTEX_SE3:QUAT id x y z qx qy qz qw
     EDGE_SE3:QUAT i j x y z qx qy qz qw I_11 I_12 ... I_66      (21 entries, upper triangle)
+    VERTEX_TRACKXYZ id x y z                                    (landmark l<id>)
+    PARAMS_SE3OFFSET k x y z qx qy qz qw                        (sensor k in the body frame)
+    EDGE_SE3_TRACKXYZ i j k dx dy dz I_11 I_12 I_13 I_22 I_23 I_33
     FIX id [id ...]
     # comment
 
@@ -23,6 +31,29 @@ file and kind. Quaternions are normalized; a zero or non-finite one is an error.
 ``FIX``-ed vertex becomes a prior factor with a constrained noise model: the pose is held
 where its vertex line puts it (the first FIXed pose is the anchor). A file without vertex
 lines gets its initial guess chained from the edges (i -> i+1 first, then through any edge).
+
+Landmarks: a measurement ``i j`` is pose ``i`` seeing landmark ``j``, whose key is
+``gtsam.symbol('l', j)`` (``gtsam.readG2o``'s name for them): landmark ids are their own, and
+may repeat pose ids, as GTSAM's Victoria Park and cityTrees files do. ``EDGE_SE2_XY``,
+``LANDMARK2`` and ``EDGE_SE3_TRACKXYZ`` hold the point in the pose's frame with its
+information (upper triangle); ``EDGE_SE3_TRACKXYZ``'s is in the frame of the sensor
+``PARAMS_SE3OFFSET k`` (before or after it in the file): ``offset * p`` in the body frame,
+with the information rotated alike (``gtsam.readG2o`` takes only the identity offset).
+Each becomes a ``BearingRangeFactor2D`` / ``BearingRangeFactor3D`` by
+:func:`~rlpgo_gtsam.landmarks.bearing_range_factor` (the information carried to bearing-range
+coordinates, as ``gtsam.readG2o`` reads ``EDGE_SE3_TRACKXYZ``). ``BR`` and ``LANDMARK`` read
+as ``gtsam.readG2o`` reads them: ``BR`` a bearing (rad) and a range with diagonal standard
+deviations; ``LANDMARK`` the point (dx, dy) as bearing ``atan2(dy, dx)`` and range, with
+standard deviations ``sqrt(v1 / 10)`` rad and ``sqrt(v1)`` m where ``|v1 - v3| < 1e-4``
+(v2 unused), else 1 and 1 (an :class:`~rlpgo_gtsam.errors.InformationWarning` names those
+lines). ``gtsam.readG2o`` skips ``LANDMARK2``; here (dx, dy) is the point in pose i's
+frame and its last three numbers the information. A landmark without a vertex line starts
+at its first sighting in file order (the pose's value composed with the measured point);
+a landmark vertex that nothing measures, a measurement at zero range, from a pose that has
+no vertex (in a file with vertex lines; else no pose edge), or in an unknown sensor's
+frame is an error naming its line. The writer writes ``VERTEX_XY`` and ``EDGE_SE2_XY``, or
+``VERTEX_TRACKXYZ``, one identity ``PARAMS_SE3OFFSET 0`` and ``EDGE_SE3_TRACKXYZ``: the
+same graph to rounding.
 
 How each group's lines read is :mod:`~rlpgo_gtsam.io.formats`'; the line and token reading
 :mod:`~rlpgo_gtsam.io.lines`'; the fast reader :mod:`~rlpgo_gtsam.io.scan`'; the careful
@@ -41,10 +72,16 @@ import numpy as np
 from rlpgo_gtsam.errors import G2oFormatError
 from rlpgo_gtsam.files import write_text
 from rlpgo_gtsam.graph import PoseGraph
-from rlpgo_gtsam.groups import Group, graph_group
-from rlpgo_gtsam.io.formats import Format, format_of
+from rlpgo_gtsam.groups import Group
+from rlpgo_gtsam.io.formats import Format, factor_group, format_of
 from rlpgo_gtsam.io.lines import MAX_LINE_BYTES, line_records
-from rlpgo_gtsam.io.read import build, group_of_lines, read_file, warn_changes
+from rlpgo_gtsam.io.read import (
+    build,
+    group_of_lines,
+    read_file,
+    warn_changes,
+    warn_landmark_changes,
+)
 from rlpgo_gtsam.io.write import EDGE_LIST_LINE, text_lines, text_of_extraction
 from rlpgo_gtsam.io.write import edge_list_text as _edge_list_text
 
@@ -55,11 +92,12 @@ __all__ = ["read_g2o", "read_g2o_lines", "read_g2o_extracted", "read_poses", "wr
 
 def file_group(path: str | os.PathLike[str]) -> Group:
     """The pose group of the g2o file at ``path``: the one whose tags start its first pose
-    line (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT``, any of ``SE3.g2o_tags``: SE3), else SE2.
+    or landmark line (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT``, any of ``SE3.g2o_tags``,
+    ``PARAMS_SE3OFFSET``: SE3), else SE2.
 
     It reads up to that line only: a later line of the other group is the reader's
-    ``file:line`` error (a file holds 2D or 3D lines, not both). A file without a pose line
-    is SE2: the planar reader names what it holds.
+    ``file:line`` error (a file holds 2D or 3D lines, not both). A file without a pose or
+    landmark line is SE2: the planar reader names what it holds.
 
     Raises:
         G2oFormatError: the file is missing or unreadable, or a line before the first pose
@@ -74,7 +112,8 @@ def read_g2o(path: str | os.PathLike[str]) -> tuple[gtsam.NonlinearFactorGraph, 
 
     Each edge becomes a between factor (``BetweenFactorPose2`` / ``BetweenFactorPose3``)
     whose Gaussian noise model holds the edge's full information (correlations kept); then
-    one constrained prior factor per ``FIX``-ed id. Keys are the file's ids.
+    each landmark measurement a bearing-range factor, in file order; then one constrained
+    prior factor per ``FIX``-ed id. Keys are the file's ids (``l<id>`` for landmarks).
 
     Raises:
         G2oFormatError: the file is missing, unreadable or malformed, or its graph is not
@@ -89,8 +128,9 @@ def read_g2o_lines(
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int]]:
     """:func:`read_g2o`, and the file line (1-based) each factor came from.
 
-    Factor ``k`` is the ``k``-th edge line for the edges, in file order; then one prior
-    factor per id of the ``FIX`` lines, each with its ``FIX`` line. ``lines[k]`` is the
+    Factor ``k`` is the ``k``-th edge line for the edges, in file order; then the landmark
+    measurements, each with its line, in file order; then one prior factor per id of the
+    ``FIX`` lines, each with its ``FIX`` line. ``lines[k]`` is the
     line of ``graph.at(k)``: what a message about a factor should name. A missing file
     raises :class:`~rlpgo_gtsam.errors.InputNotFoundError`, which is both a
     :class:`G2oFormatError` and a :class:`FileNotFoundError`.
@@ -108,8 +148,8 @@ def read_g2o_extracted(
     """:func:`read_g2o_lines`, and the graph's extraction
     (:func:`~rlpgo_gtsam.graph.extract_pose_graph`'s arrays, bit for bit) where the reader
     makes it from what it read (a planar file: MIT, Intel, FR079 save 10-19 ms of a walk over
-    the factors); None for a 3D file, or where the extraction would refuse the graph: extract
-    it then (its ``GraphError`` is the caller's to raise).
+    the factors); None for a 3D file, a file with landmark lines, or where the extraction
+    would refuse the graph: extract it then (its ``GraphError`` is the caller's to raise).
 
     Raises:
         G2oFormatError: as :func:`read_g2o`.
@@ -121,9 +161,10 @@ def read_poses(path: str | os.PathLike[str]) -> gtsam.Values:
     """The poses of a g2o file's vertex lines (``VERTEX_SE2``, or ``VERTEX_SE3:QUAT``), keyed
     by id: a ground truth, which needs poses and nothing else.
 
-    Edge and ``FIX`` lines may be there (a ground truth written with its graph) and are read
-    like any g2o line (a malformed one is an error), but they make no pose: a file of edges
-    alone holds no poses, however they chain.
+    Edge, landmark and ``FIX`` lines may be there (a ground truth written with its graph)
+    and are read like any g2o line (a malformed one is an error), but they make no pose: a
+    file of edges alone holds no poses, however they chain, and landmark vertices are left
+    out.
 
     Raises:
         G2oFormatError: the file is missing, unreadable or malformed, or has no vertex line;
@@ -144,17 +185,18 @@ def _read(path: Path, lines: bool = True, extract: bool = False
           ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int], PoseGraph | None]:
     form, table = read_file(path)
     warn_changes(path, form, table.changed, stacklevel=3)  # the caller of the public reader
+    warn_landmark_changes(path, table.landmarks, stacklevel=3)
     return build(path, table, form, lines=lines, extract=extract)
 
 
 def _graph_format(graph: gtsam.NonlinearFactorGraph) -> Format:
-    return format_of(graph_group(graph))
+    return format_of(factor_group(graph))
 
 
 def g2o_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
              pose_graph: PoseGraph | None = None) -> str:
     """The g2o text of ``graph`` and ``values``, planar or 3D by what the graph holds
-    (:func:`~rlpgo_gtsam.groups.graph_group`): what :func:`write_g2o` writes.
+    (:func:`~rlpgo_gtsam.io.formats.factor_group`): what :func:`write_g2o` writes.
 
     ``pose_graph``: the extraction of this very ``graph``, where the caller has it: a planar
     graph's measurements, informations and FIXed ids then come from its arrays, not from a
@@ -175,9 +217,9 @@ def g2o_text_lines(graph: gtsam.NonlinearFactorGraph,
                    values: gtsam.Values) -> tuple[str, list[int | None]]:
     """:func:`g2o_text`, and the line (1-based) of that text which holds each factor.
 
-    ``lines[k]`` is the edge line of ``graph.at(k)``, or the one ``FIX`` line for a prior,
-    or None for an empty factor slot: the lines :func:`read_g2o_lines` names when it reads
-    the text back.
+    ``lines[k]`` is the edge line of ``graph.at(k)`` (a landmark measurement's too), or the
+    one ``FIX`` line for a prior, or None for an empty factor slot: the lines
+    :func:`read_g2o_lines` names when it reads the text back.
 
     Raises:
         OutputError: a factor, value or information that a g2o file cannot hold.
@@ -193,6 +235,9 @@ def write_g2o(path: str | os.PathLike[str], graph: gtsam.NonlinearFactorGraph,
     write leaves any existing file untouched. Positions round-trip exactly through
     :func:`read_g2o`; angles, quaternions and information entries are written with 15
     significant digits, so values read from a file with up to 15 digits come back exactly.
+    Landmark measurements (points in the pose's frame, from bearing-range factors) are
+    written with 15 significant digits too: the graph reads back with the same error to
+    rounding.
 
     Raises:
         OutputError: ``path`` is a directory or cannot be written, or the graph holds what a

@@ -22,6 +22,11 @@ pose                    ``Pose2(x, y, theta)``               quaternion normaliz
 
 Both hold the information's upper triangle row by row. Poses are numpy arrays, one pose per
 row: planar ``(k, 3)``; 3D a pair of rotations ``(k, 3, 3)`` and translations ``(k, 3)``.
+
+Each group has its landmark lines too (:data:`POINT_LINES`: planar ``VERTEX_XY``,
+``EDGE_SE2_XY``, ``LANDMARK2``, ``BR``, ``LANDMARK``; 3D ``VERTEX_TRACKXYZ``,
+``EDGE_SE3_TRACKXYZ``, ``PARAMS_SE3OFFSET``; :mod:`rlpgo_gtsam.io` says how they read), which
+the careful reader reads into the table's :class:`Landmarks`.
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -46,12 +51,14 @@ from rlpgo_gtsam.information import (
     printed_informations,
 )
 from rlpgo_gtsam.io.lines import distinct_rows, format_15, texts_15, upper_triangle_texts
+from rlpgo_gtsam.landmarks import landmark_key
 from rlpgo_gtsam.se2 import chain, compose, inverse, wrap
 from rlpgo_gtsam.se3 import compose as compose3
 from rlpgo_gtsam.se3 import inverse as inverse3
 from rlpgo_gtsam.se3 import quaternions_to_rotations, rotations_to_quaternions
 
-__all__ = ["Table", "Format", "PLANAR", "SPATIAL", "FORMATS", "format_of", "G2O_TO_GTSAM"]
+__all__ = ["Table", "Landmarks", "Format", "PLANAR", "SPATIAL", "FORMATS", "format_of",
+           "G2O_TO_GTSAM", "PointLines", "POINT_LINES", "landmark_group", "factor_group"]
 
 # g2o's tangent order (x y z, then rotation) -> GTSAM's (rotation, then x y z): the
 # information in GTSAM's order is info_g2o[G2O_TO_GTSAM][:, G2O_TO_GTSAM]
@@ -84,6 +91,8 @@ class Table:
         vertex_text: the vertex lines as read (a block per chunk), where the fast reader
             read them all as plain text and the format asks for them (GTSAM's own parser
             may then build the values); else None.
+        landmarks: the landmark lines (:class:`Landmarks`), where the file has any (the
+            careful reader reads those files); else None.
     """
 
     vertex_keys: np.ndarray
@@ -96,6 +105,43 @@ class Table:
     fixed: list[tuple[int, int]]
     changed: dict[str, list[int]]
     vertex_text: list[bytes] | None = None
+    landmarks: Landmarks | None = None
+
+
+@dataclass(eq=False)
+class Landmarks:
+    """The landmark lines of a file, in file order: what the careful reader makes of them
+    (:func:`~rlpgo_gtsam.io.read.parse`).
+
+    Attributes:
+        vertices: landmark id -> (position (d,), line) of its vertex line.
+        factors: each measurement's GTSAM bearing-range factor (pose key, ``l<id>``).
+        tags, lines, pose_ids, landmark_ids: each measurement's tag, line, pose id and
+            landmark id.
+        points: each measurement's point in the pose's (body) frame.
+        unit_sigma_lines: the ``LANDMARK`` lines read with GTSAM's unit sigmas.
+    """
+
+    vertices: dict[int, tuple[np.ndarray, int]] = field(default_factory=dict)
+    factors: list[Any] = field(default_factory=list)
+    tags: list[str] = field(default_factory=list)
+    lines: list[int] = field(default_factory=list)
+    pose_ids: list[int] = field(default_factory=list)
+    landmark_ids: list[int] = field(default_factory=list)
+    points: list[np.ndarray] = field(default_factory=list)
+    unit_sigma_lines: list[int] = field(default_factory=list)
+
+    def keys(self) -> np.ndarray:
+        """(k,) uint64 the GTSAM keys of the landmarks (vertex lines and measurements),
+        ascending."""
+        ids = set(self.vertices) | set(self.landmark_ids)
+        return np.array(sorted(landmark_key(j) for j in ids), dtype=np.uint64)
+
+    def pairs(self) -> np.ndarray:
+        """(m, 2) uint64 the (pose, landmark) keys of each measurement."""
+        return np.array([(i, landmark_key(j)) for i, j in
+                         zip(self.pose_ids, self.landmark_ids, strict=True)],
+                        dtype=np.uint64).reshape(-1, 2)
 
 
 class Format:
@@ -636,3 +682,61 @@ def format_of(group: Group) -> Format:
     """The g2o format of a pose group."""
     return next(form for form in FORMATS if form.group is group)
 
+
+# --------------------------------------------------------------------------- landmark lines
+
+
+@dataclass(frozen=True)
+class PointLines:
+    """The landmark lines of one pose group.
+
+    Attributes:
+        d: the points' dimension.
+        vertex_tag, edge_tag: the tags the writer writes.
+        tags: every landmark tag of the group (:func:`landmark_group`'s).
+        point_name: GTSAM's point type, as messages name it.
+        factor: GTSAM's bearing-range factor class.
+    """
+
+    d: int
+    vertex_tag: str
+    edge_tag: str
+    tags: tuple[str, ...]
+    point_name: str
+    factor: Any
+
+    def at(self, values: gtsam.Values) -> Any:
+        """``values``' getter of this dimension's points."""
+        return values.atPoint2 if self.d == 2 else values.atPoint3
+
+
+POINT_LINES: dict[Group, PointLines] = {
+    SE2: PointLines(2, "VERTEX_XY", "EDGE_SE2_XY",
+                    ("VERTEX_XY", "EDGE_SE2_XY", "LANDMARK2", "BR", "LANDMARK"), "Point2",
+                    gtsam.BearingRangeFactor2D),
+    SE3: PointLines(3, "VERTEX_TRACKXYZ", "EDGE_SE3_TRACKXYZ",
+                    ("VERTEX_TRACKXYZ", "EDGE_SE3_TRACKXYZ", "PARAMS_SE3OFFSET"), "Point3",
+                    gtsam.BearingRangeFactor3D),
+}
+
+
+def landmark_group(tag: str) -> Group | None:
+    """The pose group whose landmark tags hold ``tag`` (in any case, as the pose tags'
+    prefixes are matched), or None."""
+    upper = tag.upper()
+    return next((group for group, lines in POINT_LINES.items() if upper in lines.tags), None)
+
+
+def factor_group(graph: gtsam.NonlinearFactorGraph) -> Group:
+    """The pose group of ``graph``: that of its first pose factor (between or prior) or
+    bearing-range factor, else SE2. :func:`~rlpgo_gtsam.groups.graph_group`'s rule, where a
+    graph of landmark measurements alone (poses seeing points, no between factor) is told by
+    its bearing-range factors."""
+    kinds = {group: (group.between_factor, group.prior_factor, lines.factor)
+             for group, lines in POINT_LINES.items()}
+    for position in range(graph.size()):
+        factor = graph.at(position)
+        for group, types in kinds.items():
+            if isinstance(factor, types):
+                return group
+    return SE2

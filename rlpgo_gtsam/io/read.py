@@ -6,14 +6,19 @@ reader (:func:`~rlpgo_gtsam.io.scan.scan`) where it takes the file, else by the 
 naming the first bad line. :func:`build` then makes the checks across lines (undefined
 vertices, FIX ids, connectivity), the chained initial guess of a file without vertices, and
 the GTSAM graph: one noise model per distinct information matrix, one between factor per
-edge line, one constrained prior per FIXed id (the first FIXed pose is the anchor; a held
-pose adds nothing to chi2). What the format's information rule changed is told in an
+edge line, one bearing-range factor per landmark measurement, one constrained prior per
+FIXed id (the first FIXed pose is the anchor; a held pose adds nothing to chi2). What the
+format's information rule changed is told in an
 :class:`~rlpgo_gtsam.errors.InformationWarning` per file and kind (:func:`warn_changes`).
+
+The landmark lines (:data:`~rlpgo_gtsam.io.formats.POINT_LINES`; :mod:`rlpgo_gtsam.io` says
+how each reads) only the careful reader reads: the fast one hands any file with them over.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 import os
 import stat
 import warnings
@@ -29,8 +34,21 @@ import numpy as np
 from rlpgo_gtsam.errors import G2oFormatError, InformationWarning
 from rlpgo_gtsam.graph import disconnection
 from rlpgo_gtsam.groups import GROUPS, SE2, Group
-from rlpgo_gtsam.information import INDEFINITE, LIFTED, MAX_CONDITION_3D, ROUNDING_3D
-from rlpgo_gtsam.io.formats import Table, format_of
+from rlpgo_gtsam.information import (
+    INDEFINITE,
+    LIFTED,
+    MAX_CONDITION_3D,
+    ROUNDING_3D,
+    information_problem,
+)
+from rlpgo_gtsam.io.formats import (
+    POINT_LINES,
+    SPATIAL,
+    Landmarks,
+    Table,
+    format_of,
+    landmark_group,
+)
 from rlpgo_gtsam.io.lines import (
     LineSource,
     line_records,
@@ -41,11 +59,13 @@ from rlpgo_gtsam.io.lines import (
     short_token,
 )
 from rlpgo_gtsam.io.scan import scan
+from rlpgo_gtsam.landmarks import bearing_range_factor, landmark_key
 
 if TYPE_CHECKING:
     from rlpgo_gtsam.io.formats import Format
 
 __all__ = ["read_file", "read_table", "group_of_lines", "parse", "build", "warn_changes",
+           "warn_landmark_changes",
            "check_references"]
 
 
@@ -83,15 +103,18 @@ def _read_open(path: Path, handle: BinaryIO, form: Format, fast: bool) -> Table:
 
 def group_of_lines(records: Iterator[tuple[int, str, list[str]]]) -> Group:
     """The pose group of a g2o file's lines (:func:`~rlpgo_gtsam.io.lines.line_records`):
-    the one whose tags start its first pose line, else SE2. It reads up to that line only:
-    a later line of the other group is the reader's ``file:line`` error (a file holds 2D or
-    3D lines, not both); a file without a pose line is SE2 (the planar reader names what it
-    holds)."""
+    the one whose tags start its first pose or landmark line, else SE2. It reads up to that
+    line only: a later line of the other group is the reader's ``file:line`` error (a file
+    holds 2D or 3D lines, not both); a file without such a line is SE2 (the planar reader
+    names what it holds)."""
     for _, tag, _ in records:
         upper = tag.upper()
         for group in GROUPS:
             if upper.startswith(group.g2o_tags):
                 return group
+        landmark = landmark_group(tag)
+        if landmark is not None:
+            return landmark
         if tag != "FIX":
             return SE2  # an unknown tag: the planar reader names it
     return SE2
@@ -143,7 +166,8 @@ _TORO_TAGS = ("VERTEX2", "EDGE2", "VERTEX3", "EDGE3", "EQUIV")
 def parse(path: Path, handle: LineSource, form: Format) -> Table:
     """The careful reader: line by line, raising at the first bad line."""
     parsed = _Parsed(form)
-    others = [group for group in GROUPS if group is not form.group]
+    landmarks: _LandmarkReader | None = None
+    own = POINT_LINES[form.group].tags
     for number, tag, fields in line_records(path, handle):
         if tag == form.vertex_tag:
             _parse_vertex(path, number, fields, parsed)
@@ -151,8 +175,11 @@ def parse(path: Path, handle: LineSource, form: Format) -> Table:
             _parse_edge(path, number, fields, parsed)
         elif tag == "FIX":
             parsed.fixed.extend(parse_fix(path, number, fields))
-        elif any(tag.upper().startswith(group.g2o_tags) for group in others):
-            other = next(group for group in others if tag.upper().startswith(group.g2o_tags))
+        elif tag in own:
+            if landmarks is None:
+                landmarks = _LandmarkReader(form)
+            landmarks.read_line(path, number, tag, fields)
+        elif (other := _other_group(tag, form.group)) is not None:
             raise G2oFormatError(path, number, f"{short_token(tag)}: a {other.kind} line in a "
                                  f"{form.group.kind} file (a file holds 2D or 3D lines, not "
                                  "both)")
@@ -160,6 +187,8 @@ def parse(path: Path, handle: LineSource, form: Format) -> Table:
             toro = "TORO's, not g2o's: " if tag.upper() in _TORO_TAGS else ""
             raise G2oFormatError(path, number, f"unknown tag '{short_token(tag)}' ({toro}this "
                                  f"reader takes {form.vertex_tag}, {form.edge_tag} and FIX)")
+    if landmarks is not None:
+        landmarks.finish(path)
     p = form.pose_numbers
     return Table(
         vertex_keys=np.array(list(parsed.vertices), dtype=np.uint64),
@@ -171,7 +200,15 @@ def parse(path: Path, handle: LineSource, form: Format) -> Table:
         model=np.array(parsed.model, dtype=np.int64),
         fixed=parsed.fixed,
         changed=parsed.changed,
+        landmarks=landmarks.table if landmarks is not None else None,
     )
+
+
+def _other_group(tag: str, group: Group) -> Group | None:
+    """The other pose group whose pose or landmark tags ``tag`` is, or None."""
+    upper = tag.upper()
+    return next((other for other in GROUPS if other is not group
+                 and (upper.startswith(other.g2o_tags) or landmark_group(tag) is other)), None)
 
 
 def _check_count(path: Path, line: int, tag: str, fields: list[str], count: int) -> None:
@@ -221,6 +258,264 @@ def _parse_edge(path: Path, line: int, fields: list[str], parsed: _Parsed) -> No
     parsed.model.append(index)
 
 
+# --------------------------------------------------------------------------- landmark lines
+
+_MAX_LANDMARK_ID = 2**56 - 1  # a gtsam.Symbol's index: the 56 bits below its character
+# load2D's LANDMARK rule: v1 and v3 this close are one variance, read at a range of 10 m
+_SAME_VARIANCE = 1e-4
+_RANGE_OF_VARIANCE_M = 10.0
+_UPPER = {size: np.triu_indices(size) for size in (2, 3)}  # an information's fields
+
+
+@dataclass(eq=False)
+class _LandmarkReader:
+    """The careful reader of a file's landmark lines: one line at a time (:meth:`read_line`),
+    then :meth:`finish` at the end of the file; ``table`` holds what it read."""
+
+    form: Format
+    table: Landmarks = field(default_factory=Landmarks)
+    # sensor id -> (rotation, translation, line) of its PARAMS_SE3OFFSET line
+    offsets: dict[int, tuple[np.ndarray, np.ndarray, int]] = field(default_factory=dict)
+    # (measurement index, sensor id, point, information) of the measurements in the frame
+    # of a sensor whose line comes further on; their factor is None until then
+    pending: list[tuple[int, int, np.ndarray, np.ndarray]] = field(default_factory=list)
+    # the file's information matrix -> why it cannot be used (None: it can), each checked
+    # once (a file's sightings mostly share one)
+    problems: dict[bytes, str | None] = field(default_factory=dict)
+
+    def read_line(self, path: Path, line: int, tag: str, fields: list[str]) -> None:
+        """Read one landmark line of the file's group (``tag`` exactly one of its tags), or
+        raise the error that names it."""
+        if tag in ("VERTEX_XY", "VERTEX_TRACKXYZ"):
+            self._vertex(path, line, tag, fields)
+        elif tag in ("EDGE_SE2_XY", "LANDMARK2"):
+            self._point_edge(path, line, tag, fields)
+        elif tag == "EDGE_SE3_TRACKXYZ":
+            self._sensor_edge(path, line, tag, fields)
+        elif tag == "PARAMS_SE3OFFSET":
+            self._offset(path, line, tag, fields)
+        elif tag == "BR":
+            self._bearing_range(path, line, tag, fields)
+        else:  # LANDMARK
+            self._landmark(path, line, tag, fields)
+
+    def _vertex(self, path: Path, line: int, tag: str, fields: list[str]) -> None:
+        _check_count(path, line, tag, fields, 1 + POINT_LINES[self.form.group].d)
+        j = _landmark_id(path, line, fields[0])
+        position = np.array(parse_numbers(path, line, tag, fields[1:], first=2))
+        vertices = self.table.vertices
+        if j in vertices:
+            raise G2oFormatError(path, line, f"{tag} id {j} defined twice (first on line "
+                                 f"{vertices[j][1]})")
+        vertices[j] = (position, line)
+
+    def _point_edge(self, path: Path, line: int, tag: str, fields: list[str]) -> None:
+        _check_count(path, line, tag, fields, 2 + 2 + 3)
+        i, j = parse_id(path, line, fields[0]), _landmark_id(path, line, fields[1])
+        numbers = parse_numbers(path, line, tag, fields[2:], first=3)
+        point, information = np.array(numbers[:2]), _symmetric(numbers[2:], 2)
+        self._check_information(path, line, tag, information)
+        self._add(path, line, tag, i, j, point, information)
+
+    def _sensor_edge(self, path: Path, line: int, tag: str, fields: list[str]) -> None:
+        _check_count(path, line, tag, fields, 3 + 3 + 6)
+        i, j = parse_id(path, line, fields[0]), _landmark_id(path, line, fields[1])
+        sensor = parse_id(path, line, fields[2])
+        numbers = parse_numbers(path, line, tag, fields[3:], first=4)
+        point, information = np.array(numbers[:3]), _symmetric(numbers[3:], 3)
+        self._check_information(path, line, tag, information)  # a rotation keeps the answer
+        if sensor in self.offsets:
+            self._add(path, line, tag, i, j, *self._in_body(sensor, point, information))
+        else:
+            self.pending.append((len(self.table.factors), sensor, point, information))
+            self._append(None, tag, line, i, j, point)
+
+    def _offset(self, path: Path, line: int, tag: str, fields: list[str]) -> None:
+        _check_count(path, line, tag, fields, 1 + 7)
+        sensor = parse_id(path, line, fields[0])
+        numbers = parse_numbers(path, line, tag, fields[1:], first=2)
+        SPATIAL.check_pose(path, line, tag, numbers)  # a zero quaternion is no rotation
+        if sensor in self.offsets:
+            raise G2oFormatError(path, line, f"{tag} id {sensor} defined twice (first on line "
+                                 f"{self.offsets[sensor][2]})")
+        rotations, translations = SPATIAL.poses(np.array([numbers]))
+        self.offsets[sensor] = (rotations[0], translations[0], line)
+
+    def _bearing_range(self, path: Path, line: int, tag: str, fields: list[str]) -> None:
+        _check_count(path, line, tag, fields, 2 + 4)
+        i, j = parse_id(path, line, fields[0]), _landmark_id(path, line, fields[1])
+        bearing, range_m, sigma_bearing, sigma_range = parse_numbers(
+            path, line, tag, fields[2:], first=3)
+        if not (sigma_bearing > 0 and sigma_range > 0):
+            raise G2oFormatError(path, line, f"{tag} standard deviations must be positive, "
+                                 f"found {sigma_bearing!r} and {sigma_range!r}")
+        self._add_bearing_range(path, line, tag, i, j, bearing, range_m,
+                                sigma_bearing, sigma_range)
+
+    def _landmark(self, path: Path, line: int, tag: str, fields: list[str]) -> None:
+        _check_count(path, line, tag, fields, 2 + 5)
+        i, j = parse_id(path, line, fields[0]), _landmark_id(path, line, fields[1])
+        dx, dy, v1, _v2, v3 = parse_numbers(path, line, tag, fields[2:], first=3)
+        if abs(v1 - v3) < _SAME_VARIANCE:
+            if not v1 > 0:
+                raise G2oFormatError(path, line, f"{tag} variance must be positive, found "
+                                     f"{v1!r}")
+            sigma_bearing, sigma_range = math.sqrt(v1 / _RANGE_OF_VARIANCE_M), math.sqrt(v1)
+        else:
+            sigma_bearing = sigma_range = 1.0
+            self.table.unit_sigma_lines.append(line)
+        # load2D's arithmetic, so that the factor is the one gtsam.readG2o makes
+        self._add_bearing_range(path, line, tag, i, j, math.atan2(dy, dx),
+                                math.sqrt(dx * dx + dy * dy), sigma_bearing, sigma_range)
+
+    def _check_information(self, path: Path, line: int, tag: str,
+                           information: np.ndarray) -> None:
+        key = information.tobytes()
+        if key not in self.problems:
+            self.problems[key] = information_problem(information, len(information),
+                                                     self.form.group.max_condition)
+        problem = self.problems[key]
+        if problem is not None:
+            raise G2oFormatError(path, line, f"{tag} {problem}")
+
+    def _in_body(self, sensor: int, point: np.ndarray,
+                 information: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A point and its information in sensor ``sensor``'s frame, in the body frame."""
+        rotation, translation, _ = self.offsets[sensor]
+        return rotation @ point + translation, rotation @ information @ rotation.T
+
+    def _add(self, path: Path, line: int, tag: str, i: int, j: int, point: np.ndarray,
+             information: np.ndarray) -> None:
+        self._append(_point_factor(path, line, tag, i, j, point, information), tag, line, i,
+                     j, point)
+
+    def _add_bearing_range(self, path: Path, line: int, tag: str, i: int, j: int,
+                           bearing: float, range_m: float, sigma_bearing: float,
+                           sigma_range: float) -> None:
+        _check_range(path, line, tag, i, j, range_m)
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([sigma_bearing, sigma_range]))
+        rotation = gtsam.Rot2(bearing)
+        factor = gtsam.BearingRangeFactor2D(i, landmark_key(j), rotation, range_m, noise)
+        _check_model(path, line, tag, factor)
+        # load2D's first sighting: the bearing's rotation of (range, 0)
+        self._append(factor, tag, line, i, j,
+                     np.asarray(rotation.rotate(np.array([range_m, 0.0]))))
+
+    def _append(self, factor: Any, tag: str, line: int, i: int, j: int,
+                point: np.ndarray) -> None:
+        table = self.table
+        table.factors.append(factor)
+        table.tags.append(tag)
+        table.lines.append(line)
+        table.pose_ids.append(i)
+        table.landmark_ids.append(j)
+        table.points.append(point)
+
+    def finish(self, path: Path) -> None:
+        """The end of the file: the measurements in the frame of a sensor read after them,
+        or the error naming the first whose sensor no line defines."""
+        table = self.table
+        for index, sensor, point, information in self.pending:
+            line, tag = table.lines[index], table.tags[index]
+            if sensor not in self.offsets:
+                raise G2oFormatError(path, line, f"{tag} names sensor offset {sensor}, which "
+                                     "no PARAMS_SE3OFFSET line defines")
+            point, information = self._in_body(sensor, point, information)
+            table.factors[index] = _point_factor(path, line, tag, table.pose_ids[index],
+                                                 table.landmark_ids[index], point, information)
+            table.points[index] = point
+        self.pending.clear()
+
+
+def _landmark_id(path: Path, line: int, token: str) -> int:
+    j = parse_id(path, line, token)
+    if j > _MAX_LANDMARK_ID:
+        raise G2oFormatError(path, line, f"landmark id {j} is too large: GTSAM's key l<id> "
+                             "holds ids up to 2^56 - 1")
+    return j
+
+
+def _symmetric(upper: list[float], size: int) -> np.ndarray:
+    """The symmetric matrix of an upper triangle, row by row."""
+    matrix = np.zeros((size, size))
+    rows, columns = _UPPER[size]
+    matrix[rows, columns] = upper
+    matrix[columns, rows] = upper
+    return matrix
+
+
+def _point_factor(path: Path, line: int, tag: str, i: int, j: int, point: np.ndarray,
+                  information: np.ndarray) -> Any:
+    """The bearing-range factor of pose ``i`` seeing landmark ``j`` at ``point`` in its frame
+    with ``information`` (checked usable), or the error naming the line."""
+    _check_range(path, line, tag, i, j, float(np.linalg.norm(point)))
+    factor = bearing_range_factor(i, landmark_key(j), point, information)
+    _check_model(path, line, tag, factor)
+    return factor
+
+
+def _check_range(path: Path, line: int, tag: str, i: int, j: int, range_m: float) -> None:
+    if not (math.isfinite(range_m) and range_m > 0.0):
+        raise G2oFormatError(path, line, f"{tag} sees landmark {j} from pose {i} at range "
+                             f"{range_m!r}: a bearing needs a positive, finite range")
+
+
+def _check_model(path: Path, line: int, tag: str, factor: Any) -> None:
+    # a huge range or a tiny standard deviation overflows the bearing-range information
+    if not np.isfinite(factor.noiseModel().R()).all():
+        raise G2oFormatError(path, line, f"{tag} information overflows in bearing-range "
+                             "coordinates (a range or an information too large)")
+
+
+def _check_landmarks(path: Path, landmarks: Landmarks, form: Format, pose_keys: np.ndarray,
+                     from_vertices: bool) -> None:
+    """The checks across landmark lines: each measurement's pose has a pose (``pose_keys``,
+    ascending: the vertex lines' ids where ``from_vertices``, else the pose edges'), each
+    landmark vertex is measured, and no pose id is a landmark's key."""
+    posed = _members(np.array(landmarks.pose_ids, dtype=np.uint64), pose_keys)
+    if not posed.all():
+        k = int(np.argmin(posed))
+        where = (f"no {form.vertex_tag} line defines" if from_vertices
+                 else f"no {form.vertex_tag} or {form.edge_tag} line names")
+        raise G2oFormatError(path, landmarks.lines[k], f"{landmarks.tags[k]} refers to pose "
+                             f"{landmarks.pose_ids[k]}, which {where}")
+    seen = set(landmarks.landmark_ids)
+    unseen = sorted((line, j) for j, (_, line) in landmarks.vertices.items() if j not in seen)
+    if unseen:
+        line, j = unseen[0]
+        raise G2oFormatError(path, line, f"{POINT_LINES[form.group].vertex_tag} {j}: no line "
+                             f"measures landmark {j} (an initializer needs a connected graph)")
+    keys = landmarks.keys()
+    clash = np.flatnonzero(_members(keys, pose_keys))
+    if len(clash):
+        key = int(keys[clash[0]])
+        j = int(gtsam.Symbol(key).index())
+        line = (landmarks.vertices[j][1] if j in landmarks.vertices
+                else landmarks.lines[landmarks.landmark_ids.index(j)])
+        raise G2oFormatError(path, line, f"pose id {key} is the GTSAM key of landmark {j} "
+                             f"(l{j}): the two would be one variable")
+
+
+def _add_landmarks(landmarks: Landmarks, form: Format, graph: gtsam.NonlinearFactorGraph,
+                   values: gtsam.Values) -> list[int]:
+    """Add the landmarks' values to ``values`` (which hold the poses): a vertex line's
+    position, else the first sighting's (the pose's value composed with the measured point);
+    and the measurements' factors to ``graph``. Returns the measurements' lines."""
+    at_pose = getattr(values, f"at{form.group.pose_type.__name__}")
+    # point2= / point3=: a fixed-size point, as gtsam.readG2o makes (not a dynamic Vector)
+    name = "point2" if POINT_LINES[form.group].d == 2 else "point3"
+    positions = {j: position for j, (position, _) in landmarks.vertices.items()}
+    for i, j, point in zip(landmarks.pose_ids, landmarks.landmark_ids, landmarks.points,
+                           strict=True):
+        if j not in positions:
+            positions[j] = np.asarray(at_pose(i).transformFrom(point), dtype=float)
+    for j, position in positions.items():
+        values.insert(landmark_key(j), **{name: position})
+    for factor in landmarks.factors:
+        graph.add(factor)
+    return list(landmarks.lines)
+
+
 # --------------------------------------------------------------------------- both readers
 
 
@@ -228,15 +523,28 @@ def build(path: Path, table: Table, form: Format, lines: bool = True, extract: b
           ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int], Any]:
     """The checks across lines, then the GTSAM graph, values and factor lines (``lines``;
     else an empty list), and (``extract``) the graph's extraction as the format makes it
-    from the table (:meth:`~rlpgo_gtsam.io.formats.Format.extraction`; else None)."""
+    from the table (:meth:`~rlpgo_gtsam.io.formats.Format.extraction`; else None, and None
+    for a file with landmark lines: the caller extracts those).
+
+    The graph holds the between factors (edge lines, in file order), then the landmark
+    measurements' factors (in file order), then the FIX priors; connectivity counts the
+    landmarks and their measurements."""
     vertex, edge = form.vertex_tag, form.edge_tag
-    if not len(table.vertex_keys) and not len(table.edge_keys):
+    landmarks = table.landmarks
+    sighted = landmarks is not None and len(landmarks.factors) > 0
+    if not len(table.vertex_keys) and not len(table.edge_keys) and not sighted:
         raise G2oFormatError(path, None, f"holds no {vertex} or {edge} line")
-    if not len(table.edge_keys):
+    if not len(table.edge_keys) and not sighted:
         raise G2oFormatError(path, None, f"holds no {edge} line: a pose graph needs edges")
     check_references(path, table, form)
     known = table.vertex_keys if len(table.vertex_keys) else table.edge_keys.ravel()
-    problem = disconnection(known, table.edge_keys)
+    pairs = table.edge_keys
+    if landmarks is not None:
+        _check_landmarks(path, landmarks, form, np.sort(known),
+                         from_vertices=bool(len(table.vertex_keys)))
+        known = np.concatenate([known, landmarks.keys()])
+        pairs = np.concatenate([pairs, landmarks.pairs()])
+    problem = disconnection(known, pairs)
     if problem is not None:
         raise G2oFormatError(path, None, problem)
     keys, edge_poses = table.vertex_keys, form.poses(table.edge_numbers)
@@ -266,12 +574,16 @@ def build(path: Path, table: Table, form: Format, lines: bool = True, extract: b
     keys, poses = keys[order], form.take(poses, order)
     values = form.values(keys, poses, table.vertex_text)
     factor_lines = table.edge_lines.tolist() if lines else []
+    if landmarks is not None:
+        measurement_lines = _add_landmarks(landmarks, form, graph, values)
+        if lines:
+            factor_lines.extend(measurement_lines)
     prior, at = form.group.prior_factor, getattr(values, f"at{form.group.pose_type.__name__}")
     for key, line in table.fixed:
         graph.add(prior(key, at(key), gtsam.noiseModel.Constrained.All(form.group.dof)))
         if lines:
             factor_lines.append(line)
-    if not extract:
+    if not extract or landmarks is not None:
         return graph, values, factor_lines, None
     return (graph, values, factor_lines,
             form.extraction(table, graph, values, keys, measured, models))
@@ -353,6 +665,20 @@ _CHANGES = {
             f"{MAX_CONDITION_3D:g}, or eigenvalues down to -{ROUNDING_3D:g} x the largest): "
             "their smallest eigenvalues raised to 1e-11 x the largest",
 }
+
+
+def warn_landmark_changes(path: Path, landmarks: Landmarks | None, stacklevel: int = 2) -> None:
+    """One :class:`InformationWarning` for the ``LANDMARK`` lines read with unit standard
+    deviations (their v1 and v3 differ: GTSAM's ``load2D`` then ignores them), at the
+    caller's ``stacklevel``."""
+    if landmarks is None or not landmarks.unit_sigma_lines:
+        return
+    lines = landmarks.unit_sigma_lines
+    many = len(lines) > 1
+    warnings.warn(InformationWarning(
+        f"{path}: {len(lines)} LANDMARK line{'s' if many else ''} (first on line {lines[0]}) "
+        f"{'have' if many else 'has'} v1 and v3 apart by 1e-4 or more: read with standard "
+        "deviations of 1 rad and 1 m, as gtsam.readG2o reads them"), stacklevel=stacklevel + 1)
 
 
 def warn_changes(path: Path, form: Format, changed: dict[str, list[int]],

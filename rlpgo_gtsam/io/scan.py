@@ -7,7 +7,8 @@ format's rule. It only ever accepts: at the first thing it does not recognise as
 malformed line, an unusual token, a duplicate id, an unusable information matrix or pose, a
 very long line) it returns None, and the careful reader (:mod:`~rlpgo_gtsam.io.read`) reads
 the file again line by line and raises the error of the first bad line, or accepts what it
-accepts. Both produce the same :class:`~rlpgo_gtsam.io.formats.Table`.
+accepts. Both produce the same :class:`~rlpgo_gtsam.io.formats.Table`. Landmark lines are
+among what it does not recognise: a file with them is the careful reader's.
 """
 
 from __future__ import annotations

@@ -7,6 +7,13 @@ angles, quaternions and information entries with 15 significant digits
 (:func:`~rlpgo_gtsam.io.lines.format_15`), so a file's own decimals come back unchanged and
 write -> read -> write gives the same text.
 
+A graph with landmarks (points at keys ``l<j>``, measured by bearing-range factors) has
+their vertex lines after the poses', and each measurement as an edge line among the between
+factors' (:func:`text_careful`): the point in the pose's frame and its information there
+(:func:`~rlpgo_gtsam.landmarks.relative_point`), with 15 significant digits, since they come
+back from bearing-range coordinates; the graph they read back into has the same error to
+rounding, its text may differ in a last digit.
+
 Two writers produce it. The fast one (:func:`text_fast`) gets each vertex and factor from
 GTSAM once, formats each distinct information matrix once and the numbers in bulk (``%``
 over one template); at anything it does not take as plainly writable it returns None, and
@@ -24,18 +31,27 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import gtsam
+import numpy as np
 
-from rlpgo_gtsam.errors import OutputError
+from rlpgo_gtsam.errors import GraphError, OutputError
+from rlpgo_gtsam.information import information_problem
+from rlpgo_gtsam.io.formats import POINT_LINES, PointLines
+from rlpgo_gtsam.io.lines import format_15
+from rlpgo_gtsam.landmarks import relative_point
 
 if TYPE_CHECKING:
     from rlpgo_gtsam.io.formats import Format
 
-__all__ = ["EDGE_LIST_LINE", "fix_lines", "text_lines", "text_fast", "text_careful",
-           "text_of_extraction", "edge_list_text"]
+__all__ = ["EDGE_LIST_LINE", "IDENTITY_OFFSET", "fix_lines", "text_lines", "text_fast",
+           "text_careful", "text_of_extraction", "edge_list_text"]
 
 # A line of an edge list (:func:`edge_list_text`): L is the edge's line in its g2o file.
 EDGE_LIST_LINE = "line <L> EDGE_SE2 <id_i> <id_j>"
 _FIX_PER_LINE = 1000  # 21-byte ids: at most 22 KB a line, well inside MAX_LINE_BYTES
+# The one sensor offset a 3D file's landmark measurements name: the body frame itself.
+IDENTITY_OFFSET = "PARAMS_SE3OFFSET 0 0 0 0 0 0 0 1"
+# An information entry this small against the largest is a zero's rounding (landmark edges).
+_ZERO_ENTRY = 1e-13
 
 
 def fix_lines(keys: list[int]) -> list[tuple[str, slice]]:
@@ -178,14 +194,26 @@ def _with_fix_lines(text: str, kinds: list[type], edge: type, vertices: int,
 def text_careful(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
                  form: Format) -> tuple[str, list[int | None]]:
     """:func:`text_lines` one vertex and one factor at a time, raising at the first that a
-    g2o file of ``form`` cannot hold."""
+    g2o file of ``form`` cannot hold.
+
+    Landmarks (points at keys ``l<j>``, measured by bearing-range factors) are written after
+    the poses, by key, and each measurement as an edge line in graph order; a 3D file's
+    measurements name the identity sensor offset :data:`IDENTITY_OFFSET`, written once
+    before the edges. A landmark without a measurement, or a measurement of a key without a
+    point, is an error: the file would not read back."""
     group = form.group
     between: Any = group.between_factor  # Any: isinstance with a type narrows to object
     prior: Any = group.prior_factor
+    points = POINT_LINES[group]
+    point_factor: Any = points.factor
     factor_lines: list[int | None] = [None] * graph.size()
     priors: list[int] = []
     fixed = []
-    lines = [form.vertex_line(key, form.pose_at(values, key)) for key in sorted(values.keys())]
+    lines, point_lines = _vertex_lines(values, form)
+    point_keys = {key for key, _ in point_lines}
+    lines.extend(text for _, text in point_lines)
+    measured: set[int] = set()
+    edges: list[tuple[int, str]] = []  # (factor index, its line)
     for index in range(graph.size()):
         factor: Any = graph.at(index)
         if factor is None:
@@ -195,8 +223,15 @@ def text_careful(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
             raise OutputError(f"factor {index} refers to key {missing[0]}, which has no value: "
                               "the file would not read back")
         if isinstance(factor, between):
-            lines.append(form.edge_line(factor))
-            factor_lines[index] = len(lines)
+            edges.append((index, form.edge_line(factor)))
+        elif isinstance(factor, point_factor):
+            text, point_key = _point_edge_line(factor, form)
+            if point_key not in point_keys:
+                raise OutputError(f"factor {index} measures key "
+                                  f"{gtsam.DefaultKeyFormatter(point_key)}, which holds no "
+                                  f"{points.point_name}: the file would not read back")
+            edges.append((index, text))
+            measured.add(point_key)
         elif isinstance(factor, prior):
             if not isinstance(factor.noiseModel(), gtsam.noiseModel.Constrained):
                 key = gtsam.DefaultKeyFormatter(factor.keys()[0])
@@ -207,11 +242,100 @@ def text_careful(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
         else:
             raise OutputError(f"cannot write a {type(factor).__name__} as a {group.kind} g2o "
                               "line")
+    unmeasured = sorted(point_keys - measured)
+    if unmeasured:
+        raise OutputError(f"landmark {gtsam.DefaultKeyFormatter(unmeasured[0])} has a value "
+                          "but no factor measures it: the file would not read back")
+    if measured and points.d == 3:
+        lines.append(IDENTITY_OFFSET)
+    for index, text in edges:
+        lines.append(text)
+        factor_lines[index] = len(lines)
     for fix, part in fix_lines(fixed):
         lines.append(fix)
         for index in priors[part]:
             factor_lines[index] = len(lines)
     return "\n".join(lines) + "\n", factor_lines
+
+
+def _vertex_lines(values: gtsam.Values, form: Format) -> tuple[list[str], list[tuple[int, str]]]:
+    """The vertex lines of the poses of ``values``, and (key, line) of its landmarks, each by
+    key; or the error naming a value that is neither."""
+    points = POINT_LINES[form.group]
+    poses: list[str] = []
+    landmarks: list[tuple[int, str]] = []
+    for key in sorted(values.keys()):
+        try:
+            pose = form.pose_at(values, key)
+        except OutputError:
+            point = _point_value(values, key, points)
+            if point is None:
+                name = form.group.pose_type.__name__
+                raise OutputError(f"value of key {key} is neither a {name} nor a "
+                                  f"{points.point_name}: a {form.group.kind} g2o file holds "
+                                  f"{name} poses and {points.point_name} landmarks only"
+                                  ) from None
+            landmarks.append((key, _point_vertex_line(key, point, points)))
+            continue
+        poses.append(form.vertex_line(key, pose))
+    return poses, landmarks
+
+
+def _point_value(values: gtsam.Values, key: int, points: PointLines) -> np.ndarray | None:
+    """The point at ``key`` (an array of ``points.d``), or None where the value is not one."""
+    try:
+        point = np.asarray(points.at(values)(key), dtype=float)
+    except RuntimeError:
+        return None
+    return point if point.shape == (points.d,) else None
+
+
+def _landmark_id(key: int, what: str) -> int:
+    """The id ``j`` of the landmark key ``l<j>``, or the error that says ``what`` (a value,
+    a factor) has another key."""
+    symbol = gtsam.Symbol(key)
+    if symbol.chr() != ord("l"):
+        raise OutputError(f"{what} has key {gtsam.DefaultKeyFormatter(key)}: a g2o file names "
+                          "a landmark l<j> by its id j, and holds no other point")
+    return int(symbol.index())
+
+
+def _point_vertex_line(key: int, point: np.ndarray, points: PointLines) -> str:
+    """The vertex line of the landmark at ``key``, or the error that says why it cannot be
+    written."""
+    j = _landmark_id(key, f"a {points.point_name} value")
+    if not np.isfinite(point).all():
+        raise OutputError(f"landmark l{j} is not finite: the file would not read back")
+    return f"{points.vertex_tag} {j} " + " ".join(repr(float(v)) for v in point)
+
+
+def _point_edge_line(factor: Any, form: Format) -> tuple[str, int]:
+    """The edge line of a bearing-range factor, and its landmark's key; or the error that
+    says why it cannot be written."""
+    points = POINT_LINES[form.group]
+    i, key = factor.keys()
+    name = (f"{type(factor).__name__} {gtsam.DefaultKeyFormatter(i)}-"
+            f"{gtsam.DefaultKeyFormatter(key)}")
+    j = _landmark_id(key, name)
+    try:
+        point, information = relative_point(factor)
+    except GraphError as error:
+        raise OutputError(str(error)) from None
+    if not np.isfinite(point).all():
+        raise OutputError(f"{name}: the measurement is not finite")
+    problem = information_problem(information, points.d, form.group.max_condition)
+    if problem is not None:
+        raise OutputError(f"{name}: {problem} in the point's coordinates (the reader would "
+                          "refuse it)")
+    # The point and information come back from bearing-range coordinates within some ulps
+    # (of the largest entry, for the information): 15 significant digits, and a zero for an
+    # entry that small, give back the numbers a file held.
+    scale = float(np.abs(information).max())
+    information = np.where(np.abs(information) <= _ZERO_ENTRY * scale, 0.0, information)
+    upper = information[np.triu_indices(points.d)]
+    sensor = " 0" if points.d == 3 else ""  # IDENTITY_OFFSET's id
+    return (f"{points.edge_tag} {i} {j}{sensor} " + " ".join(format_15(v) for v in point)
+            + " " + " ".join(format_15(v) for v in upper)), key
 
 
 def edge_list_text(graph: gtsam.NonlinearFactorGraph, indices: list[int],
