@@ -85,8 +85,9 @@ def trajectory_errors(values: gtsam.Values, ground_truth: gtsam.Values, *, align
     """APE and RPE of the Pose2 or Pose3 ``values`` against ``ground_truth``, as evo computes
     them.
 
-    Poses are matched by key: every key of ``values`` must have a pose of the same type in
-    ``ground_truth`` (which may hold more); the RPE pairs follow the keys in ascending order.
+    Poses are matched by key: every pose of ``values`` must have a pose of the same type in
+    ``ground_truth`` (which may hold more); other values (landmarks) are not compared; the
+    RPE pairs follow the keys in ascending order.
 
     Args:
         values: the estimate (e.g. a refined result), all Pose2 or all Pose3.
@@ -216,14 +217,19 @@ def _matched(values: gtsam.Values,
              ground_truth: gtsam.Values) -> tuple[list[int], _Poses, _Poses]:
     """The estimate's keys in order and both sets of poses at them (see
     :func:`check_ground_truth` for what is refused)."""
-    keys = sorted(values.keys())
+    every = sorted(values.keys())
+    if not every:
+        raise GraphError("trajectory errors need at least 2 poses, the estimate has 0")
+    # the poses are compared; landmarks and other variables of a whole graph are not
+    pose_type = next((kind for key in every for kind in _POSE_TYPES if _pose(values, key, kind)),
+                     None)
+    if pose_type is None:
+        raise GraphError(f"key {gtsam.DefaultKeyFormatter(every[0])} of the estimate is "
+                         "not a Pose2 or a Pose3")
+    keys = [key for key in every if _pose(values, key, pose_type) is not None]
     if len(keys) < 2:
         raise GraphError(f"trajectory errors need at least 2 poses, the estimate has "
                          f"{len(keys)}")
-    pose_type = next((kind for kind in _POSE_TYPES if _pose(values, keys[0], kind)), None)
-    if pose_type is None:
-        raise GraphError(f"key {gtsam.DefaultKeyFormatter(keys[0])} of the estimate is "
-                         "not a Pose2 or a Pose3")
     shared = next((key for key in keys if ground_truth.exists(key)), None)
     if shared is not None and _pose(ground_truth, shared, pose_type) is None:
         raise GraphError(f"key {gtsam.DefaultKeyFormatter(shared)} of the ground truth is not "

@@ -138,6 +138,19 @@ class PoseArrays:
         variables (their values complete :meth:`to_values`)."""
         return self.points is not None or self.carried_values is not None
 
+    def sizes(self) -> str:
+        """What the graph holds, in words: ``"300 poses, 519 edges, 75 landmarks (3923
+        measurements), 12 ranges, 3 carried factors"`` (the parts it has)."""
+        parts = [f"{self.num_poses} poses", f"{self.num_edges} edges"]
+        if self.points is not None:
+            parts.append(f"{self.points.count} landmarks ({len(self.points.edges)} "
+                         "measurements)")
+        if self.ranges is not None:
+            parts.append(f"{self.ranges.count} ranges")
+        if self.carried:
+            parts.append(f"{len(self.carried)} carried factors")
+        return ", ".join(parts)
+
     def with_others(self, values: gtsam.Values, poses: np.ndarray,
                     points: np.ndarray | None = None) -> gtsam.Values:
         """``values`` (the poses) completed with the other variables: the landmarks at

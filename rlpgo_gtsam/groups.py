@@ -45,6 +45,8 @@ class Group:
         d: translation dimension (2 or 3): the translation step's residual dof.
         kind: how messages name the graph (``"planar"``, ``"3D"``).
         pose_type, between_factor, prior_factor: GTSAM's classes.
+        measurement_factors: GTSAM's classes of measurements from a pose that tell the group
+            (bearing-range, pose-to-point and pose-to-pose range).
         vertex_tag, edge_tag: the g2o tags the writer prints.
         g2o_tags: tag prefixes that mark a g2o line as this group's.
         max_condition: the largest condition number of an edge's information the
@@ -67,6 +69,7 @@ class Group:
     pose_type: type
     between_factor: type
     prior_factor: type
+    measurement_factors: tuple[type, ...]
     vertex_tag: str
     edge_tag: str
     g2o_tags: tuple[str, ...]
@@ -177,6 +180,8 @@ class _SE2(Group):
     name, dimension, dof, d, kind = "SE2", 2, 3, 2, "planar"
     pose_type, between_factor, prior_factor = (gtsam.Pose2, gtsam.BetweenFactorPose2,
                                                gtsam.PriorFactorPose2)
+    measurement_factors = (gtsam.BearingRangeFactor2D, gtsam.RangeFactor2D,
+                           gtsam.RangeFactorPose2)
     vertex_tag, edge_tag = "VERTEX_SE2", "EDGE_SE2"
     g2o_tags = ("VERTEX_SE2", "EDGE_SE2", "VERTEX2", "EDGE2")
     # eigenvalues from 1e-20 to 1e20 and a condition number up to 1e9 were certified and
@@ -238,6 +243,8 @@ class _SE3(Group):
     name, dimension, dof, d, kind = "SE3", 3, 6, 3, "3D"
     pose_type, between_factor, prior_factor = (gtsam.Pose3, gtsam.BetweenFactorPose3,
                                                gtsam.PriorFactorPose3)
+    measurement_factors = (gtsam.BearingRangeFactor3D, gtsam.RangeFactor3D,
+                           gtsam.RangeFactorPose3)
     vertex_tag, edge_tag = "VERTEX_SE3:QUAT", "EDGE_SE3:QUAT"
     g2o_tags = ("VERTEX_SE3", "EDGE_SE3", "VERTEX3", "EDGE3", "VERTEX_TRACKXYZ", "EDGE_SE3_")
     # SE-Sync's parking-garage has 3 edges above the planar 1e9 (the worst 2.67e9); on
@@ -337,9 +344,11 @@ def key_text(key: int) -> str:
 
 
 def graph_group(graph: gtsam.NonlinearFactorGraph) -> Group:
-    """SE3 if the first pose factor of ``graph`` is a Pose3 one (between or prior), else SE2
-    (a graph of neither kind: the planar extraction names what it holds)."""
-    kinds = {group: (group.between_factor, group.prior_factor) for group in GROUPS}
+    """SE3 if the first pose factor of ``graph`` is a Pose3 one (between or prior, or a
+    bearing-range or range measurement from a pose), else SE2 (a graph of neither kind: the
+    planar extraction names what it holds)."""
+    kinds = {group: (group.between_factor, group.prior_factor, *group.measurement_factors)
+             for group in GROUPS}
     for position in range(graph.size()):
         factor = graph.at(position)
         for group, types in kinds.items():

@@ -72,8 +72,8 @@ import numpy as np
 from rlpgo_gtsam.errors import G2oFormatError
 from rlpgo_gtsam.files import write_text
 from rlpgo_gtsam.graph import PoseGraph
-from rlpgo_gtsam.groups import Group
-from rlpgo_gtsam.io.formats import Format, factor_group, format_of
+from rlpgo_gtsam.groups import Group, graph_group
+from rlpgo_gtsam.io.formats import Format, format_of
 from rlpgo_gtsam.io.lines import MAX_LINE_BYTES, line_records
 from rlpgo_gtsam.io.read import (
     build,
@@ -190,13 +190,13 @@ def _read(path: Path, lines: bool = True, extract: bool = False
 
 
 def _graph_format(graph: gtsam.NonlinearFactorGraph) -> Format:
-    return format_of(factor_group(graph))
+    return format_of(graph_group(graph))
 
 
 def g2o_text(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
              pose_graph: PoseGraph | None = None) -> str:
     """The g2o text of ``graph`` and ``values``, planar or 3D by what the graph holds
-    (:func:`~rlpgo_gtsam.io.formats.factor_group`): what :func:`write_g2o` writes.
+    (:func:`~rlpgo_gtsam.groups.graph_group`): what :func:`write_g2o` writes.
 
     ``pose_graph``: the extraction of this very ``graph``, where the caller has it: a planar
     graph's measurements, informations and FIXed ids then come from its arrays, not from a

@@ -58,7 +58,7 @@ from rlpgo_gtsam.se3 import inverse as inverse3
 from rlpgo_gtsam.se3 import quaternions_to_rotations, rotations_to_quaternions
 
 __all__ = ["Table", "Landmarks", "Format", "PLANAR", "SPATIAL", "FORMATS", "format_of",
-           "G2O_TO_GTSAM", "PointLines", "POINT_LINES", "landmark_group", "factor_group"]
+           "G2O_TO_GTSAM", "PointLines", "POINT_LINES", "landmark_group"]
 
 # g2o's tangent order (x y z, then rotation) -> GTSAM's (rotation, then x y z): the
 # information in GTSAM's order is info_g2o[G2O_TO_GTSAM][:, G2O_TO_GTSAM]
@@ -727,16 +727,3 @@ def landmark_group(tag: str) -> Group | None:
     return next((group for group, lines in POINT_LINES.items() if upper in lines.tags), None)
 
 
-def factor_group(graph: gtsam.NonlinearFactorGraph) -> Group:
-    """The pose group of ``graph``: that of its first pose factor (between or prior) or
-    bearing-range factor, else SE2. :func:`~rlpgo_gtsam.groups.graph_group`'s rule, where a
-    graph of landmark measurements alone (poses seeing points, no between factor) is told by
-    its bearing-range factors."""
-    kinds = {group: (group.between_factor, group.prior_factor, lines.factor)
-             for group, lines in POINT_LINES.items()}
-    for position in range(graph.size()):
-        factor = graph.at(position)
-        for group, types in kinds.items():
-            if isinstance(factor, types):
-                return group
-    return SE2
