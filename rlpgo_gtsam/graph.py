@@ -457,6 +457,11 @@ def extract_pose_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) 
     (refined, not modeled); ``graph`` stays the user's whole graph, and
     :meth:`~PoseArrays.to_values` completes every estimate with the other variables.
     """
+    if not isinstance(graph, gtsam.NonlinearFactorGraph):
+        raise GraphError(f"graph must be a gtsam.NonlinearFactorGraph, got "
+                         f"{type(graph).__name__}")
+    if not isinstance(values, gtsam.Values):
+        raise GraphError(f"values must be gtsam.Values, got {type(values).__name__}")
     group = graph_group(graph)
     extraction = _GRAPH_OF_GROUP[group]
     try:

@@ -47,6 +47,7 @@ and one that has started runs to its end. ``stopped`` says what was cut.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -155,10 +156,12 @@ def staged_initialize(
             every one (:data:`SEARCHES_3D` on a 3D graph), the default none.
 
     Raises:
-        RlpgoError: a search that is not a method of the graph's dimension (before any
-            stage runs); every stage failing.
+        RlpgoError: a search that is not a method of the graph's dimension, or a budget that
+            is not a number of seconds >= 0 (before any stage runs); every stage failing.
         GraphError: a graph the package cannot work on.
     """
+    if not (isinstance(budget_s, (int, float)) and math.isfinite(budget_s) and budget_s >= 0):
+        raise RlpgoError(f"budget_s must be a number of seconds >= 0, got {budget_s!r}")
     began = time.perf_counter()
     deadline = began + budget_s
     g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)

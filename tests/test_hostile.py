@@ -563,3 +563,53 @@ def test_shonan_on_parallel_edges_finds_their_weighted_mean_rotation():
     poses = make_initializer("shonan", starts=1).run(extract_pose_graph(graph, values)).poses
     relative = np.angle(np.exp(1j * (poses[1, 2] - poses[0, 2])))
     assert relative == pytest.approx(expected, abs=1e-6)
+
+
+# 9. the Python API: wrong types, budgets and symbol keys are one-line errors or work
+@pytest.mark.parametrize("budget", [float("nan"), float("inf"), -1.0, "3"])
+def test_a_budget_that_is_not_a_number_of_seconds_is_refused_before_any_stage(budget):
+    from rlpgo_gtsam import example_file, staged_initialize
+
+    graph, values = read_g2o(example_file("pose2example.txt"))
+    with pytest.raises(RlpgoError, match="budget_s must be a number of seconds >= 0"):
+        staged_initialize(graph, values, budget_s=budget)
+
+
+def test_arguments_of_the_wrong_type_are_named():
+    from rlpgo_gtsam import example_file, staged_initialize
+
+    graph, values = read_g2o(example_file("pose2example.txt"))
+    with pytest.raises(GraphError, match="values must be gtsam.Values, got str"):
+        staged_initialize(graph, "values")
+    with pytest.raises(GraphError, match="graph must be a gtsam.NonlinearFactorGraph, got "
+                                         "NoneType"):
+        staged_initialize(None, values)
+
+
+def test_keys_of_two_symbol_letters_and_an_unused_value_are_taken():
+    """Poses keyed x0.. and y3..; a value no factor uses is kept as the user gave it."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+
+    def key(k):
+        return gtsam.symbol("x" if k < 3 else "y", k)
+
+    for k in range(5):
+        values.insert(key(k), gtsam.Pose2(k + 0.1, 0.2, 0.05))
+    unit = gtsam.noiseModel.Unit.Create(3)
+    for k in range(4):
+        graph.add(gtsam.BetweenFactorPose2(key(k), key(k + 1), gtsam.Pose2(1, 0, 0), unit))
+    graph.add(gtsam.BetweenFactorPose2(key(0), key(4), gtsam.Pose2(4, 0, 0), unit))
+    values.insert(gtsam.symbol("u", 0), gtsam.Point2(7.0, 8.0))
+    for method in ("lago", "chordal", "certified", "fastsync"):
+        result = make_initializer(method).initialize(graph, values)
+        assert np.allclose(result.atPoint2(gtsam.symbol("u", 0)), [7.0, 8.0])
+        assert graph.error(result) < 1e-9
+
+
+# 10. a usage error is one line
+def test_a_usage_error_is_one_line(tmp_path):
+    done = _command("rlpgo-init", "--bogus", str(tmp_path / "x.g2o"))
+    lines = done.stderr.decode().splitlines()
+    assert done.returncode == 2
+    assert lines == ["Error: No such option '--bogus'. Did you mean '--robust'? "
+                     "(see rlpgo-init --help)"]

@@ -76,6 +76,11 @@ class RlpgoCommand(click.Command):
         except KeyboardInterrupt:
             click.echo("Error: interrupted", err=True)
             raise click.exceptions.Exit(INTERRUPTED_EXIT) from None
+        except click.UsageError as error:
+            # one line, as every other error (click prints usage and a hint besides)
+            click.echo(f"Error: {printable_line(error.format_message())} (see "
+                       f"{info_name} --help)", err=True)
+            raise click.exceptions.Exit(error.exit_code) from None
 
     def invoke(self, ctx: click.Context):
         import numpy as np  # not at import: --help stays fast
