@@ -141,14 +141,20 @@ class PairwiseSystem:
             part = np.einsum("eab,eb->ea", block_t[take], rhs_edge[take])
             slot = (2 * self._column[index][take][:, None] + [0, 1]).ravel()
             gradient += np.bincount(slot, weights=part.ravel(), minlength=self.unknowns)
-        if kept is None and weights is None and self._fixed is not None:
-            factor, normal = self._fixed
-            solution = self._checked(factor.solve(gradient), normal, None)
-        else:
-            cross = a_i_t @ a_j
-            blocks = [a_i_t @ a_i, a_j_t @ a_j, cross, np.transpose(cross, (0, 2, 1))]
-            solution = (self._solve_all(blocks, gradient, fixed=weights is None) if kept is None
-                        else self._solve_kept(blocks, gradient, kept))
+        try:
+            if kept is None and weights is None and self._fixed is not None:
+                factor, normal = self._fixed
+                solution = self._checked(factor.solve(gradient), normal, None)
+            else:
+                cross = a_i_t @ a_j
+                blocks = [a_i_t @ a_i, a_j_t @ a_j, cross, np.transpose(cross, (0, 2, 1))]
+                solution = (self._solve_all(blocks, gradient, fixed=weights is None)
+                            if kept is None else self._solve_kept(blocks, gradient, kept))
+        except SolverError as error:
+            edges = self.edges if kept is None else self.edges[kept]
+            take = slice(None) if kept is None else kept
+            solution = augmented_least_squares(edges, a_i[take], a_j[take], rhs_edge[take],
+                                               self._column, self.held, error)
         x[self.free] = solution.reshape(-1, 2)
         return x
 
@@ -390,6 +396,57 @@ def _dense_pairwise(edges: np.ndarray, a_i: np.ndarray, a_j: np.ndarray, b: np.n
     if not np.isfinite(solution).all():
         raise SolverError("linear solve failed: the solution is not finite")
     return solution.reshape(-1, d, k)
+
+
+def augmented_least_squares(edges: np.ndarray, a_i: np.ndarray, a_j: np.ndarray,
+                            rhs: np.ndarray, column: np.ndarray, held: np.ndarray,
+                            error: SolverError) -> np.ndarray:
+    """``argmin ||A x - rhs||`` through the augmented system ``[[I, A], [A^T, 0]] [r; x] =
+    [rhs; 0]`` (SuperLU with partial pivoting), where the normal equations lost the poses
+    that edges of extreme weight tie together: their condition number is ``cond(A)^2``, the
+    augmented system's about ``cond(A)`` (MIT with one edge of information 1e12 beside
+    weights near 100: the normal equations' pivot falls to 1e-10 of its diagonal, GTSAM's LM
+    and this solve both reach the optimum). Only for systems whose every free unknown the
+    edges tie to a held one; ``error`` (the normal equations') is raised otherwise, or where
+    this solve fails too.
+
+    ``a_i``, ``a_j``: (m, d, d) blocks, ``rhs`` (m, d) with the held unknowns' terms moved
+    there; ``column``: each pose's block column among the free ones, -1 for held ones.
+    Returns (free, d) stacked as (free * d,).
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    from rlpgo_gtsam.graph import component_labels
+
+    free = column >= 0
+    labels = component_labels(len(column), edges)
+    if not np.isin(labels[free], labels[held]).all():
+        raise error
+    m, d = rhs.shape[0], rhs.shape[1]
+    unknowns = d * int(free.sum())
+    rows, cols, data = [], [], []
+    offsets = np.arange(d)
+    for index, block in ((edges[:, 0], a_i), (edges[:, 1], a_j)):
+        take = column[index] >= 0
+        row = np.flatnonzero(take)[:, None, None] * d + offsets[None, :, None]
+        col = m * d + column[index[take]][:, None, None] * d + offsets[None, None, :]
+        rows.append(np.broadcast_to(row, (int(take.sum()), d, d)).ravel())
+        cols.append(np.broadcast_to(col, (int(take.sum()), d, d)).ravel())
+        data.append(block[take].ravel())
+    r, c, v = (np.concatenate(part) for part in (rows, cols, data))
+    identity = np.arange(m * d)
+    size = m * d + unknowns
+    matrix = sp.csc_matrix((np.concatenate([np.ones(m * d), v, v]),
+                            (np.concatenate([identity, r, c]), np.concatenate([identity, c, r]))),
+                           shape=(size, size))
+    try:
+        solution = splu(matrix).solve(np.concatenate([rhs.reshape(-1), np.zeros(unknowns)]))
+    except RuntimeError:
+        raise error from None
+    if not np.all(np.isfinite(solution)):
+        raise error
+    return solution[m * d:]
 
 
 def _least_squares(rows: np.ndarray, cols: np.ndarray, data: np.ndarray, shape: tuple[int, int],

@@ -613,3 +613,26 @@ def test_a_usage_error_is_one_line(tmp_path):
     assert done.returncode == 2
     assert lines == ["Error: No such option '--bogus'. Did you mean '--robust'? "
                      "(see rlpgo-init --help)"]
+
+
+# 5. an edge of extreme information beside ordinary ones: the default reaches where LM does
+@pytest.mark.parametrize("precision", [1e12, 1e19])
+def test_an_edge_of_extreme_information_leaves_the_default_working(precision):
+    """The normal equations lose the two poses such an edge ties (a pivot 1e-10 of its
+    diagonal); the augmented system keeps them, and the default ends at or below LM30 from
+    the odometry guess."""
+    from rlpgo_gtsam import staged_initialize
+    from rlpgo_gtsam.synthetic import generate
+
+    sample = generate(200, 0.05, 0.05, 3.0, 0.5, np.random.default_rng(7),
+                      noisy_measurements=True)
+    graph = gtsam.NonlinearFactorGraph(sample.graph)
+    graph.add(gtsam.BetweenFactorPose2(1, 2, gtsam.Pose2(1.0, 0.02, 0.01),
+                                       gtsam.noiseModel.Gaussian.Information(
+                                           np.eye(3) * precision)))
+    run = staged_initialize(graph, sample.initial)
+    odometry = make_initializer("odometry").initialize(graph, sample.initial)
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(30)
+    plain = gtsam.LevenbergMarquardtOptimizer(graph, odometry, params).optimize()
+    assert 2 * graph.error(run.values) <= 2 * graph.error(plain) * (1 + 1e-6)
