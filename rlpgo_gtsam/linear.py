@@ -151,10 +151,9 @@ class PairwiseSystem:
                 solution = (self._solve_all(blocks, gradient, fixed=weights is None)
                             if kept is None else self._solve_kept(blocks, gradient, kept))
         except SolverError as error:
-            edges = self.edges if kept is None else self.edges[kept]
-            take = slice(None) if kept is None else kept
-            solution = augmented_least_squares(edges, a_i[take], a_j[take], rhs_edge[take],
-                                               self._column, self.held, error)
+            take = np.ones(len(self.edges), bool) if kept is None else kept
+            solution = augmented_least_squares(self.edges[take], a_i[take], a_j[take],
+                                               rhs_edge[take], self._column, self.held, error)
         x[self.free] = solution.reshape(-1, 2)
         return x
 
@@ -407,8 +406,8 @@ def augmented_least_squares(edges: np.ndarray, a_i: np.ndarray, a_j: np.ndarray,
     augmented system's about ``cond(A)`` (MIT with one edge of information 1e12 beside
     weights near 100: the normal equations' pivot falls to 1e-10 of its diagonal, GTSAM's LM
     and this solve both reach the optimum). Only for systems whose every free unknown the
-    edges tie to a held one; ``error`` (the normal equations') is raised otherwise, or where
-    this solve fails too.
+    edges of a weight above :data:`PIVOT_FLOOR` of their median tie to a held one;
+    ``error`` (the normal equations') is raised otherwise, or where this solve fails too.
 
     ``a_i``, ``a_j``: (m, d, d) blocks, ``rhs`` (m, d) with the held unknowns' terms moved
     there; ``column``: each pose's block column among the free ones, -1 for held ones.
@@ -420,7 +419,11 @@ def augmented_least_squares(edges: np.ndarray, a_i: np.ndarray, a_j: np.ndarray,
     from rlpgo_gtsam.graph import component_labels
 
     free = column >= 0
-    labels = component_labels(len(column), edges)
+    # the ties that count: an edge whose weight vanishes against the graph's typical one
+    # (1e-30 beside 1) ties nothing a solve can resolve, however exact its arithmetic
+    weight = np.einsum("eab,eab->e", a_j, a_j) + np.einsum("eab,eab->e", a_i, a_i)
+    ties = weight > PIVOT_FLOOR * np.median(weight)
+    labels = component_labels(len(column), edges[ties])
     if not np.isin(labels[free], labels[held]).all():
         raise error
     m, d = rhs.shape[0], rhs.shape[1]
