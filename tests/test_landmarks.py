@@ -240,3 +240,23 @@ def test_bearing_only_range_only_point_betweens_and_robust_sightings_are_carried
                                        "BearingRangeFactor2D x 1")
     assert not run.certified
     assert _chi2(graph, run.values) <= _chi2(graph, _lm(graph, values)) * (1 + 1e-6)
+
+
+@pytest.mark.parametrize("group", [SE2, SE3])
+def test_rlpgo_init_on_a_landmark_file_writes_the_landmarks_back(tmp_path, group):
+    from click.testing import CliRunner
+    from rlpgo_cli.init import main as init_main
+
+    from rlpgo_gtsam import read_g2o, write_g2o
+
+    sample = _landmark_graph(group, n=60, count=20, seed=4)
+    path, output = tmp_path / "in.g2o", tmp_path / "out.g2o"
+    write_g2o(path, sample.graph, sample.initial)
+    done = CliRunner().invoke(init_main, [str(path), "-o", str(output)])
+    assert done.exit_code == 0, done.output
+    assert f"with {sample.num_landmarks} landmarks inside" in done.output
+    graph, values = read_g2o(output)
+    assert values.size() == sample.initial.size()
+    read_graph, _ = read_g2o(path)
+    ours = _chi2(read_graph, values)
+    assert ours <= _chi2(read_graph, _lm(read_graph, sample.initial)) * (1 + 1e-4)
