@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING
 import gtsam
 import numpy as np
 
+from rlpgo_gtsam.groups import key_text
+
 if TYPE_CHECKING:
     from rlpgo_gtsam.graph import PoseGraph
 
@@ -40,7 +42,8 @@ def outlier_suspicion(pose_graph: PoseGraph, values: gtsam.Values) -> str | None
     if count < 3 or count <= expected + 4.0 * math.sqrt(expected):
         return None
     worst = np.argsort(-residuals, kind="stable")[:3]
-    shown = ", ".join(f"{g.keys[a]}-{g.keys[b]}" for a, b in g.edges[worst].tolist())
+    shown = ", ".join(f"{key_text(g.keys[a])}-{key_text(g.keys[b])}"
+                      for a, b in g.edges[worst].tolist())
     return (f"{count} of {g.num_edges} edges fit with chi2 > {bound:g} (Gaussian noise "
             f"gives about {expected:.0f}; worst: edges {shown}): wrong loop closures are likely; "
             "try --robust")

@@ -142,7 +142,8 @@ def test_settings_out_of_range_are_refused_by_name(settings, message):
 def test_landmark_options_need_landmarks_and_exclude_wrong_closures(tmp_path):
     out = str(tmp_path / "g.g2o")
     cli_error(CliRunner().invoke(main, ["--n", "20", "--sensor-range", "5", "-o", out]),
-              "--sensor-range: options of the landmarks; give --landmarks N too", code=2)
+              "--sensor-range: options of the landmarks and the ranges; give --landmarks N, "
+              "--ranges N or --pose-ranges K too", code=2)
     cli_error(CliRunner().invoke(main, ["--n", "20", "--landmarks", "5", "--outliers", "0.1",
                                         "-o", out]), "do not combine with --landmarks", code=2)
     assert not (tmp_path / "g.g2o").exists()

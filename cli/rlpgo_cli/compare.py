@@ -1,5 +1,5 @@
 """rlpgo-compare: initial guesses side by side, each refined by the same GTSAM solver, on
-planar or 3D g2o files (each file gets the methods of its group)."""
+planar or 3D g2o files and planar PyFG files (each file gets the methods of its group)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import click
 import numpy as np
 
 from rlpgo_cli.errors import RlpgoCommand
+from rlpgo_cli.formats import input_group, read_truth
 from rlpgo_cli.inputs import read_input
 from rlpgo_cli.output import RunFiles, json_text
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, OutputFile
@@ -17,7 +18,6 @@ from rlpgo_gtsam.errors import OutputError, RlpgoError
 from rlpgo_gtsam.graph import chi2, extract_pose_graph
 from rlpgo_gtsam.groups import SE2, SE3, Group
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, start_names
-from rlpgo_gtsam.io import file_group, read_poses
 from rlpgo_gtsam.ranking import (
     FROM_BEST,
     TIE_RELATIVE,
@@ -159,12 +159,14 @@ def _methods_for(path: Path, group: Group, given: list[str] | None) -> list[str]
               help="Passes over the edges of the rl methods [default: the model's test cycles].")
 @click.option("--ground-truth", "truth_path", type=click.Path(path_type=Path),
               help="True poses of the one FILE (a g2o file whose vertex lines hold a pose for "
-                   "each of its ids; edges are not needed): adds evo's APE and RPE (rmse, m) of "
+                   "each of its ids, edges not needed; or a PyFG file, its VERTEX_SE2 poses, "
+                   "such as rlpgo-generate --ground-truth writes): adds evo's APE and RPE "
+                   "(rmse, m) of "
                    "each refined result. With no FILE, the generated graph's own are used.")
 @click.pass_context
 def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, episodes, start,
          cycles, truth_path):
-    """Compare initial guesses for the pose graphs in FILES (g2o, planar or 3D).
+    """Compare initial guesses for the graphs in FILES (g2o, planar or 3D; PyFG, .pyfg).
 
     Each method's guess is refined by the same GTSAM solver; costs are g2o chi2
     (2 x GTSAM error). A 3D file's default methods are the 3D rows, certified first.
@@ -194,7 +196,7 @@ def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, e
                               "overwrite each other")
     # One check of every output: a PNG that is an input or is also --json is refused.
     run.check(*plots, json_path, folders=folders)
-    groups = [file_group(path) for path in files]
+    groups = [input_group(path) for path in files]
     per_file = [_methods_for(path, group, method_list if given else None)
                 for path, group in zip(files, groups, strict=True)]
     three = [path for path, group in zip(files, groups, strict=True) if group is SE3]
@@ -207,7 +209,7 @@ def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, e
             click.echo(f"note: {note}")
     inputs = [(path.name, one.graph, one.values, one.read_extraction)
               for path, one in zip(files, read, strict=True)]
-    truth = None if truth_path is None else read_poses(truth_path)
+    truth = None if truth_path is None else read_truth(truth_path)
     if not inputs:
         demo = generate(rng=np.random.default_rng(seed), **DEMO)
         settings = " ".join(f"{key}={value}" for key, value in DEMO.items())
@@ -227,8 +229,7 @@ def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, e
     pngs: list[tuple[Path, bytes]] = []
     for index, (name, graph, values, extraction) in enumerate(inputs):
         pose_graph = extraction if extraction is not None else extract_pose_graph(graph, values)
-        click.echo(f"\n{name}: {pose_graph.num_poses} poses, {pose_graph.num_edges} edges, "
-                   f"{solver.upper()}{iters}")
+        click.echo(f"\n{name}: {pose_graph.sizes()}, {solver.upper()}{iters}")
         width = method_width(per_file[index])
         click.echo(_header(truth is not None, width))
         accuracy: list[TrajectoryErrors | None] = []

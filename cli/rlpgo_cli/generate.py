@@ -1,6 +1,7 @@
 """rlpgo-generate: write one of the paper's synthetic lawn-mower pose graphs as g2o (planar,
 or its layers in 3D with ``--dim 3``), with points measured by bearing and range with
-``--landmarks N``."""
+``--landmarks N``, or as PyFG (an output ending in ``.pyfg``), with ranges to beacons and
+between poses with ``--ranges N`` / ``--pose-ranges K``."""
 
 from __future__ import annotations
 
@@ -10,26 +11,33 @@ import click
 import numpy as np
 
 from rlpgo_cli.errors import RlpgoCommand
+from rlpgo_cli.formats import PYFG, graph_text, is_pyfg
 from rlpgo_cli.output import RunFiles
 from rlpgo_cli.types import SEED, FiniteFloat, OutputFile
 from rlpgo_gtsam.graph import chi2
 from rlpgo_gtsam.groups import SE2, SE3
-from rlpgo_gtsam.io import EDGE_LIST_LINE, edge_list_text, g2o_text, g2o_text_lines
+from rlpgo_gtsam.io import EDGE_LIST_LINE, edge_list_text, g2o_text_lines
+from rlpgo_gtsam.io.pyfg import RANGE_FACTORS
 from rlpgo_gtsam.synthetic import (
     GROUP_SIZE,
     LAYER_ROWS,
     LOCAL_RANGE,
+    MIN_BEACON_RANGES,
     OUTLIER_MODES,
     ROW_LENGTH,
     LandmarkSettings,
+    RangeSettings,
     generate,
     generate_landmarks,
+    generate_ranges,
 )
 
 # --dim: the pose group
 _GROUPS = {2: SE2, 3: SE3}
-# options that shape the landmarks, refused without --landmarks
-_LANDMARK_OPTIONS = ("sensor_range", "sigma_bearing", "sigma_range", "max_sightings")
+# options of the landmarks' bearings alone, refused without --landmarks
+_LANDMARK_OPTIONS = ("sigma_bearing", "max_sightings")
+# options of the range sensor, which landmarks and ranges share: refused without either
+_SENSOR_OPTIONS = ("sensor_range", "sigma_range")
 
 
 @click.command(cls=RlpgoCommand)
@@ -51,9 +59,11 @@ _LANDMARK_OPTIONS = ("sensor_range", "sigma_bearing", "sigma_range", "max_sighti
               help="Perturb the measurements too (the paper's graphs have exact ones).")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Random seed.")
 @click.option("-o", "--output", type=OutputFile(), required=True,
-              help="g2o file for the graph and its noisy initial guess.")
+              help="File for the graph and its noisy initial guess: PyFG if its name ends in "
+                   ".pyfg (planar), else g2o.")
 @click.option("--ground-truth", type=OutputFile(),
-              help="g2o file for the graph with the ground-truth poses.")
+              help="File for the graph with the ground-truth poses (PyFG or g2o, by its name "
+                   "as OUTPUT).")
 @click.option("--outliers", type=FiniteFloat(0.0, 1.0, max_open=True), default=0.0,
               show_default=True,
               help="Wrong loop closures to add, as a fraction of the graph's edges.")
@@ -78,29 +88,48 @@ _LANDMARK_OPTIONS = ("sensor_range", "sigma_bearing", "sigma_range", "max_sighti
                    "each measured by bearing and range from every pose within "
                    "--sensor-range (EDGE_SE2_XY, VERTEX_XY; EDGE_SE3_TRACKXYZ, "
                    "VERTEX_TRACKXYZ); points no pose sees are dropped. 0: a pose graph.")
+@click.option("--ranges", type=click.IntRange(0, 1_000_000), default=0, show_default=True,
+              help="Beacons to place in the path's bounding box grown by "
+                   f"{RangeSettings.margin_m:g} m, each ranged from every pose within "
+                   "--sensor-range (EDGE_RANGE to VERTEX_XY lines; at least "
+                   f"{MIN_BEACON_RANGES} poses each): a range-aided graph, written as PyFG "
+                   f"(OUTPUT must end in {PYFG}).")
+@click.option("--pose-ranges", type=click.IntRange(0, 1_000_000), default=0,
+              show_default=True,
+              help="Ranges between pairs of poses within --sensor-range (EDGE_RANGE between "
+                   "VERTEX_SE2 lines), with or without --ranges; written as PyFG.")
 @click.option("--sensor-range", type=FiniteFloat(1e-6, 1e6),
               default=LandmarkSettings.sensor_range_m, show_default=True,
-              help="The farthest a pose measures a point, metres.")
+              help="The farthest a pose measures a point (--landmarks) or a range (--ranges, "
+                   "--pose-ranges), metres.")
 @click.option("--sigma-bearing", type=FiniteFloat(1e-9, 3.2),
               default=LandmarkSettings.sigma_bearing_rad, show_default=True,
               help="Bearing noise, radians (per tangent axis in 3D).")
 @click.option("--sigma-range", type=FiniteFloat(1e-9, 1e6),
               default=LandmarkSettings.sigma_range_m, show_default=True,
-              help="Range noise, metres.")
+              help="Range noise, metres (--landmarks, --ranges, --pose-ranges).")
 @click.option("--max-sightings", type=click.IntRange(1, 1_000_000),
               help="Measure only the nearest this many points from each pose (default: "
                    "every point in range).")
 @click.pass_context
 def main(ctx, dim, n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output, ground_truth,
-         outliers, outlier_mode, group_size, outliers_out, landmarks, sensor_range,
-         sigma_bearing, sigma_range, max_sightings):
+         outliers, outlier_mode, group_size, outliers_out, landmarks, ranges, pose_ranges,
+         sensor_range, sigma_bearing, sigma_range, max_sightings):
     """Generate a lawn-mower pose graph as in the RL-PGO paper (in layers in 3D: --dim 3),
-    with points measured by bearing and range with --landmarks N."""
-    _check_landmark_options(ctx, landmarks, outliers, outliers_out)
+    with points measured by bearing and range with --landmarks N, or ranges to beacons and
+    between poses with --ranges N / --pose-ranges K (planar, written as PyFG: CORA's
+    problem)."""
+    ranging = ranges > 0 or pose_ranges > 0
+    _check_landmark_options(ctx, landmarks, ranging, outliers, outliers_out)
+    _check_formats(dim, ranging, output, ground_truth, outliers_out)
     run = RunFiles()
     run.check(output, ground_truth, outliers_out)
     rng = np.random.default_rng(seed)
-    if landmarks > 0:
+    if ranging:
+        sample = generate_ranges(n, sigma_r, sigma_t, d, lc, rng,
+                                 RangeSettings(ranges, pose_ranges, sigma_range, sensor_range),
+                                 noisy_measurements=noisy_measurements)
+    elif landmarks > 0:
         settings = LandmarkSettings(landmarks, sensor_range, sigma_bearing, sigma_range,
                                     max_sightings)
         sample = generate_landmarks(n, sigma_r, sigma_t, d, lc, rng, settings,
@@ -109,16 +138,24 @@ def main(ctx, dim, n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output,
         sample = generate(n, sigma_r, sigma_t, d, lc, rng,
                           noisy_measurements=noisy_measurements, outliers=outliers,
                           outlier_mode=outlier_mode, group_size=group_size, group=_GROUPS[dim])
-    text, lines = g2o_text_lines(sample.graph, sample.initial)
+    if is_pyfg(output):
+        text, lines = graph_text(output, sample.graph, sample.initial), []
+    else:
+        text, lines = g2o_text_lines(sample.graph, sample.initial)
     files = [(output, text.encode())]
     if ground_truth is not None:
-        files.append((ground_truth, g2o_text(sample.graph, sample.ground_truth).encode()))
+        files.append((ground_truth,
+                      graph_text(ground_truth, sample.graph, sample.ground_truth).encode()))
     if outliers_out is not None:
         listed = edge_list_text(sample.graph, sample.outlier_edges, lines, g2o_name=output.name,
                                 title="wrong loop closures that rlpgo-generate added")
         files.append((outliers_out, listed.encode("utf-8", "surrogateescape")))
     run.write_together(files)  # every file or none
     points = f"{sample.num_landmarks} landmarks, " if landmarks > 0 else ""
+    if ranging:
+        measured = sum(isinstance(sample.graph.at(k), RANGE_FACTORS)
+                       for k in range(sample.graph.size()))
+        points = f"{sample.num_landmarks} beacons, {measured} ranges, "
     click.echo(f"{output}: {n} poses, {points}{sample.graph.size()} edges, initial chi2 "
                f"{chi2(sample.graph, sample.initial):.6g}, ground-truth chi2 "
                f"{chi2(sample.graph, sample.ground_truth):.6g}")
@@ -130,23 +167,62 @@ def main(ctx, dim, n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output,
                    f"{listed}")
 
 
-def _check_landmark_options(ctx: click.Context, landmarks: int, outliers: float,
-                            outliers_out: Path | None) -> None:
-    """Usage errors for landmark options without --landmarks, and for wrong loop closures
-    with it (the generator adds them to pose graphs only)."""
+def _check_landmark_options(ctx: click.Context, landmarks: int, ranging: bool,
+                            outliers: float, outliers_out: Path | None) -> None:
+    """Usage errors for landmark options without --landmarks, sensor options without
+    landmarks or ranges, ranges with landmarks or their options, and wrong loop closures
+    with either (the generator adds them to pose graphs only)."""
 
     def given(name: str) -> bool:
         return ctx.get_parameter_source(name) not in (
             None, click.core.ParameterSource.DEFAULT, click.core.ParameterSource.DEFAULT_MAP)
 
+    def options(names: tuple[str, ...]) -> list[str]:
+        return [f"--{name.replace('_', '-')}" for name in names if given(name)]
+
+    if ranging:
+        refused = (["--landmarks"] if landmarks > 0 else []) + options(_LANDMARK_OPTIONS)
+        if outliers > 0 or outliers_out is not None:
+            refused.append("--outliers" if outliers > 0 else "--outliers-out")
+        if refused:
+            raise click.UsageError(f"{', '.join(refused)}: not used with --ranges or "
+                                   "--pose-ranges (a range-aided graph has no bearings, "
+                                   "landmarks seen by bearing or wrong loop closures)")
+        return
     if landmarks == 0:
-        unused = [f"--{name.replace('_', '-')}" for name in _LANDMARK_OPTIONS if given(name)]
-        if unused:
-            raise click.UsageError(f"{', '.join(unused)}: options of the landmarks; give "
-                                   "--landmarks N too")
+        if options(_LANDMARK_OPTIONS):
+            raise click.UsageError(f"{', '.join(options(_LANDMARK_OPTIONS))}: options of the "
+                                   "landmarks; give --landmarks N too")
+        if options(_SENSOR_OPTIONS):
+            raise click.UsageError(f"{', '.join(options(_SENSOR_OPTIONS))}: options of the "
+                                   "landmarks and the ranges; give --landmarks N, --ranges N "
+                                   "or --pose-ranges K too")
     elif outliers > 0 or outliers_out is not None:
         raise click.UsageError("--outliers and --outliers-out make pose graphs; they do not "
                                "combine with --landmarks")
+
+
+def _check_formats(dim: int, ranging: bool, output: Path, ground_truth: Path | None,
+                   outliers_out: Path | None) -> None:
+    """Usage errors for outputs whose format cannot hold the graph: ranges outside PyFG (g2o
+    has no range line), a 3D graph in PyFG (planar here), a list of g2o lines beside a PyFG
+    output."""
+    outputs = [path for path in (output, ground_truth) if path is not None]
+    if ranging:
+        if dim == 3:
+            raise click.UsageError("--ranges and --pose-ranges make planar graphs; they do not "
+                                   "combine with --dim 3")
+        not_pyfg = [str(path) for path in outputs if not is_pyfg(path)]
+        if not_pyfg:
+            raise click.UsageError(f"{', '.join(not_pyfg)}: a graph with ranges is written as "
+                                   f"PyFG (g2o has no range line); give a name ending in {PYFG}")
+    pyfg = [str(path) for path in outputs if is_pyfg(path)]
+    if pyfg and dim == 3:
+        raise click.UsageError(f"{', '.join(pyfg)}: PyFG files are written planar here; give "
+                               "--dim 2 or a .g2o name")
+    if outliers_out is not None and is_pyfg(output):
+        raise click.UsageError("--outliers-out lists edges by their g2o lines; OUTPUT is a "
+                               "PyFG file")
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
-"""rlpgo-init: write an initial guess for a planar or 3D g2o pose graph (same edges, new
-vertices)."""
+"""rlpgo-init: write an initial guess for a planar or 3D g2o pose graph, or a planar PyFG
+graph (same edges, new vertices)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 
 from rlpgo_cli.errors import RlpgoCommand
+from rlpgo_cli.formats import check_graph_output, graph_text, input_group, is_pyfg
 from rlpgo_cli.inputs import read_input
 from rlpgo_cli.output import RunFiles, json_text
 from rlpgo_cli.types import ITERATIONS, ROLLOUTS, SEED, FiniteFloat, OutputFile
@@ -18,7 +19,7 @@ from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import chi2
 from rlpgo_gtsam.groups import SE2, SE3, Group
 from rlpgo_gtsam.initializers import CLASSICAL, check_method, initializer_names, start_names
-from rlpgo_gtsam.io import EDGE_LIST_LINE, edge_list_text, file_group, g2o_text
+from rlpgo_gtsam.io import EDGE_LIST_LINE, edge_list_text
 from rlpgo_gtsam.ranking import (
     MethodResult,
     best_of,
@@ -239,10 +240,14 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
     # not on the default's path
     from rlpgo_gtsam.robust import robust_initialize
 
+    if outliers_out is not None and is_pyfg(input_path):
+        raise RlpgoError(f"--outliers-out lists edges by their g2o lines; {input_path} is a "
+                         "PyFG file")
     run = RunFiles([input_path])
     run.check(output, outliers_out, json_path)  # fail before the work, not after
     read = read_input(input_path)
     graph, values, lines, notes = read.graph, read.values, read.lines, read.notes
+    check_graph_output(output, graph)
     _print_notes(notes)
     began = time.perf_counter()
     pose_graph = read.pose_graph()
@@ -283,7 +288,8 @@ def _run_robust(input_path: Path, output: Path, outliers_out: Path | None,
                 "were rejected; --covariance-scale says by how much (docs/robust.md)")
         click.echo(f"hint: {hint}")
     # every edge, new vertices
-    files = [(output, g2o_text(graph, result.values, pose_graph).encode())]
+    files = [(output, graph_text(output, graph, result.values, pose_graph,
+                                 read.times).encode())]
     if outliers_out is not None:
         listed = edge_list_text(graph, result.rejected, lines, g2o_name=input_path.name,
                                 title="edges that rlpgo-init --robust judged wrong")
@@ -319,9 +325,10 @@ def _print_stage(row: MethodResult, reason: str) -> None:
 
 
 @click.command(cls=RlpgoCommand)
-@click.argument("input_path", metavar="INPUT.g2o", type=click.Path(path_type=Path))
+@click.argument("input_path", metavar="INPUT", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=OutputFile(), required=True,
-              help="g2o file to write (never the input).")
+              help="File to write (never the input): PyFG if its name ends in .pyfg, else "
+                   "g2o (which has no line for ranges).")
 @click.option("--method", default="auto", show_default=True,
               help="auto (certify, then refine), all (every method, keep the lowest chi2), rl, "
                    "rl@<start>, or one initializer: " + ", ".join(
@@ -352,14 +359,14 @@ def _print_stage(row: MethodResult, reason: str) -> None:
                    "--no-trust-odometry judges it like loop closures.")
 @click.option("--outliers-out", type=OutputFile(),
               help="With --robust: a text file listing the rejected edges, one a line as "
-                   f"'{EDGE_LIST_LINE}' (L: the edge's line in INPUT.g2o, from 1), after one "
-                   "'#' line.")
+                   f"'{EDGE_LIST_LINE}' (L: the edge's line in INPUT, from 1; a g2o INPUT "
+                   "only), after one '#' line.")
 @click.option("--covariance-scale", type=FiniteFloat(0.0, 1e6, min_open=True), default=1.0,
               show_default=True,
               help="With --robust: how many times larger the edges' noise is than their "
                    "covariances say (a front end's optimistic covariances); the tests that "
                    "judge loop closures use each covariance times this. The map and its chi2 "
-                   "are those of INPUT.g2o as written.")
+                   "are those of INPUT as written.")
 @click.option("--false-rejections", type=FiniteFloat(0.0, 1.0, max_open=True), default=None,
               help="With --robust: the expected share of true loop closures among those it "
                    "rejects beyond the chi-square bar (adaptive Benjamini-Hochberg; default "
@@ -382,7 +389,8 @@ def _print_stage(row: MethodResult, reason: str) -> None:
 def main(ctx, input_path, output, method, budget, model, cycles, episodes, start, refine,
          iters, json_path, seed, robust, trust_odometry, outliers_out, covariance_scale,
          false_rejections):
-    """Write an initial guess for INPUT.g2o (planar or 3D) to OUTPUT.
+    """Write an initial guess for INPUT (a g2o file, planar or 3D, or a planar PyFG file,
+    .pyfg, as CORA reads) to OUTPUT.
 
     The default, --method auto, runs the certified SE(d) relaxation, refines its estimate
     with --refine and writes it; the certificate says whether it is the global optimum (if
@@ -392,7 +400,8 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
     done, then the ranking. The paper's behaviour is --method rl --start odometry --refine
     none (planar graphs: the agent is planar). --robust rejects wrong loop closures and
     writes the guess from the edges kept. A 3D file (VERTEX_SE3:QUAT, EDGE_SE3:QUAT) is
-    told from its lines and written back as one.
+    told from its lines and written back as one. A PyFG output keeps the input's
+    timestamps.
     """
     command_began = time.perf_counter()
     _check_robust_options(ctx, robust, method, refine, outliers_out)
@@ -402,7 +411,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
         return
     _check_method_name(method, start)
     _check_method_options(ctx, method)
-    group = file_group(input_path)
+    group = input_group(input_path)
     _check_agent_options(ctx, input_path, group)
     methods = _method_list(method, start, group, input_path)
     run = RunFiles([input_path])
@@ -416,6 +425,7 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
         resolve_model(model)  # a bad --model is an error, not a row of failed methods
     read = read_input(input_path)
     graph, values = read.graph, read.values
+    check_graph_output(output, graph)
     _print_notes(read.notes)
     began = time.perf_counter()
     pose_graph = read.pose_graph()
@@ -455,7 +465,8 @@ def main(ctx, input_path, output, method, budget, model, cycles, episodes, start
                                                _ranking(results)))
         elif chosen.init.certificate is not None:
             click.echo(f"certificate: {chosen.init.certificate.describe()}")
-    files = [(output, g2o_text(graph, chosen.refined, pose_graph).encode())]
+    files = [(output, graph_text(output, graph, chosen.refined, pose_graph,
+                                 read.times).encode())]
     seconds = time.perf_counter() - began
     input_chi2 = chi2(graph, values)
     if json_path is not None:

@@ -1,4 +1,5 @@
-"""A command's g2o inputs: each file's dimension, its graph, and what the reader noted."""
+"""A command's graph inputs (g2o, or PyFG by its extension): each file's dimension, its
+graph, and what the reader noted."""
 
 from __future__ import annotations
 
@@ -9,9 +10,11 @@ from typing import TYPE_CHECKING
 
 import gtsam
 
+from rlpgo_cli.formats import is_pyfg
 from rlpgo_gtsam.errors import InformationWarning
 from rlpgo_gtsam.graph import extract_pose_graph
 from rlpgo_gtsam.io import read_g2o_extracted
+from rlpgo_gtsam.io.pyfg import PyfgTimes, read_pyfg_file
 
 if TYPE_CHECKING:
     from rlpgo_gtsam.graph import PoseGraph
@@ -19,7 +22,7 @@ if TYPE_CHECKING:
 
 @dataclass(eq=False)
 class InputGraph:
-    """One g2o input as read.
+    """One input as read.
 
     Attributes:
         graph, values: what the reader of the file's dimension made of it.
@@ -33,6 +36,7 @@ class InputGraph:
     notes: list[str] = field(default_factory=list)
     lines: list[int] = field(default_factory=list)  # each factor's file line
     read_extraction: PoseGraph | None = None  # the planar reader's, where it made one
+    times: PyfgTimes | None = None  # a PyFG file's timestamps, for its output
 
     def pose_graph(self) -> PoseGraph:
         """The graph's one extraction: the planar reader's (the same arrays, without a
@@ -46,7 +50,12 @@ class InputGraph:
 def read_input(path: Path) -> InputGraph:
     """Read a planar or a 3D g2o file
     (:func:`~rlpgo_gtsam.io.read_g2o_extracted`), with each factor's file line
-    and the reader's information warnings as notes; any other warning is passed on."""
+    and the reader's information warnings as notes; any other warning is passed on. A
+    ``.pyfg`` file is read by :func:`~rlpgo_gtsam.io.pyfg.read_pyfg_file`, its timestamps
+    kept."""
+    if is_pyfg(path):
+        read = read_pyfg_file(path)
+        return InputGraph(read.graph, read.values, [], read.lines, times=read.times)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", InformationWarning)
         graph, values, factor_lines, extraction = read_g2o_extracted(path)

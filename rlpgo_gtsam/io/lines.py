@@ -309,45 +309,47 @@ class LineSource(Protocol):
     def readline(self, size: int = -1, /) -> bytes: ...
 
 
-def open_g2o(path: Path) -> BinaryIO:
-    """``path`` opened for reading (binary), or the one-line error that says why not."""
+def open_g2o(path: Path, kind: str = "g2o") -> BinaryIO:
+    """``path`` opened for reading (binary), or the one-line error that says why not;
+    ``kind`` names the format the messages expect (``"g2o"``, ``"PyFG"``)."""
     try:
         handle = path.open("rb")
     except FileNotFoundError:
         raise InputNotFoundError(path) from None
     except IsADirectoryError:
-        raise G2oFormatError(path, None, "is a directory, not a g2o file") from None
+        raise G2oFormatError(path, None, f"is a directory, not a {kind} file") from None
     except PermissionError:
         raise G2oFormatError(path, None, "permission denied") from None
     if path.is_dir():
         handle.close()
-        raise G2oFormatError(path, None, "is a directory, not a g2o file")
+        raise G2oFormatError(path, None, f"is a directory, not a {kind} file")
     return handle
 
 
-def numbered_lines(path: Path, handle: LineSource | None = None) -> Iterator[tuple[int, str]]:
+def numbered_lines(path: Path, handle: LineSource | None = None,
+                   kind: str = "g2o") -> Iterator[tuple[int, str]]:
     """(line number, text) of each line of the file at ``path`` (read from ``handle`` where
     given), with the careful reader's checks (line length, NUL bytes, UTF-8, a byte-order
-    mark): what :func:`line_records` reads."""
+    mark): what :func:`line_records` reads. ``kind`` names the format in the messages."""
     if handle is not None:
-        yield from _lines(path, handle)
+        yield from _lines(path, handle, kind)
         return
-    with open_g2o(path) as opened:
-        yield from _lines(path, opened)
+    with open_g2o(path, kind) as opened:
+        yield from _lines(path, opened, kind)
 
 
-def line_records(path: Path, handle: LineSource | None = None
+def line_records(path: Path, handle: LineSource | None = None, kind: str = "g2o"
                  ) -> Iterator[tuple[int, str, list[str]]]:
     """(line number, tag, fields) of each line of :func:`numbered_lines` that is neither
-    blank nor a comment: what the careful reader and :func:`~rlpgo_gtsam.io.file_group`
-    read."""
-    for number, text in numbered_lines(path, handle):
+    blank nor a comment: what the careful readers (g2o, PyFG) and
+    :func:`~rlpgo_gtsam.io.file_group` read."""
+    for number, text in numbered_lines(path, handle, kind):
         tokens = text.split()
         if tokens and not tokens[0].startswith("#"):
             yield number, tokens[0], tokens[1:]
 
 
-def _lines(path: Path, handle: LineSource) -> Iterator[tuple[int, str]]:
+def _lines(path: Path, handle: LineSource, kind: str) -> Iterator[tuple[int, str]]:
     number = 0
     while True:
         # readline with a limit: a file without newlines (/dev/zero, a huge sparse file)
@@ -361,14 +363,14 @@ def _lines(path: Path, handle: LineSource) -> Iterator[tuple[int, str]]:
                 raise G2oFormatError(path, number, "lines end in CR alone (classic Mac "
                                      "line endings); convert them to LF or CR LF")
             raise G2oFormatError(path, number,
-                                 f"line longer than {MAX_LINE_BYTES} bytes (not a g2o file?)")
+                                 f"line longer than {MAX_LINE_BYTES} bytes (not a {kind} file?)")
         if b"\r" in raw.rstrip(b"\r\n") and raw.strip():  # a blank line's stray CR: blank
             raise G2oFormatError(path, number, "a CR inside a line (classic Mac line "
                                  "endings?); convert them to LF or CR LF")
         if number == 1 and raw.startswith(BOM):
             raw = raw[len(BOM):]
         if b"\x00" in raw:
-            raise G2oFormatError(path, number, "binary data, not a g2o text file")
+            raise G2oFormatError(path, number, f"binary data, not a {kind} text file")
         try:
             yield number, raw.decode("utf-8")
         except UnicodeDecodeError:

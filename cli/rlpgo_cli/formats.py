@@ -1,0 +1,68 @@
+"""Which reader and writer a command uses: a file's extension picks them, ``.pyfg`` (any
+case) CORA's PyFG, planar (:mod:`rlpgo_gtsam.io.pyfg`), any other g2o."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import gtsam
+
+from rlpgo_gtsam.errors import OutputError
+from rlpgo_gtsam.groups import SE2, Group
+from rlpgo_gtsam.io import file_group, g2o_text, read_poses
+from rlpgo_gtsam.io.pyfg import RANGE_FACTORS, PyfgTimes, check_pyfg_graph, pyfg_text, read_pyfg
+
+if TYPE_CHECKING:
+    from rlpgo_gtsam.graph import PoseGraph
+
+PYFG = ".pyfg"
+
+
+def is_pyfg(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` names a PyFG file (its extension)."""
+    return Path(path).suffix.lower() == PYFG
+
+
+def input_group(path: Path) -> Group:
+    """The pose group of an input: SE2 for a PyFG file (the reader is planar), else the g2o
+    file's (:func:`~rlpgo_gtsam.io.file_group`)."""
+    return SE2 if is_pyfg(path) else file_group(path)
+
+
+def read_truth(path: Path) -> gtsam.Values:
+    """The true poses of a ground-truth file: a g2o file's vertex poses
+    (:func:`~rlpgo_gtsam.io.read_poses`), or a PyFG file's ``VERTEX_SE2`` values."""
+    if not is_pyfg(path):
+        return read_poses(path)
+    return gtsam.utilities.allPose2s(read_pyfg(path)[1])
+
+
+def check_graph_output(path: Path, graph: gtsam.NonlinearFactorGraph) -> None:
+    """Refuse, before any work, an output whose format cannot hold ``graph``: ranges in a g2o
+    file (it has no range line), a factor a PyFG line cannot hold.
+
+    Raises:
+        OutputError: naming the output and what it cannot hold.
+    """
+    if is_pyfg(path):
+        try:
+            check_pyfg_graph(graph)
+        except OutputError as error:
+            raise OutputError(f"{path}: {error}") from None
+        return
+    ranges = sum(isinstance(graph.at(k), RANGE_FACTORS) for k in range(graph.size()))
+    if ranges:
+        raise OutputError(f"{path}: a g2o file has no line for ranges, and the graph holds "
+                          f"{ranges}; give an output ending in {PYFG}")
+
+
+def graph_text(path: Path, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+               pose_graph: PoseGraph | None = None, times: PyfgTimes | None = None) -> str:
+    """The text of ``graph`` and ``values`` in the format ``path`` names: PyFG with the
+    input's timestamps ``times``, or g2o (``pose_graph``: the graph's extraction, which
+    spares the writer a walk over the factors)."""
+    if is_pyfg(path):
+        return pyfg_text(graph, values, times)
+    return g2o_text(graph, values, pose_graph)
