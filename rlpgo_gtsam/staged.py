@@ -99,8 +99,9 @@ class StagedResult:
         hint: without a certificate, a one-line hint when the best refined result fits the
             edges with a heavier tail than Gaussian noise (wrong loop closures are likely);
             None otherwise, and always None when certified, when nothing was refined
-            (``iters=0``) or when the time budget cut the best row's refinement (the
-            residuals of an unconverged estimate say nothing about the loop closures).
+            (``iters=0``), when the time budget cut the best row's refinement (the
+            residuals of an unconverged estimate say nothing about the loop closures), and
+            on a graph with more than poses (the robust path judges pose graphs only).
     """
 
     rows: list[MethodResult] = field(default_factory=list)
@@ -227,8 +228,9 @@ def staged_initialize(
     if cuts:
         run.stopped += "; " + "; ".join(cuts)
     run.best = best_of(run.rows)
+    # the hint points at --robust, which judges pose graphs only
     if not run.certified and run.best.cut is None and iters > 0 and \
-            run.best.refined is not None:
+            run.best.refined is not None and not g.whole:
         run.hint = outlier_suspicion(g, run.best.refined)
     run.seconds = time.perf_counter() - began
     return run
