@@ -528,9 +528,12 @@ def gtsam_staircase(graph, values, max_rank_step: int = 3) -> dict | None:
 # GTSAM's certifiable SE(d) notebooks' settings (CertifiableLandmarkSLAMPose2/3): the highest
 # rank, eta, and the augmented Lagrangian's iteration cap and initial penalty (None: its own).
 _SE_STAIRCASE_SETTINGS = {2: (6, 1e-3, 100, None), 3: (7, 1e-3, 200, 300.0)}
+# The same settings of GTSAM's CertifiableRangeAidedSLAMPose2 notebook, used where a planar
+# graph holds ranges.
+_RANGE_STAIRCASE_SETTINGS = (6, 1e-3, 200, None)
 
 
-def gtsam_se_staircase(graph, values) -> dict | None:
+def gtsam_se_staircase(graph, values, round_uncertified: bool = False) -> dict | None:
     """GTSAM's ``RiemannianStaircaseOptimizer`` on the whole SE(d) problem of a pose graph,
     landmarks included, built as GTSAM's ``CertifiableLandmarkSLAMPose2/3`` notebooks build
     it: per pose edge a ``FrobeniusBetweenFactorRot<d>`` (``Isotropic.Variance(1 | 3,
@@ -544,12 +547,31 @@ def gtsam_se_staircase(graph, values) -> dict | None:
     solution is turned back as the notebooks do: a global reflection undone where most
     rotation blocks have a negative determinant, each block projected onto SO(d).
 
+    Planar ranges are built as GTSAM's ``CertifiableRangeAidedSLAMPose2`` notebook builds
+    them: per ``RangeFactor2D`` (pose to point) or ``RangeFactorPose2`` (pose to pose) a
+    ``QuadraticRangeFactor2(T(a), L(b) | T(b), U(m), range, nu)``, the term
+    ``nu || x_b - t_a - range u_m ||^2`` with its own auxiliary direction ``U(m)``, a lifted
+    ``Rot2`` whose first row is the unit direction (``nu``: the range's information); its
+    start is the direction from ``a`` to ``b`` in ``values`` (``Rot2(angle).matrix().T``);
+    the notebook's parameters (pMax 6, eta 1e-3, the augmented Lagrangian's 200
+    iterations); after rounding, each direction is recovered from the rounded positions, as
+    the notebook does.
+
     Returns ``certified``, ``rank``, ``ranks`` (visited), ``seconds`` (its ``totalTime``),
     ``wall_seconds`` (building the problem, the staircase and the rounding), ``min_eigenvalue``,
     ``cost`` (its cost at the last level, in its own units), ``values`` (the rounded estimate
-    under ``values``' keys, Pose2/Pose3 and Point2/Point3; None where it rounded none) and
-    ``failure`` (a factor it does not model, or its error; None). None where the gtsam
-    wheel has no such optimizer.
+    under ``values``' keys, Pose2/Pose3 and Point2/Point3; None where it rounded none),
+    ``rounded_cost`` (the lifted graph's error at the rounded estimate, directions recovered
+    from the positions, in ``cost``'s units: ``cost`` bounds it from below only where
+    ``certified`` and ``violation`` is near 0; not in ``wall_seconds``), ``violation`` (the
+    largest ``|Y Y^T - I|`` entry of its last point's rotation and direction blocks: the
+    augmented Lagrangian's constraint violation), ``ranges`` (ranges modelled),
+    ``rounded_by`` (``"gtsam"``: its ``roundedValues()``; ``"benchmark"``: with
+    ``round_uncertified``, where GTSAM rounded nothing (it rounds only a certified result),
+    its last lifted point projected here onto the top-d right singular subspace of its
+    stacked rotation blocks, as SE-Sync rounds, then turned back as above; None: not
+    rounded) and ``failure`` (a factor it does not model, or its error; None). None where
+    the gtsam wheel has no such optimizer.
     """
     import gtsam
     import numpy as np
@@ -571,6 +593,8 @@ def gtsam_se_staircase(graph, values) -> dict | None:
                               else gtsam.utilities.allPose2s(values)).keys()]
     pose_index = {key: index for index, key in enumerate(poses)}
     point_index: dict[int, int] = {}
+    ranges: list[tuple[int, int]] = []  # (first key, second key) per direction U(m)
+    range_types = () if spatial else (gtsam.RangeFactor2D, gtsam.RangeFactorPose2)
     lifted = gtsam.NonlinearFactorGraph()
     for k in range(graph.size()):
         factor = graph.at(k)
@@ -595,6 +619,17 @@ def gtsam_se_staircase(graph, values) -> dict | None:
             nu = float(point_weights(np.array([information]))[0])
             lifted.add(relative(gtsam.symbol("R", i), gtsam.symbol("T", i),
                                 gtsam.symbol("L", m), point, nu))
+        elif isinstance(factor, range_types):
+            first, second = (int(key) for key in factor.keys())
+            if isinstance(factor, gtsam.RangeFactorPose2):
+                target = gtsam.symbol("T", pose_index[second])
+            else:
+                target = gtsam.symbol("L", point_index.setdefault(second, len(point_index)))
+            nu = float(factor.noiseModel().information()[0, 0])
+            lifted.add(gtsam.QuadraticRangeFactor2(
+                gtsam.symbol("T", pose_index[first]), target, gtsam.symbol("U", len(ranges)),
+                float(factor.measured()), nu))
+            ranges.append((first, second))
         elif factor is not None:
             return {"failure": f"{type(factor).__name__} is not modelled"}
     initial = gtsam.Values()
@@ -604,7 +639,11 @@ def gtsam_se_staircase(graph, values) -> dict | None:
         initial.insert(gtsam.symbol("T", i), np.asarray(pose.translation()).reshape(1, d))
     for key, m in point_index.items():
         initial.insert(gtsam.symbol("L", m), _point_row(values, key, d))
-    p_max, eta, alm_iterations, alm_penalty = _SE_STAIRCASE_SETTINGS[d]
+    for m, (first, second) in enumerate(ranges):
+        angle = _direction_angle(values, first, second)
+        initial.insert(gtsam.symbol("U", m), gtsam.Rot2.fromAngle(angle).matrix().T)
+    p_max, eta, alm_iterations, alm_penalty = (_RANGE_STAIRCASE_SETTINGS if ranges else
+                                               _SE_STAIRCASE_SETTINGS[d])
     alm = gtsam.AugmentedLagrangianParams()
     alm.maxIterations = alm_iterations
     if alm_penalty is not None:
@@ -617,15 +656,23 @@ def gtsam_se_staircase(graph, values) -> dict | None:
     except RuntimeError as error:
         return {"failure": str(error).strip().splitlines()[0],
                 "wall_seconds": time.perf_counter() - began}
-    found = None
+    found, rounded_by = None, None
     if result.hasRoundedSolution():
-        rounded = result.roundedValues()
+        rounded, rounded_by = result.roundedValues(), "gtsam"
+    elif round_uncertified:
+        rounded, rounded_by = result.values, "benchmark"
+    if rounded_by is not None:
         blocks = {key: rounded.atMatrix(gtsam.symbol("R", i)).copy()
                   for key, i in pose_index.items()}
         rows = {key: rounded.atMatrix(gtsam.symbol("T", i)).copy().ravel()
                 for key, i in pose_index.items()}
         rows.update({key: rounded.atMatrix(gtsam.symbol("L", m)).copy().ravel()
                      for key, m in point_index.items()})
+        if rounded_by == "benchmark":  # d x p blocks: onto their top-d right singular space
+            basis = np.linalg.svd(np.vstack(list(blocks.values())),
+                                  full_matrices=False)[2][:d].T
+            blocks = {key: block @ basis for key, block in blocks.items()}
+            rows = {key: row @ basis for key, row in rows.items()}
         if sum(np.linalg.det(block) < 0.0 for block in blocks.values()) > len(blocks) // 2:
             for block in blocks.values():  # the optimizer works over O(d)
                 block[:, -1] *= -1.0
@@ -640,12 +687,70 @@ def gtsam_se_staircase(graph, values) -> dict | None:
                                      float(np.arctan2(rotation[1, 0], rotation[0, 0]))))
         for key in point_index:
             found.insert(key, point_type(rows[key]))
+    wall_seconds = time.perf_counter() - began
+    manifold_keys = ([gtsam.symbol("R", i) for i in pose_index.values()] +
+                     [gtsam.symbol("U", m) for m in range(len(ranges))])
     return {"certified": bool(result.certified), "rank": int(result.finalRank),
+            "violation": _stiefel_violation(result.values, manifold_keys),
             "ranks": [int(r) for r in np.asarray(result.getRanksVisited()).ravel()],
-            "seconds": float(result.totalTime), "wall_seconds": time.perf_counter() - began,
+            "seconds": float(result.totalTime), "wall_seconds": wall_seconds,
             "min_eigenvalue": float(result.minEigenvalue),
             "cost": float(np.asarray(result.getCostPerLevel()).ravel()[-1]),
-            "values": found, "failure": None}
+            "rounded_cost": None if found is None else
+            _lifted_error(lifted, found, pose_index, point_index, ranges, spatial),
+            "ranges": len(ranges), "values": found, "rounded_by": rounded_by, "failure": None}
+
+
+def _direction_angle(values, first: int, second: int) -> float:
+    """The angle of the direction from the position of ``first`` to that of ``second``
+    (planar poses or points) in ``values``."""
+    import numpy as np
+
+    def position(key: int):
+        try:
+            return np.asarray(values.atPose2(key).translation(), float)
+        except RuntimeError:  # not a pose: a point
+            return np.asarray(values.atPoint2(key), float)
+
+    offset = position(second) - position(first)
+    return float(np.arctan2(offset[1], offset[0]))
+
+
+def _stiefel_violation(lifted_values, keys) -> float | None:
+    """The largest ``|Y Y^T - I|`` entry over the lifted blocks ``keys`` (rows meant to be
+    orthonormal): how far the staircase's last point is from its constraints (None where
+    there is none)."""
+    import numpy as np
+
+    worst = None
+    for key in keys:
+        if not lifted_values.exists(key):
+            return None
+        block = np.asarray(lifted_values.atMatrix(key), float)
+        gap = float(np.abs(block @ block.T - np.eye(len(block))).max())
+        worst = gap if worst is None else max(worst, gap)
+    return worst
+
+
+def _lifted_error(lifted, found, pose_index: dict[int, int], point_index: dict[int, int],
+                  ranges: list[tuple[int, int]], spatial: bool) -> float:
+    """The lifted graph's error at a rounded estimate ``found`` (poses and points under the
+    graph's keys), as the range notebook evaluates it: rotations, translations, points,
+    and each range's direction from the rounded positions."""
+    import gtsam
+
+    estimate = gtsam.Values()
+    for key, i in pose_index.items():
+        pose = found.atPose3(key) if spatial else found.atPose2(key)
+        estimate.insert(gtsam.symbol("R", i), pose.rotation())
+        estimate.insert(gtsam.symbol("T", i), pose.translation())
+    for key, m in point_index.items():
+        estimate.insert(gtsam.symbol("L", m),
+                        found.atPoint3(key) if spatial else found.atPoint2(key))
+    for m, (first, second) in enumerate(ranges):
+        estimate.insert(gtsam.symbol("U", m),
+                        gtsam.Rot2.fromAngle(_direction_angle(found, first, second)))
+    return float(lifted.error(estimate))
 
 
 def _point_row(values, key: int, d: int):

@@ -1,14 +1,14 @@
-"""The example pose graphs GTSAM's Python wheel ships, by name.
+"""The example graphs GTSAM's Python wheel ships, by name: pose graphs, landmark graphs and
+range-aided graphs.
 
 The gtsam wheel carries its example data (``gtsam/Data``), found by
 ``gtsam.findExampleDataFile``. :func:`example_file` resolves a name there as that function
 does (``"pose2example.txt"``, or ``"pose2example"`` without its extension), so that the
 README's first commands run from a fresh clone with nothing beside it.
-:data:`EXAMPLES` lists the files of that folder that are pose graphs this package's reader
-takes (g2o's ``VERTEX_SE2``/``EDGE_SE2`` or ``VERTEX_SE3:QUAT``/``EDGE_SE3:QUAT``); the
-folder's other files are TORO graphs (``VERTEX2``/``EDGE2``, ``EDGE3``: their information
-matrices are laid out differently from file to file, so the reader refuses them with its
-``file:line``), landmark graphs and other data.
+:data:`EXAMPLES` lists the files of that folder that this package's readers take (g2o's
+pose and landmark lines, CORA's PyFG); the folder's other files are TORO graphs
+(``VERTEX2``/``EDGE2``, ``EDGE3``: their information matrices are laid out differently from
+file to file, so the reader refuses them with its ``file:line``) and other data.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ __all__ = ["Example", "EXAMPLES", "example_file", "example_names"]
 
 @dataclass(frozen=True)
 class Example:
-    """One pose graph of GTSAM's example data.
+    """One graph of GTSAM's example data.
 
     Attributes:
         name: the file's name in GTSAM's data folder.
@@ -31,6 +31,9 @@ class Example:
         poses: vertices the file defines.
         edges: its between factors.
         about: what it is, in a few words.
+        points: its landmarks or beacons.
+        measurements: their sightings or ranges.
+        certified: whether the default certifies it (range-aided graphs: not)
     """
 
     name: str
@@ -38,6 +41,9 @@ class Example:
     poses: int
     edges: int
     about: str
+    points: int = 0
+    measurements: int = 0
+    certified: bool = True
 
 
 EXAMPLES: tuple[Example, ...] = (
@@ -48,6 +54,16 @@ EXAMPLES: tuple[Example, ...] = (
     Example("toyExample.g2o", 3, 5, 6, "a small loop, every guess at the origin"),
     Example("simpleGraph10gradIter.txt", 3, 5, 6, "toyExample.g2o's graph, another guess"),
     Example("Klaus3.g2o", 3, 3, 3, "three poses, a triangle"),
+    Example("victoriaPark_reduced_1k.g2o", 2, 1000, 999,
+            "Victoria Park: 48 trees seen 606 times (LANDMARK2)", 48, 606),
+    Example("cityTrees_reduced_1k.g2o", 2, 1000, 999,
+            "simulated city trees: 66 seen 406 times (LANDMARK2)", 66, 406),
+    Example("goats_16.pyfg", 2, 201, 200, "CORA's goats: 4 beacons, 572 ranges (PyFG)", 4, 572,
+            False),
+    Example("goats_15.pyfg", 2, 473, 472, "CORA's goats: 3 beacons, 786 ranges (PyFG)", 3, 786,
+            False),
+    Example("known_landmark_localization_20.g2o", 3, 20, 19,
+            "4 points seen 80 times (EDGE_SE3_TRACKXYZ)", 4, 80),
 )
 
 

@@ -29,11 +29,15 @@ from tests.conftest import cli_error, cli_ok
 
 @pytest.mark.parametrize("example", EXAMPLES, ids=lambda e: e.name)
 def test_every_listed_example_reads_as_stated_and_certifies(example):
-    graph, values = read_g2o(example_file(example.name))
+    from rlpgo_gtsam import read_pyfg
+
+    path = example_file(example.name)
+    graph, values = read_pyfg(path) if path.endswith(".pyfg") else read_g2o(path)
     assert graph_group(graph).dimension == example.dimension
-    assert (values.size(), graph.size()) == (example.poses, example.edges)
+    assert (values.size(), graph.size()) == (example.poses + example.points,
+                                             example.edges + example.measurements)
     run = staged_initialize(graph, values, budget_s=30)
-    assert run.certified
+    assert run.certified == example.certified
     assert run.best.refined_chi2 <= 2 * graph.error(values) + 1e-12
 
 
@@ -42,7 +46,9 @@ def test_a_name_resolves_as_gtsam_resolves_it():
     assert path == gtsam.findExampleDataFile("pose3example-grid.txt")
     assert example_file("pose3example-grid") == path  # without its extension, as GTSAM takes it
     assert Path(path).is_file()
-    assert example_names(2) == ["noisyToyGraph.txt", "pose2example.txt"]
+    assert example_names(2) == ["noisyToyGraph.txt", "pose2example.txt",
+                                "victoriaPark_reduced_1k.g2o", "cityTrees_reduced_1k.g2o",
+                                "goats_16.pyfg", "goats_15.pyfg"]
     assert set(example_names()) == {example.name for example in EXAMPLES}
 
 

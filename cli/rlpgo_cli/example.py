@@ -20,8 +20,8 @@ def main(name):
         click.echo(example_file(name))
         return
     present = set(example_names())
-    click.echo(f"{'name':<27} {'graph':<6} {'poses':>5} {'edges':>5}  about")
+    click.echo(f"{'name':<34} {'graph':<6} {'poses':>5} {'edges':>5}  about")
     for example in EXAMPLES:
         if example.name in present:
-            click.echo(f"{example.name:<27} {_KIND[example.dimension]:<6} {example.poses:>5} "
+            click.echo(f"{example.name:<34} {_KIND[example.dimension]:<6} {example.poses:>5} "
                        f"{example.edges:>5}  {example.about}")
