@@ -36,9 +36,9 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
-from rlpgo_gtsam.groups import SE2, SE3, Group, graph_group, pose3_arrays
+from rlpgo_gtsam.groups import SE2, SE3, Group, graph_group, key_text, pose3_arrays
 from rlpgo_gtsam.information import Factors, printed_of, sort_factors
-from rlpgo_gtsam.landmarks import Carried, Points, Ranges, key_text, place_points, split_graph
+from rlpgo_gtsam.landmarks import Carried, Points, Ranges, place_points, split_graph
 from rlpgo_gtsam.se3 import pose_matrices
 
 __all__ = [
@@ -56,6 +56,8 @@ __all__ = [
     "component_labels",
     "format_ranges",
     "find_root",
+    "check_reach",
+    "FARTHEST_M",
     "PoseArrays",
     "poses_of_values",
     "pose2_inserter",
@@ -476,6 +478,55 @@ def extract_pose_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) 
     return replace(pose_graph, graph=graph, points=_points(pose_graph, split),
                    ranges=_ranges(pose_graph, split), carried=split.carried,
                    carried_values=split.carried_values)
+
+
+# Beyond this distance from the origin, or this length of a measurement, a double keeps
+# less than a tenth of a millimetre (its spacing at 1e12 is 1.2e-4): a map there, or beside
+# such an edge, has lost its digits before any method runs (a 1e300 m edge overflows).
+FARTHEST_M = 1e12
+
+
+def check_reach(g: PoseGraph, out: np.ndarray | None = None) -> PoseGraph:
+    """``g``, after checking that no value and no measurement lies beyond
+    :data:`FARTHEST_M` (edges ``out``, a bool mask, left aside: the robust path rejects
+    wild closures before it asks). Every initializer asks it first.
+
+    Raises:
+        GraphError: the first such value (its key) or measurement (its factor's keys).
+    """
+    group, keys = g.group, g.keys
+
+    def edge(k: int) -> str:
+        i, j = g.edges[k]
+        return f"between factor {key_text(keys[i])}-{key_text(keys[j])} measures"
+
+    wrong = "; the robust path rejects a wrong closure of that size"
+
+    measured = group.translations(group.measured(g))
+    if out is not None:
+        measured = np.where(out[:, None], 0.0, measured)
+    checks: list[tuple[np.ndarray, Callable[[int], str]]] = [
+        (measured, edge),
+        (group.translations(g.poses), lambda k: f"the value of {key_text(keys[k])} lies at")]
+    if g.prior_poses is not None:
+        priors = g.priors
+        checks.append((group.translations(g.prior_poses),
+                       lambda k: f"the prior on {key_text(keys[priors[k]])} lies at"))
+    points = g.points
+    if points is not None:
+        checks.append((points.measured, lambda k: (
+            f"landmark measurement {key_text(keys[points.edges[k, 0]])}-"
+            f"{key_text(points.keys[points.edges[k, 1]])} measures")))
+        checks.append((points.values,
+                       lambda k: f"the value of {key_text(points.keys[k])} lies at"))
+    for vectors, name in checks:
+        far = np.flatnonzero(~(np.abs(vectors) <= FARTHEST_M).all(axis=1))
+        if len(far):
+            size = float(np.max(np.abs(vectors[far[0]])))
+            raise GraphError(f"{name(int(far[0]))} {size:.3g} m: beyond {FARTHEST_M:.0e} m a "
+                             "double keeps no millimetre of a map"
+                             + (wrong if name is edge and out is None else ""))
+    return g
 
 
 def _ranges(pose_graph: PoseGraph, split: Any) -> Ranges | None:

@@ -42,6 +42,7 @@ from rlpgo_gtsam.graph import (
     PoseGraph,
     PoseGraph2D,
     PoseGraph3D,
+    check_reach,
     chi2,
     extract_pose_graph,
     rotation_weights,
@@ -147,6 +148,7 @@ class Initializer:
         if pose_graph.group not in self.groups:
             raise RlpgoError(_other_group(self.name or type(self).__name__, self.groups,
                                           pose_graph.group))
+        check_reach(pose_graph)
         began = time.perf_counter()
         if start is None and self.start is not None:
             start = make_initializer(self.start).run(pose_graph)

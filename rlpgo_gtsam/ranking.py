@@ -14,7 +14,7 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import RlpgoError, one_line
-from rlpgo_gtsam.graph import extract_pose_graph
+from rlpgo_gtsam.graph import check_reach, extract_pose_graph
 from rlpgo_gtsam.initializers import InitResult, make_initializer, start_names
 from rlpgo_gtsam.numerics import release_free_memory
 from rlpgo_gtsam.solvers import RefineResult, refine
@@ -321,7 +321,7 @@ def compare_methods(
     indeterminate system, a diverging solver) gets a row with ``failure`` set; the others
     still run.
     """
-    g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
+    g = check_reach(pose_graph if pose_graph is not None else extract_pose_graph(graph, values))
     rows: dict[str, MethodResult] = {}
     results: list[MethodResult] = []
     for method in methods:

@@ -56,7 +56,7 @@ from typing import TYPE_CHECKING, Any
 import gtsam
 
 from rlpgo_gtsam.errors import RlpgoError
-from rlpgo_gtsam.graph import extract_pose_graph
+from rlpgo_gtsam.graph import check_reach, extract_pose_graph
 from rlpgo_gtsam.groups import SE3
 from rlpgo_gtsam.initializers import InitResult, check_method, initializer_names
 from rlpgo_gtsam.numerics import RELEASE_SIZE, numeric_call, release_free_memory
@@ -165,7 +165,7 @@ def staged_initialize(
         raise RlpgoError(f"budget_s must be a number of seconds >= 0, got {budget_s!r}")
     began = time.perf_counter()
     deadline = began + budget_s
-    g = pose_graph if pose_graph is not None else extract_pose_graph(graph, values)
+    g = check_reach(pose_graph if pose_graph is not None else extract_pose_graph(graph, values))
     for method, _ in searches:
         check_method(method, g.group)
     options = options or {}

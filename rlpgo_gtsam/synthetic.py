@@ -753,6 +753,9 @@ def _wrong_pairs(g: PoseGraph, positions: np.ndarray, moves: np.ndarray,
               3.0 * float(np.max(np.linalg.norm(moves[templates], axis=1))))
     size = group_size if mode in ("group", "localgroup") else 1
     n = g.num_poses
+    if size > (n - 2) // 2:
+        raise RlpgoError(f"groups of {size} wrong closures need at least {2 * size + 2} poses "
+                         f"(two runs of {size} that do not overlap), the graph has {n}")
     drawn = 0
     while drawn < count:
         members = min(size, count - drawn)

@@ -66,7 +66,7 @@ import gtsam
 import numpy as np
 
 from rlpgo_gtsam.errors import GraphError, SolverError, one_line
-from rlpgo_gtsam.graph import PoseGraph, chi2, extract_pose_graph
+from rlpgo_gtsam.graph import PoseGraph, check_reach, chi2, extract_pose_graph
 from rlpgo_gtsam.groups import group_of
 from rlpgo_gtsam.landmarks import outside_kinds
 from rlpgo_gtsam.numerics import numeric_call
@@ -181,13 +181,15 @@ def _within_reach(problem: Problem) -> tuple[Problem, _Before]:
 
     Raises:
         GraphError: an edge left so long that the rest of the map loses its digits beside it
-            (:func:`~rlpgo_gtsam.robust.reach.check_scale`).
+            (:func:`~rlpgo_gtsam.robust.reach.check_scale`), or a value or an edge left beyond
+            :data:`~rlpgo_gtsam.graph.FARTHEST_M` (:func:`~rlpgo_gtsam.graph.check_reach`).
     """
     began = time.perf_counter()
     g, settings = problem.g, problem.settings
     out = out_of_reach(g, chi2_quantile(settings.inlier_probability, problem.group.dof),
                        settings.reach_margin)
     check_scale(g, out)
+    check_reach(g, out)
     if not out.any():
         return problem, _Before()
     graph = without_factors(problem.graph, problem.factor_of_edge[out].tolist())

@@ -13,6 +13,7 @@ import io
 import json
 import math
 import os
+import warnings
 import zipfile
 import zlib
 from dataclasses import asdict
@@ -255,10 +256,17 @@ def load_model(path: str | os.PathLike[str]) -> LoadedModel:
         first = " ".join(str(error).split())[:200] or type(error).__name__
         raise ModelError(f"{path}: not a readable model zip ({first})") from None
     try:
-        state = torch.load(io.BytesIO(weights), weights_only=True, map_location="cpu")
+        with warnings.catch_warnings():
+            # torch warns of the pickle protocol before refusing: the refusal says it all
+            warnings.simplefilter("ignore", UserWarning)
+            state = torch.load(io.BytesIO(weights), weights_only=True, map_location="cpu")
     except Exception as error:  # torch raises UnpicklingError, RuntimeError, ...
-        first = " ".join(str(error).split())[:200] or type(error).__name__
-        raise ModelError(f"{path}: weights refused by the safe loader: {first}") from None
+        # torch's text goes on to suggest turning the safety off: its reason is enough
+        reason = " ".join(str(error).split())
+        cause = reason.split("WeightsUnpickler error:")[-1].split(".")[0].strip() \
+            if "WeightsUnpickler error:" in reason else type(error).__name__
+        raise ModelError(f"{path}: weights refused by the safe loader (a model file holds "
+                         f"tensors only; this one holds more: {cause[:120]})") from None
     fc = state.get("trunk.fc.weight") if isinstance(state, dict) else None
     if not isinstance(fc, torch.Tensor) or fc.shape[0] != hidden:
         raise ModelError(f"{path}: weights do not match the config (hidden {hidden})")
