@@ -9,7 +9,7 @@ feasible for the relaxation's dual, so ``lower_bound = tr(Lambda) + rows x min(l
 being the rows of ``Q`` (``n`` planar, ``3n`` spatial); ``suboptimality_bound =
 f(rounded) - lower_bound``. ``certified`` means ``lambda_min >= -eta`` and the rounded
 estimate attains the bound: ``suboptimality_bound <= rows x eta + 1e-6 |f(rounded)|``, and
-never more than ``1e-4 max(|f(rounded)|, rows)`` (:data:`GAP_CAP`).
+never more than ``1e-4 max(|f(rounded)|, 1)`` (:data:`GAP_CAP`).
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ import numpy as np
 __all__ = ["Status", "Certificate", "Check", "certificate", "GAP_TOLERANCE", "GAP_CAP"]
 
 GAP_TOLERANCE = 1e-6  # relative gap between f(rounded) and tr(Lambda) still called exact
-# the largest gap ever called exact: this share of f(rounded), or of one unit of cost per row
-# where f is smaller than the rows (exact measurements)
+# the largest gap ever called exact: this share of f(rounded), or of one unit of cost where f
+# is below 1 (exact measurements); a chi2 unit is the cost of one measurement at one sigma
 GAP_CAP = 1e-4
 
 
@@ -196,7 +196,7 @@ def certificate(check: Check, estimate: float, eta: float, size: int, rank: int,
         # the tolerance follows the weights; where they are extreme it can dwarf the cost
         # itself, and a bound that loose proves nothing: the gap is capped beside it
         exact = gap <= min(size * eta + GAP_TOLERANCE * abs(estimate),
-                           GAP_CAP * max(abs(estimate), size))
+                           GAP_CAP * max(abs(estimate), 1.0))
         status = Status.CERTIFIED if exact else Status.NOT_TIGHT
     else:
         status = stop
