@@ -94,7 +94,7 @@ NON_FINITE = re.compile(rb"(?<![A-Za-z_])(?:[+-]?nan|[+-]?inf(?:inity)?)(?![A-Za
 SIGNAL_CODES = (134, 137, 139)
 
 
-FACTOR = r"\bkeys? \S+"  # CONVENTIONS.md: "naming file:line or factor and keys"
+FACTOR = r"(?:\bkeys? \S+|factor \S+-\S+)"  # CONVENTIONS.md: "naming file:line or factor and keys"
 
 
 def at(*lines: int) -> str:

@@ -507,18 +507,18 @@ def check_reach(g: PoseGraph, out: np.ndarray | None = None) -> PoseGraph:
         measured = np.where(out[:, None], 0.0, measured)
     checks: list[tuple[np.ndarray, Callable[[int], str]]] = [
         (measured, edge),
-        (group.translations(g.poses), lambda k: f"the value of {key_text(keys[k])} lies at")]
+        (group.translations(g.poses), lambda k: f"the value of key {key_text(keys[k])} lies at")]
     if g.prior_poses is not None:
         priors = g.priors
         checks.append((group.translations(g.prior_poses),
-                       lambda k: f"the prior on {key_text(keys[priors[k]])} lies at"))
+                       lambda k: f"the prior on key {key_text(keys[priors[k]])} lies at"))
     points = g.points
     if points is not None:
         checks.append((points.measured, lambda k: (
             f"landmark measurement {key_text(keys[points.edges[k, 0]])}-"
             f"{key_text(points.keys[points.edges[k, 1]])} measures")))
         checks.append((points.values,
-                       lambda k: f"the value of {key_text(points.keys[k])} lies at"))
+                       lambda k: f"the value of key {key_text(points.keys[k])} lies at"))
     for vectors, name in checks:
         far = np.flatnonzero(~(np.abs(vectors) <= FARTHEST_M).all(axis=1))
         if len(far):

@@ -109,7 +109,7 @@ def test_compare_on_poses_beyond_reach_is_one_line_and_writes_nothing(tmp_path):
     result = CliRunner().invoke(compare_main, [str(path), "--methods", "odometry,chordal",
                                                *outputs])
     assert result.exit_code == 1
-    assert result.stderr == ("Error: the value of 0 lies at 1e+308 m: beyond 1e+12 m a double "
+    assert result.stderr == ("Error: the value of key 0 lies at 1e+308 m: beyond 1e+12 m a double "
                              "keeps no millimetre of a map\n")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["far.g2o"]
 
