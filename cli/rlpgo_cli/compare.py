@@ -142,7 +142,9 @@ def _methods_for(path: Path, group: Group, given: list[str] | None) -> list[str]
               help="Iteration cap of the solver.")
 @click.option("--methods", default=DEFAULT_METHODS, show_default=True,
               help="Comma-separated initializers to compare (a 3D file's default: "
-                   + ",".join(DEFAULT_METHODS_3D) + ").")
+                   + ",".join(DEFAULT_METHODS_3D) + "). In the default rows Shonan starts "
+                   "from the best row before it (shonan@best); a method named here runs as "
+                   "named.")
 @click.option("--json", "json_path", type=OutputFile(),
               help="Write every row as a JSON list of records.")
 @click.option("--plot", "plot_dir", type=click.Path(path_type=Path),
@@ -243,8 +245,11 @@ def main(ctx, files, solver, iters, methods, json_path, plot_dir, seed, model, e
             accuracy.append(errors)
             click.echo(_row(row, errors, truth is not None, width))
 
+        # a method asked for by name is the method run; the default rows start Shonan from
+        # the best so far (FROM_BEST)
         results = compare_methods(graph, values, per_file[index], solver, iters, dataset=name,
-                                  options=options, pose_graph=pose_graph, on_row=show)
+                                  options=options, pose_graph=pose_graph, on_row=show,
+                                  start_from_best=() if given else FROM_BEST)
         click.echo(_best_line(results))
         for r in results:
             if r.init is not None and r.init.certificate is not None:
