@@ -30,6 +30,7 @@ and its CPU seconds. After TIMEOUT_S the child is killed.
 from __future__ import annotations
 
 import contextlib
+import gc
 import json
 import os
 import platform
@@ -123,6 +124,45 @@ def timed(function: Callable[[], Any]) -> tuple[Any, float]:
     began = time.perf_counter()
     result = function()
     return result, time.perf_counter() - began
+
+
+def collected_timed(function: Callable[[], Any]) -> tuple[Any, float]:
+    """:func:`timed` after a garbage collection (an earlier row's garbage is not charged)."""
+    gc.collect()
+    return timed(function)
+
+
+def repeated_row(parts: Callable[[], list[tuple[dict, dict]]], repeats: int,
+                 others: Sequence[str], margin: float) -> dict:
+    """One graph's in-process row over ``repeats`` runs of ``parts()`` (each part: figures,
+    seconds): the first run's figures, the medians of the seconds; ``ours_best`` where
+    ``ours_chi2`` is at most ``1 + margin`` times the lowest of the ``others`` chi2 columns,
+    and ``ours_over_lowest_other``."""
+    row: dict = {}
+    times: dict[str, list] = {}
+    for repeat in range(repeats):
+        for figures, seconds in parts():
+            if repeat == 0:
+                row.update(figures)
+            for key, value in seconds.items():
+                times.setdefault(key, []).append(value)
+    row.update({key: median(values) for key, values in times.items()})
+    lowest = [row[key] for key in others if row.get(key) is not None]
+    row["ours_best"] = bool(lowest) and row["ours_chi2"] <= min(lowest) * (1 + margin)
+    row["ours_over_lowest_other"] = row["ours_chi2"] / min(lowest) - 1 if lowest else None
+    return row
+
+
+def chi2_cell(chi2, failure=None) -> str:
+    """A chi2 cell, or why there is none."""
+    if failure:
+        return f"fails: {failure[:30]}"
+    return cell(chi2, ".7g")
+
+
+def numbers(text: str, kind=int) -> list:
+    """The comma-separated numbers of a command-line value."""
+    return [kind(part) for part in text.split(",") if part.strip()]
 
 
 def median(values: Sequence[float | None]) -> float | None:

@@ -47,7 +47,6 @@ Prints the tables, writes ``benchmarks/results/<name>.json`` and ``.md``.
 from __future__ import annotations
 
 import argparse
-import gc
 import json
 import sys
 import tempfile
@@ -56,7 +55,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import harness  # noqa: E402
-from benchmarks.harness import cell, median  # noqa: E402
+from benchmarks.harness import cell, chi2_cell, median, numbers  # noqa: E402
 
 WHEEL_FILES = ("victoriaPark_reduced_1k.g2o", "cityTrees_reduced_1k.g2o",
                "known_landmark_localization_20.g2o")
@@ -99,15 +98,10 @@ def _cases(args):
         yield name.removesuffix(".g2o"), dim, graph, values, None, path
 
 
-def _timed(function):
-    gc.collect()
-    return harness.timed(function)
-
-
 def _ours(graph, values) -> tuple[dict, float]:
     from rlpgo_gtsam import staged_initialize
 
-    run, seconds = _timed(lambda: staged_initialize(graph, values))
+    run, seconds = harness.collected_timed(lambda: staged_initialize(graph, values))
     stage, certificate = run.rows[0], run.certificate
     row = {"ours_certified": run.certified, "ours_stopped": run.stopped,
            "ours_certificate": None if certificate is None else certificate.describe(),
@@ -140,34 +134,23 @@ def _staircase(graph, values) -> tuple[dict, dict]:
 
 
 def _lm(graph, start, label: str) -> tuple[dict, dict]:
-    (chi2, _, failure), seconds = _timed(lambda: harness.gtsam_lm(graph, start, LM_ITERATIONS))
+    (chi2, _, failure), seconds = harness.collected_timed(
+        lambda: harness.gtsam_lm(graph, start, LM_ITERATIONS))
     return {f"{label}_chi2": chi2, f"{label}_failure": failure}, {f"{label}_seconds": seconds}
 
 
 def in_process(graph, values, truth, repeats: int) -> dict:
     """The in-process columns of one graph (module docstring): the first run's figures, the
     medians of the seconds."""
-    row: dict = {}
-    times: dict[str, list] = {}
-    for repeat in range(repeats):
-        parts = [_ours(graph, values), _staircase(graph, values), _lm(graph, values, "odometry")]
+
+    def parts() -> list[tuple[dict, dict]]:
+        found = [_ours(graph, values), _staircase(graph, values), _lm(graph, values, "odometry")]
         if truth is not None:
-            parts.append(_lm(graph, truth, "truth"))
-        for figures, seconds in parts:
-            if repeat == 0:
-                row.update(figures)
-            for key, value in seconds.items():
-                times.setdefault(key, []).append(value)
-    row.update({key: median(values) for key, values in times.items()})
-    others = [row.get(key) for key in ("gtsam_lm30_chi2", "odometry_chi2", "truth_chi2")]
-    others = [chi2 for chi2 in others if chi2 is not None]
-    row["ours_best"] = bool(others) and row["ours_chi2"] <= min(others) * (1 + MARGIN)
-    row["ours_over_lowest_other"] = row["ours_chi2"] / min(others) - 1 if others else None
-    if row.get("gtsam_wall_seconds"):
-        row["stage_over_gtsam"] = row["ours_stage_seconds"] / row["gtsam_wall_seconds"]
-        row["relaxation_over_gtsam"] = (row["ours_relaxation_seconds"] / row["gtsam_seconds"]
-                                        if row["ours_relaxation_seconds"] is not None else None)
-    return row
+            found.append(_lm(graph, truth, "truth"))
+        return found
+
+    others = ("gtsam_lm30_chi2", "odometry_chi2", "truth_chi2")
+    return harness.repeated_row(parts, repeats, others, MARGIN)
 
 
 # --- processes ----------------------------------------------------------------------------------
@@ -226,12 +209,6 @@ def lm_command(input_path: str, output_path: str, iterations: int) -> int:
 
 # --- tables -------------------------------------------------------------------------------------
 
-def _chi2_cell(chi2, failure=None) -> str:
-    if failure:
-        return f"fails: {failure[:30]}"
-    return cell(chi2, ".7g")
-
-
 def in_process_table(rows: list[dict]) -> str:
     lines = ["| graph | poses | points | factors | ours certified | relaxation s | certified "
              "stage s | whole s | ours chi2 | GTSAM staircase certified (rank) | its s | its "
@@ -244,14 +221,14 @@ def in_process_table(rows: list[dict]) -> str:
             f"| {r['graph']} | {r['poses']} | {r['points']} | {r['factors']} | "
             f"{cell(r['ours_certified'])} | {cell(r['ours_relaxation_seconds'], '.3f')} | "
             f"{cell(r['ours_stage_seconds'], '.3f')} | {cell(r['ours_seconds'], '.3f')} | "
-            f"{_chi2_cell(r['ours_chi2'])} | {gtsam} | {cell(r.get('gtsam_seconds'), '.3f')} | "
+            f"{chi2_cell(r['ours_chi2'])} | {gtsam} | {cell(r.get('gtsam_seconds'), '.3f')} | "
             f"{cell(r.get('gtsam_wall_seconds'), '.3f')} | "
-            f"{_chi2_cell(r.get('gtsam_rounded_chi2'))} | "
-            f"{_chi2_cell(r.get('gtsam_lm30_chi2'), r.get('gtsam_lm30_failure'))} | "
+            f"{chi2_cell(r.get('gtsam_rounded_chi2'))} | "
+            f"{chi2_cell(r.get('gtsam_lm30_chi2'), r.get('gtsam_lm30_failure'))} | "
             f"{cell(r.get('stage_over_gtsam'), '.3f')} | "
             f"{cell(r['odometry_seconds'], '.3f')} | "
-            f"{_chi2_cell(r['odometry_chi2'], r['odometry_failure'])} | "
-            f"{_chi2_cell(r.get('truth_chi2'), r.get('truth_failure'))} | "
+            f"{chi2_cell(r['odometry_chi2'], r['odometry_failure'])} | "
+            f"{chi2_cell(r.get('truth_chi2'), r.get('truth_failure'))} | "
             f"{cell(r['ours_best'])} |")
     return "\n".join(lines) + "\n"
 
@@ -262,8 +239,8 @@ def process_table(rows: list[dict]) -> str:
     for r in rows:
         if "process_ours_seconds" not in r:
             continue
-        ours_chi2 = _chi2_cell(r["process_ours_chi2"], r["process_ours_failure"])
-        lm_chi2 = _chi2_cell(r["process_lm_chi2"], r["process_lm_failure"])
+        ours_chi2 = chi2_cell(r["process_ours_chi2"], r["process_ours_failure"])
+        lm_chi2 = chi2_cell(r["process_lm_chi2"], r["process_lm_failure"])
         lines.append(
             f"| {r['graph']} | {cell(r['process_ours_seconds'], '.3f')} | "
             f"{cell(r['process_ours_certified'])} | {ours_chi2} | "
@@ -274,10 +251,6 @@ def process_table(rows: list[dict]) -> str:
 
 
 # --- the command line ---------------------------------------------------------------------------
-
-def _numbers(text: str, kind=int) -> list:
-    return [kind(part) for part in text.split(",") if part.strip()]
-
 
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "lm":
@@ -299,8 +272,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.repeats < 1:
         parser.error("--repeats must be 1 or more")
-    args.planar, args.spatial = _numbers(args.planar), _numbers(args.spatial)
-    args.sigma_r = _numbers(args.sigma_r, float)
+    args.planar, args.spatial = numbers(args.planar), numbers(args.spatial)
+    args.sigma_r = numbers(args.sigma_r, float)
     args.files = [name for name in args.files.split(",") if name.strip()]
 
     import rlpgo_gtsam.relaxation  # noqa: F401  (SciPy's import is not the method's time)

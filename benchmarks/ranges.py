@@ -59,7 +59,6 @@ Prints the tables, writes ``benchmarks/results/<name>.json`` and ``.md``.
 from __future__ import annotations
 
 import argparse
-import gc
 import math
 import sys
 from pathlib import Path
@@ -67,7 +66,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import harness  # noqa: E402
-from benchmarks.harness import cell, median  # noqa: E402
+from benchmarks.harness import cell, chi2_cell, numbers  # noqa: E402
 
 WHEEL_FILES = ("goats_15.pyfg", "goats_16.pyfg")
 GENERATOR = {"sigma_t": 0.05, "d": 3.0, "lc": 0.3}  # the generated graphs' other settings
@@ -161,15 +160,11 @@ def _counts(graph) -> dict:
 
 # --- the methods --------------------------------------------------------------------------------
 
-def _timed(function):
-    gc.collect()
-    return harness.timed(function)
-
-
 def _ours(graph, values) -> tuple[dict, dict]:
     from rlpgo_gtsam import staged_initialize
 
-    run, seconds = _timed(lambda: staged_initialize(graph, values, iters=LM_ITERATIONS))
+    run, seconds = harness.collected_timed(
+        lambda: staged_initialize(graph, values, iters=LM_ITERATIONS))
     stage, certificate = run.rows[0], run.certificate
     row = {"ours_certified": run.certified, "ours_stopped": run.stopped,
            "ours_rounded_chi2": stage.init_chi2, "ours_chi2": 2.0 * graph.error(run.values)}
@@ -231,28 +226,15 @@ def _lm(graph, start, label: str) -> tuple[dict, dict]:
 def in_process(graph, values, truth, repeats: int) -> dict:
     """The columns of one graph (module docstring): the first run's figures, the medians of
     the seconds."""
-    row: dict = {}
-    times: dict[str, list] = {}
-    for repeat in range(repeats):
-        parts = [_ours(graph, values), _staircase(graph, values), _lm(graph, values, "odometry")]
+
+    def parts() -> list[tuple[dict, dict]]:
+        found = [_ours(graph, values), _staircase(graph, values), _lm(graph, values, "odometry")]
         if truth is not None:
-            parts.append(_lm(graph, truth, "truth"))
-        for figures, seconds in parts:
-            if repeat == 0:
-                row.update(figures)
-            for key, value in seconds.items():
-                times.setdefault(key, []).append(value)
-    row.update({key: median(values) for key, values in times.items()})
-    others = [row.get(key) for key in ("gtsam_lm30_chi2", "gtsam_lm100_chi2", "odometry_chi2",
-                                       "truth_chi2")]
-    others = [chi2 for chi2 in others if chi2 is not None]
-    row["ours_best"] = bool(others) and row["ours_chi2"] <= min(others) * (1 + MARGIN)
-    row["ours_over_lowest_other"] = row["ours_chi2"] / min(others) - 1 if others else None
-    if row.get("gtsam_wall_seconds"):
-        row["stage_over_gtsam"] = row["ours_stage_seconds"] / row["gtsam_wall_seconds"]
-        row["relaxation_over_gtsam"] = (row["ours_relaxation_seconds"] / row["gtsam_seconds"]
-                                        if row["ours_relaxation_seconds"] is not None else None)
-    return row
+            found.append(_lm(graph, truth, "truth"))
+        return found
+
+    others = ("gtsam_lm30_chi2", "gtsam_lm100_chi2", "odometry_chi2", "truth_chi2")
+    return harness.repeated_row(parts, repeats, others, MARGIN)
 
 
 def disagreements(rows: list[dict]) -> list[str]:
@@ -273,12 +255,6 @@ def disagreements(rows: list[dict]) -> list[str]:
 
 
 # --- tables -------------------------------------------------------------------------------------
-
-def _chi2_cell(chi2, failure=None) -> str:
-    if failure:
-        return f"fails: {failure[:30]}"
-    return cell(chi2, ".7g")
-
 
 def _verdicts(row: dict) -> str:
     """Which relaxation the row finds exact: both, neither, ours only, GTSAM only."""
@@ -315,16 +291,16 @@ def results_table(rows: list[dict]) -> str:
             f"| {r['graph']} | {cell(r['ours_certified'])} | "
             f"{cell(r['ours_relaxation_seconds'], '.3f')} | "
             f"{cell(r['ours_stage_seconds'], '.3f')} | {cell(r['ours_seconds'], '.3f')} | "
-            f"{_chi2_cell(r.get('ours_rounded_chi2'))} | {_chi2_cell(r['ours_chi2'])} | "
+            f"{chi2_cell(r.get('ours_rounded_chi2'))} | {chi2_cell(r['ours_chi2'])} | "
             f"{cell(r.get('gtsam_seconds'), '.3f')} | "
             f"{cell(r.get('gtsam_wall_seconds'), '.3f')} | {r.get('gtsam_rounded_by') or '-'} | "
-            f"{_chi2_cell(r.get('gtsam_rounded_chi2'))} | "
-            f"{_chi2_cell(r.get('gtsam_lm30_chi2'), r.get('gtsam_lm30_failure'))} | "
-            f"{_chi2_cell(r.get('gtsam_lm100_chi2'), r.get('gtsam_lm100_failure'))} | "
+            f"{chi2_cell(r.get('gtsam_rounded_chi2'))} | "
+            f"{chi2_cell(r.get('gtsam_lm30_chi2'), r.get('gtsam_lm30_failure'))} | "
+            f"{chi2_cell(r.get('gtsam_lm100_chi2'), r.get('gtsam_lm100_failure'))} | "
             f"{cell(r.get('stage_over_gtsam'), '.3f')} | "
             f"{cell(r['odometry_seconds'], '.3f')} | "
-            f"{_chi2_cell(r['odometry_chi2'], r['odometry_failure'])} | "
-            f"{_chi2_cell(r.get('truth_chi2'), r.get('truth_failure'))} | "
+            f"{chi2_cell(r['odometry_chi2'], r['odometry_failure'])} | "
+            f"{chi2_cell(r.get('truth_chi2'), r.get('truth_failure'))} | "
             f"{cell(r['ours_best'])} |")
     return "\n".join(lines) + "\n"
 
@@ -368,10 +344,6 @@ def summary(rows: list[dict], alarms: list[str], skipped: list[str]) -> str:
 
 # --- the command line ---------------------------------------------------------------------------
 
-def _numbers(text: str, kind=int) -> list:
-    return [kind(part) for part in text.split(",") if part.strip()]
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default="100,300,500", help="poses swept (a list)")
@@ -388,9 +360,9 @@ def main() -> None:
     args = parser.parse_args()
     if args.repeats < 1:
         parser.error("--repeats must be 1 or more")
-    args.sizes, args.beacons = _numbers(args.sizes), _numbers(args.beacons)
-    args.pose_ranges, args.seeds = _numbers(args.pose_ranges), _numbers(args.seeds)
-    args.sigmas = _numbers(args.sigmas, float)
+    args.sizes, args.beacons = numbers(args.sizes), numbers(args.beacons)
+    args.pose_ranges, args.seeds = numbers(args.pose_ranges), numbers(args.seeds)
+    args.sigmas = numbers(args.sigmas, float)
     args.files = [name for name in args.files.split(",") if name.strip()]
 
     import rlpgo_gtsam.relaxation  # noqa: F401  (SciPy's import is not the method's time)

@@ -27,6 +27,19 @@ def with_factors(graph: gtsam.NonlinearFactorGraph, *factors) -> gtsam.Nonlinear
     return grown
 
 
+def lm_values(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+              iters: int = 100) -> gtsam.Values:
+    """GTSAM's LM from ``values``, capped at ``iters`` iterations: the plain anchor."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(iters)
+    return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+
+
+def chi2_of(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> float:
+    """g2o chi2: 2 x GTSAM's error."""
+    return 2.0 * graph.error(values)
+
+
 def dataset(name: str) -> Path:
     """Path of a shared benchmark file; the test is skipped where ../shared is absent."""
     path = DATASETS / name

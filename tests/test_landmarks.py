@@ -15,16 +15,7 @@ from rlpgo_gtsam.groups import SE2, SE3
 from rlpgo_gtsam.landmarks import bearing_range_factor, place_points, relative_point
 from rlpgo_gtsam.ranking import compare_methods, comparison_methods
 from rlpgo_gtsam.synthetic import LandmarkSettings, generate_landmarks
-
-
-def _lm(graph, values, iters=100):
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(iters)
-    return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-
-
-def _chi2(graph, values):
-    return 2.0 * graph.error(values)
+from tests.conftest import chi2_of, lm_values
 
 
 def planar_slam_example():
@@ -85,7 +76,7 @@ def test_planar_slam_example_is_certified_at_its_optimum():
     assert run.certified
     assert run.certificate.points == 2
     assert "2 landmarks inside" in run.certificate.describe()
-    assert _chi2(graph, run.values) <= _chi2(graph, _lm(graph, values)) + 1e-9
+    assert chi2_of(graph, run.values) <= chi2_of(graph, lm_values(graph, values)) + 1e-9
 
 
 @pytest.mark.parametrize("group", [SE2, SE3])
@@ -95,9 +86,9 @@ def test_landmark_graphs_are_certified_at_or_below_lm_from_truth_and_odometry(gr
     run = staged_initialize(graph, sample.initial)
     assert run.certified
     assert run.certificate.points == sample.num_landmarks
-    ours = _chi2(graph, run.values)
+    ours = chi2_of(graph, run.values)
     for start in (sample.ground_truth, sample.initial):
-        assert ours <= _chi2(graph, _lm(graph, start)) * (1 + 1e-4)
+        assert ours <= chi2_of(graph, lm_values(graph, start)) * (1 + 1e-4)
 
 
 def test_points_are_placed_where_their_measurements_agree():
@@ -155,11 +146,11 @@ def test_a_certified_whole_graph_is_not_beaten_by_any_method(group):
     rows = compare_methods(graph, values, comparison_methods(group), iters=100)
     others = [row.refined_chi2 for row in rows if row.failure is None]
     assert len(others) >= 3
-    ours = _chi2(graph, run.values)
+    ours = chi2_of(graph, run.values)
     assert run.certified
     assert ours <= min(others) * (1 + 1e-4)
     for start in (values, sample.ground_truth):
-        assert ours <= _chi2(graph, _lm(graph, start)) * (1 + 1e-4)
+        assert ours <= chi2_of(graph, lm_values(graph, start)) * (1 + 1e-4)
 
 
 def test_carried_factors_make_the_certificate_not_applicable():
@@ -176,7 +167,7 @@ def test_carried_factors_make_the_certificate_not_applicable():
     assert "certified optimal" not in certificate.describe()
     assert "does not apply" in run.stopped
     # LM refined the whole graph, the range included
-    assert _chi2(graph, run.values) <= _chi2(graph, _lm(graph, values)) + 1e-9
+    assert chi2_of(graph, run.values) <= chi2_of(graph, lm_values(graph, values)) + 1e-9
 
 
 def test_a_carried_factor_with_its_own_variable_keeps_the_users_value():
@@ -195,7 +186,7 @@ def test_a_carried_factor_with_its_own_variable_keeps_the_users_value():
     assert np.allclose(start.atPoint2(other), [4.2, 0.3])
     run = staged_initialize(graph, values)
     assert not run.certified
-    assert _chi2(graph, run.values) <= _chi2(graph, _lm(graph, values)) * (1 + 1e-6)
+    assert chi2_of(graph, run.values) <= chi2_of(graph, lm_values(graph, values)) * (1 + 1e-6)
 
 
 def test_a_carried_factor_on_a_variable_without_a_value_names_both():
@@ -214,7 +205,8 @@ def test_a_landmark_without_a_value_starts_at_its_first_sighting():
     assert run.certified
     assert g.points is not None and g.points.count == 2
     full_graph, full_values = planar_slam_example()
-    assert _chi2(graph, run.values) <= _chi2(full_graph, _lm(full_graph, full_values)) + 1e-9
+    anchor = chi2_of(full_graph, lm_values(full_graph, full_values))
+    assert chi2_of(graph, run.values) <= anchor + 1e-9
 
 
 def test_the_robust_path_refuses_a_graph_with_landmarks_by_name():
@@ -239,7 +231,7 @@ def test_bearing_only_range_only_point_betweens_and_robust_sightings_are_carried
     assert run.certificate.outside == ("BearingFactor2D x 1", "BetweenFactorPoint2 x 1",
                                        "BearingRangeFactor2D x 1")
     assert not run.certified
-    assert _chi2(graph, run.values) <= _chi2(graph, _lm(graph, values)) * (1 + 1e-6)
+    assert chi2_of(graph, run.values) <= chi2_of(graph, lm_values(graph, values)) * (1 + 1e-6)
 
 
 @pytest.mark.parametrize("group", [SE2, SE3])
@@ -258,5 +250,5 @@ def test_rlpgo_init_on_a_landmark_file_writes_the_landmarks_back(tmp_path, group
     graph, values = read_g2o(output)
     assert values.size() == sample.initial.size()
     read_graph, _ = read_g2o(path)
-    ours = _chi2(read_graph, values)
-    assert ours <= _chi2(read_graph, _lm(read_graph, sample.initial)) * (1 + 1e-4)
+    ours = chi2_of(read_graph, values)
+    assert ours <= chi2_of(read_graph, lm_values(read_graph, sample.initial)) * (1 + 1e-4)

@@ -12,16 +12,7 @@ from gtsam.symbol_shorthand import L, X
 from rlpgo_gtsam import staged_initialize
 from rlpgo_gtsam.errors import GraphError
 from rlpgo_gtsam.graph import extract_pose_graph
-
-
-def _lm(graph, values, iters=100):
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(iters)
-    return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-
-
-def _chi2(graph, values):
-    return 2.0 * graph.error(values)
+from tests.conftest import chi2_of, lm_values
 
 
 def range_aided(seed: int, noise: float, n: int = 40, beacons: int = 3, pose_ranges: int = 8):
@@ -80,7 +71,7 @@ def test_an_exact_range_aided_graph_is_certified_with_its_truth_recovered(seed):
     graph, values, ground_truth = range_aided(seed, 0.0)
     run = staged_initialize(graph, values, iters=100)
     assert run.certified
-    assert _chi2(graph, run.values) < 1e-12
+    assert chi2_of(graph, run.values) < 1e-12
     for b in range(3):
         np.testing.assert_allclose(run.values.atPoint2(L(b)), ground_truth.atPoint2(L(b)),
                                    atol=1e-6)
@@ -90,8 +81,8 @@ def test_an_exact_range_aided_graph_is_certified_with_its_truth_recovered(seed):
 def test_noisy_range_aided_graphs_are_at_or_below_lm_and_never_falsely_certified(seed):
     graph, values, ground_truth = range_aided(seed, 1.0)
     run = staged_initialize(graph, values, iters=100)
-    ours = _chi2(graph, run.values)
-    others = [_chi2(graph, _lm(graph, start)) for start in (values, ground_truth)]
+    ours = chi2_of(graph, run.values)
+    others = [chi2_of(graph, lm_values(graph, start)) for start in (values, ground_truth)]
     assert ours <= min(others) * (1 + 1e-4)
     certificate = run.certificate
     if run.certified:
@@ -123,4 +114,4 @@ def test_3d_ranges_are_carried_and_named():
     run = staged_initialize(graph, values)
     assert run.certificate.outside == ("RangeFactor3D x 5",)
     assert not run.certified
-    assert _chi2(graph, run.values) <= _chi2(graph, _lm(graph, values)) * (1 + 1e-6)
+    assert chi2_of(graph, run.values) <= chi2_of(graph, lm_values(graph, values)) * (1 + 1e-6)
