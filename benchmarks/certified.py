@@ -27,7 +27,9 @@ commands process to process: ``rlpgo-init FILE -o OUT`` against SE-Sync's driver
 
 ``--gtsam-staircase`` adds GTSAM's ``RiemannianStaircaseOptimizer`` on the rotations (where the
 wheel has it; :func:`benchmarks.harness.gtsam_staircase`): its certificate, rank and seconds,
-and the chi2 of LM30 from its rotations with the translations solved. SE-Sync
+and the chi2 of LM30 from its rotations with the translations solved; ``--gtsam-staircase se``
+builds the whole SE(d) problem as GTSAM's CertifiablePoseGraphOptimizationPose2/3 notebooks
+do (:func:`benchmarks.harness.gtsam_se_staircase`) and refines its rounded estimate. SE-Sync
 runs through its driver (``--sesync`` or ``$RLPGO_SESYNC_BINARY``, default options, BLAS on
 one thread); without it its columns are left empty. chi2 = 2 x GTSAM error.
 """
@@ -62,11 +64,22 @@ def _timed(function):
     return harness.timed(function)
 
 
-def _staircase_anchor(graph, values, pose_graph) -> dict:
+def _staircase_anchor(graph, values, pose_graph, form: str = "rotations") -> dict:
     """GTSAM's staircase on the rotations, then the translations solved and LM30 (the
-    project's in the plane, GTSAM's in 3D, as the other columns of the dimension)."""
+    project's in the plane, GTSAM's in 3D, as the other columns of the dimension); ``form``
+    ``se``: on the whole SE(d) problem as GTSAM's CertifiablePoseGraphOptimization notebooks
+    build it (:func:`benchmarks.harness.gtsam_se_staircase`), its rounded estimate + LM30."""
     from rlpgo_gtsam import poses_with_rotations, refine
 
+    if form == "se":
+        found = harness.gtsam_se_staircase(graph, values)
+        if found is None:
+            return {"gtsam_staircase": "not in this gtsam"}
+        row = {f"gtsam_staircase_{k}": found.get(k) for k in
+               ("certified", "rank", "seconds", "wall_seconds", "failure")}
+        if found.get("values") is not None:
+            row["gtsam_staircase_lm30_chi2"] = refine(graph, found["values"], "lm", 30).chi2
+        return row
     found = harness.gtsam_staircase(graph, values)
     if found is None:
         return {"gtsam_staircase": "not in this gtsam"}
@@ -119,7 +132,7 @@ def _planar_case(name: str, graph, values, path: Path, args) -> dict:
                    sesync_lm30_seconds=lm_seconds,
                    default_over_sesync_lm30=row["default_seconds"] / (run.seconds + lm_seconds))
     if args.gtsam_staircase:
-        row.update(_staircase_anchor(graph, values, pose_graph))
+        row.update(_staircase_anchor(graph, values, pose_graph, args.gtsam_staircase))
     return row
 
 
@@ -254,7 +267,7 @@ def _spatial_case(name: str, args, repeats: int = 1) -> dict:
     row.update(_sesync(graph, path, args.sesync, repeats))
     row.update(_targets(row))
     if args.gtsam_staircase:
-        row.update(_staircase_anchor(graph, values, pose_graph))
+        row.update(_staircase_anchor(graph, values, pose_graph, args.gtsam_staircase))
     return row
 
 
@@ -401,8 +414,10 @@ def main() -> None:
     parser.add_argument("--seeds", default="0,1,2", help="3D --generated: seeds, a list")
     parser.add_argument("--sesync", help="the sesync_rounded driver (default: "
                         "$RLPGO_SESYNC_BINARY; without one SE-Sync's columns are left empty)")
-    parser.add_argument("--gtsam-staircase", action="store_true",
-                        help="add GTSAM's RiemannianStaircaseOptimizer on the rotations")
+    parser.add_argument("--gtsam-staircase", nargs="?", const="rotations",
+                        choices=["rotations", "se"],
+                        help="add GTSAM's RiemannianStaircaseOptimizer: on the rotations, or "
+                             "(se) on the whole SE(d) problem as its notebooks build it")
     parser.add_argument("--name", help="results file name (default: certified, certified_3d, "
                         "certified_3d_generated)")
     args = parser.parse_args()
