@@ -246,8 +246,11 @@ class ShonanInitializer(Initializer):
     lowest weighted chordal rotation cost (:func:`~rlpgo_gtsam.chordal.chordal_cost`) wins;
     then the translation step.
 
-    Each run is timed: ``details["runs"]`` lists, per start, its seconds and its weighted
-    rotation cost or why it failed, and a run that failed from every start says how long it
+    On a graph without cycles (its distinct pose pairs a tree) each pair's rotation is its own
+    problem and the chordal estimate is its exact optimum: it is returned without a run
+    (``details["tree"]``). Each run is timed:
+    ``details["runs"]`` lists, per start, its seconds and its weighted rotation cost or why
+    it failed, and a run that failed from every start says how long it
     tried (``Shonan averaging failed from every start (2 runs, 4.1 s): ...``).
 
     Args:
@@ -273,6 +276,14 @@ class ShonanInitializer(Initializer):
 
     def estimate(self, pose_graph: PoseGraph, start_poses: np.ndarray | None) -> Estimate:
         g = pose_graph
+        pairs = np.unique(np.sort(g.edges, axis=1), axis=0)
+        if len(pairs) == g.num_poses - 1:
+            # a tree of pose pairs (an odometry chain, a landmark graph's poses): each pair's
+            # rotation is its own problem, which the chordal estimate solves exactly; GTSAM's
+            # Shonan fails its eigenvalue check there (1000 poses: "SparseMinimumEigenValue
+            # failed" after 4 s)
+            return Estimate(poses_with_rotations(g, chordal_rotations(g)),
+                            details={"runs": [], "tree": True})
         began = time.perf_counter()
         averaging, insert, read = _SHONAN[g.group](g, rotation_weights(g))
         starts = self._starts(g, None if start_poses is None else g.group.rotations(start_poses))

@@ -499,6 +499,10 @@ values.insert(1, gtsam.Pose2(1.0, 0.0, 0.0))
 model = gtsam.noiseModel.Gaussian.Information(np.diag([100.0, 100.0, 1000.0]))
 for dx, dy, dtheta in rng.normal(0.0, 0.01, (edges, 3)):
     graph.add(gtsam.BetweenFactorPose2(0, 1, gtsam.Pose2(1 + dx, dy, dtheta), model))
+# a third pose closes a cycle (Shonan has nothing to run on a tree)
+values.insert(2, gtsam.Pose2(0.5, 0.8, 0.0))
+graph.add(gtsam.BetweenFactorPose2(1, 2, gtsam.Pose2(-0.5, 0.8, 0.0), model))
+graph.add(gtsam.BetweenFactorPose2(2, 0, gtsam.Pose2(-0.5, -0.8, 0.0), model))
 g = extract_pose_graph(graph, values)
 if what == "shonan":
     make_initializer("chordal").run(g)  # what the steps share, made before the measurement

@@ -251,3 +251,20 @@ def test_the_staged_runs_certificate_is_its_certified_rows(kind):
     assert run.rows[0].method == "certified"
     assert run.certificate is run.rows[0].init.certificate
     assert run.certificate.certified == run.certified
+
+
+def test_shonan_on_a_chain_returns_its_exact_rotations():
+    """A graph without cycles: the chained rotations are the optimum at zero cost (GTSAM's
+    Shonan fails its eigenvalue check on a 1000-pose chain)."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    rng = np.random.default_rng(2)
+    pose = gtsam.Pose2()
+    values.insert(0, pose)
+    for k in range(1, 300):
+        step = gtsam.Pose2(1.0, 0.1 * rng.normal(), 0.3 * rng.normal())
+        graph.add(gtsam.BetweenFactorPose2(k - 1, k, step, gtsam.noiseModel.Unit.Create(3)))
+        pose = pose.compose(step)
+        values.insert(k, gtsam.Pose2(pose.x() + rng.normal(), pose.y(), pose.theta() + 1.0))
+    run = make_initializer("shonan").run(PoseGraph2D.from_gtsam(graph, values))
+    assert run.details["tree"] and run.details["runs"] == []
+    assert graph.error(run.values) < 1e-12
