@@ -560,14 +560,17 @@ class CertifiedInitializer(Initializer):
 
 
 def covering_whole(pose_graph: PoseGraph, certificate: Any) -> Any:
-    """A certificate that says how many landmarks it held, and, where the graph holds factors
-    the relaxation does not model, that it does not apply (``not_applicable``, naming them,
-    what the relaxation found on the rest kept in ``relaxed``)."""
+    """A certificate that says how many landmarks and ranges it held, and, where the graph
+    holds factors the relaxation does not model, that it does not apply
+    (``not_applicable``, naming them, what the relaxation found on the rest kept in
+    ``relaxed``)."""
     from rlpgo_gtsam.relaxation import Status
 
-    points = pose_graph.points
+    points, ranges = pose_graph.points, pose_graph.ranges
     if points is not None:
         certificate = replace(certificate, points=points.count)
+    if ranges is not None:
+        certificate = replace(certificate, ranges=ranges.count)
     if pose_graph.carried:
         certificate = replace(certificate, status=Status.NOT_APPLICABLE,
                               outside=outside_kinds(pose_graph.carried),

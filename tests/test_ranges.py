@@ -71,6 +71,7 @@ def test_an_exact_range_aided_graph_is_certified_with_its_truth_recovered(seed):
     graph, values, ground_truth = range_aided(seed, 0.0)
     run = staged_initialize(graph, values, iters=100)
     assert run.certified
+    assert "3 landmarks and 128 ranges inside" in run.certificate.describe()
     assert chi2_of(graph, run.values) < 1e-12
     for b in range(3):
         np.testing.assert_allclose(run.values.atPoint2(L(b)), ground_truth.atPoint2(L(b)),

@@ -108,6 +108,7 @@ class Certificate:
         priors: how many soft priors (on poses and landmarks) it holds as edges from the
             world frame.
         points: how many landmarks it holds (translation-only variables).
+        ranges: how many ranges it holds (each with a unit direction of its own).
         outside: the factors of the graph it does not model, by kind (``"RangeFactor2D x
             3"``); where there are any the status is ``not_applicable``.
         relaxed: where ``outside`` is not empty, what the relaxation found on the part it
@@ -125,6 +126,7 @@ class Certificate:
     fixed_poses: int = 0
     priors: int = 0
     points: int = 0
+    ranges: int = 0
     outside: tuple[str, ...] = ()
     relaxed: str = ""
 
@@ -168,7 +170,7 @@ class Certificate:
                       f"{self.suboptimality_bound:.3g}; lambda_min {self.min_eigenvalue:.3g}")
         inside = [f"{count} {what}" for count, what in
                   ((self.fixed_poses, "FIXed poses"), (self.priors, "priors"),
-                   (self.points, "landmarks")) if count]
+                   (self.points, "landmarks"), (self.ranges, "ranges")) if count]
         covers = f"with {' and '.join(inside)} inside, " if inside else ""
         return (f"{verdict} (relaxation cost {self.estimate_cost:.6g}, {bounds}, tolerance "
                 f"{self.tolerance:.3g}, {rank}{covers}{self.seconds:.2f} s)")
