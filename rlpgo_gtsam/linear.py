@@ -347,19 +347,13 @@ def solve_block_pairwise(num_poses: int, edges: np.ndarray, a_i: np.ndarray, a_j
         column[free] = np.arange(unknowns // d)
         i, j = edges[:, 0], edges[:, 1]
         rhs = b - a_i @ x[i] - a_j @ x[j]  # held unknowns moved to the right-hand side
-        rows, cols, data = [], [], []
-        offsets = np.arange(d)
-        for index, block in ((i, a_i), (j, a_j)):
-            take = column[index] >= 0
-            row = (np.flatnonzero(take)[:, None, None] * d + offsets[None, :, None])
-            col = column[index[take]][:, None, None] * d + offsets[None, None, :]
-            rows.append(np.broadcast_to(row, (int(take.sum()), d, d)).ravel())
-            cols.append(np.broadcast_to(col, (int(take.sum()), d, d)).ravel())
-            data.append(block[take].ravel())
-        x[free] = _least_squares(np.concatenate(rows), np.concatenate(cols),
-                                 np.concatenate(data), (m * d, d * int(free.sum())),
-                                 rhs.reshape(m * d, k), np.flatnonzero(free), d
-                                 ).reshape(-1, d, k)
+        rows, cols, data = _jacobian_entries(edges, a_i, a_j, column)
+        try:
+            solution = _least_squares(rows, cols, data, (m * d, unknowns),
+                                      rhs.reshape(m * d, k), np.flatnonzero(free), d)
+        except SolverError as error:
+            solution = augmented_least_squares(edges, a_i, a_j, rhs, column, held, error)
+        x[free] = solution.reshape(-1, d, k)
     return x[..., 0] if single else x
 
 
@@ -409,9 +403,9 @@ def augmented_least_squares(edges: np.ndarray, a_i: np.ndarray, a_j: np.ndarray,
     edges of a weight above :data:`PIVOT_FLOOR` of their median tie to a held one;
     ``error`` (the normal equations') is raised otherwise, or where this solve fails too.
 
-    ``a_i``, ``a_j``: (m, d, d) blocks, ``rhs`` (m, d) with the held unknowns' terms moved
-    there; ``column``: each pose's block column among the free ones, -1 for held ones.
-    Returns (free, d) stacked as (free * d,).
+    ``a_i``, ``a_j``: (m, d, d) blocks, ``rhs`` (m, d), or (m, d, k) for k problems, with the
+    held unknowns' terms moved there; ``column``: each pose's block column among the free
+    ones, -1 for held ones. Returns (free * d,), or (free * d, k).
     """
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
@@ -428,28 +422,38 @@ def augmented_least_squares(edges: np.ndarray, a_i: np.ndarray, a_j: np.ndarray,
         raise error
     m, d = rhs.shape[0], rhs.shape[1]
     unknowns = d * int(free.sum())
-    rows, cols, data = [], [], []
-    offsets = np.arange(d)
-    for index, block in ((edges[:, 0], a_i), (edges[:, 1], a_j)):
-        take = column[index] >= 0
-        row = np.flatnonzero(take)[:, None, None] * d + offsets[None, :, None]
-        col = m * d + column[index[take]][:, None, None] * d + offsets[None, None, :]
-        rows.append(np.broadcast_to(row, (int(take.sum()), d, d)).ravel())
-        cols.append(np.broadcast_to(col, (int(take.sum()), d, d)).ravel())
-        data.append(block[take].ravel())
-    r, c, v = (np.concatenate(part) for part in (rows, cols, data))
+    r, c, v = _jacobian_entries(edges, a_i, a_j, column)
+    c = c + m * d  # the unknowns after the residuals
     identity = np.arange(m * d)
     size = m * d + unknowns
     matrix = sp.csc_matrix((np.concatenate([np.ones(m * d), v, v]),
                             (np.concatenate([identity, r, c]), np.concatenate([identity, c, r]))),
                            shape=(size, size))
+    right = rhs.reshape(m * d, -1)
     try:
-        solution = splu(matrix).solve(np.concatenate([rhs.reshape(-1), np.zeros(unknowns)]))
+        solution = splu(matrix).solve(np.vstack([right, np.zeros((unknowns, right.shape[1]))]))
     except RuntimeError:
         raise error from None
     if not np.all(np.isfinite(solution)):
         raise error
-    return solution[m * d:]
+    return solution[m * d:].reshape(-1) if rhs.ndim == 2 else solution[m * d:]
+
+
+def _jacobian_entries(edges: np.ndarray, a_i: np.ndarray, a_j: np.ndarray,
+                      column: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """COO rows, columns and values of the Jacobian of the residuals ``A_i x_i + A_j x_j``
+    over the free unknowns (``column``: each pose's block column, -1 for a held one)."""
+    d = a_i.shape[1]
+    rows, cols, data = [], [], []
+    offsets = np.arange(d)
+    for index, block in ((edges[:, 0], a_i), (edges[:, 1], a_j)):
+        take = column[index] >= 0
+        row = np.flatnonzero(take)[:, None, None] * d + offsets[None, :, None]
+        col = column[index[take]][:, None, None] * d + offsets[None, None, :]
+        rows.append(np.broadcast_to(row, (int(take.sum()), d, d)).ravel())
+        cols.append(np.broadcast_to(col, (int(take.sum()), d, d)).ravel())
+        data.append(block[take].ravel())
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(data)
 
 
 def _least_squares(rows: np.ndarray, cols: np.ndarray, data: np.ndarray, shape: tuple[int, int],
