@@ -494,6 +494,8 @@ def check_reach(g: PoseGraph, out: np.ndarray | None = None) -> PoseGraph:
     Raises:
         GraphError: the first such value (its key) or measurement (its factor's keys).
     """
+    if out is None and g.cache.get("within_reach"):
+        return g  # asked once per extraction: by the default, then by each of its stages
     group, keys = g.group, g.keys
 
     def edge(k: int) -> str:
@@ -526,6 +528,8 @@ def check_reach(g: PoseGraph, out: np.ndarray | None = None) -> PoseGraph:
             raise GraphError(f"{name(int(far[0]))} {size:.3g} m: beyond {FARTHEST_M:.0e} m a "
                              "double keeps no millimetre of a map"
                              + (wrong if name is edge and out is None else ""))
+    if out is None:
+        g.cache["within_reach"] = True
     return g
 
 

@@ -50,7 +50,7 @@ from rlpgo_gtsam.graph import (
 from rlpgo_gtsam.groups import GROUPS, SE2, SE3, Group
 from rlpgo_gtsam.landmarks import outside_kinds
 from rlpgo_gtsam.numerics import eliminating_call, numeric_call
-from rlpgo_gtsam.translations import TranslationStep, poses_with_rotations
+from rlpgo_gtsam.translations import poses_and_points, poses_with_rotations
 
 __all__ = [
     "InitResult",
@@ -541,17 +541,9 @@ class CertifiedInitializer(Initializer):
                                              time_limit_s=self.time_limit_s,
                                              progress=self.progress,
                                              finish_per_start=FINISH_PER_START)
-        points = None
-        if solved.whole and (solved.points is not None or solved.ranges is not None):
-            # poses, landmarks and ranges' directions from the relaxation: positions together
-            n = solved.num_poses
-            step = TranslationStep.shared(solved)
-            aligned = step.aligned(np.asarray(rotations[:n], dtype=float))
-            directions = rotations[n:] if solved.ranges is not None else None
-            positions, points = step.solve_with_points(aligned, directions)
-            poses = solved.group.with_positions(aligned, positions)
-        else:
-            poses = poses_with_rotations(solved, rotations)
+        # with landmarks and ranges, the relaxation's rotations are followed by the ranges'
+        # directions: poses and points are positioned together
+        poses, points = poses_and_points(solved, rotations)
         if anchored is not None:
             poses = anchored.lifted(poses)
             certificate = anchored.covering(certificate)

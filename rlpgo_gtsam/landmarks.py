@@ -27,9 +27,10 @@ import numpy as np
 
 from rlpgo_gtsam.errors import GraphError
 from rlpgo_gtsam.groups import key_text
+from rlpgo_gtsam.information import factor_information
 
 __all__ = ["bearing_range_factor", "relative_point", "point_jacobian", "landmark_key",
-           "POINT_FACTORS", "point_weights", "Points", "Carried", "Split", "split_graph",
+           "point_weights", "Points", "Carried", "Split", "split_graph",
            "place_points", "key_text", "outside_kinds", "Ranges"]
 
 
@@ -83,10 +84,6 @@ def bearing_range_factor(pose_key: int, point_key: int, point: np.ndarray,
     return gtsam.BearingRangeFactor3D(pose_key, point_key, gtsam.Unit3(point / r), r, noise)
 
 
-POINT_FACTORS = (gtsam.BearingRangeFactor2D, gtsam.BearingRangeFactor3D)
-"""The pose-to-point factors the relaxation models (as positions, :func:`relative_point`)."""
-
-
 def relative_point(factor: Any) -> tuple[np.ndarray, np.ndarray]:
     """A bearing-range factor's measurement as the point in the pose's frame (d,) and its
     information there (d, d).
@@ -127,6 +124,10 @@ def point_weights(information: np.ndarray) -> np.ndarray:
     ok = det > 0
     weights[ok] = d / np.trace(np.linalg.inv(information[ok]), axis1=1, axis2=2)
     return weights
+
+
+def _name(factor: Any) -> str:
+    return f"{type(factor).__name__} on {_keys(factor)}"
 
 
 def _keys(factor: Any) -> str:
@@ -200,9 +201,6 @@ class Carried:
     kind: str  # its class name
     keys: tuple[int, ...]
 
-    def describe(self) -> str:
-        return f"{self.kind} on {' '.join(key_text(key) for key in self.keys)}"
-
 
 @dataclass(frozen=True, eq=False)
 class Split:
@@ -229,7 +227,7 @@ def outside_kinds(carried: tuple[Carried, ...]) -> tuple[str, ...]:
 
 def split_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, group: Any) -> Split:
     """Take a whole GTSAM graph apart: the group's between and prior factors (the pose
-    graph); bearing-range measurements of points (:data:`POINT_FACTORS`), in the plane range
+    graph); bearing-range measurements of points (:func:`relative_point`), in the plane range
     measurements from a pose to a point (``RangeFactor2D``) or between two poses
     (``RangeFactorPose2``), and point priors on those points (the landmarks), each with a
     Gaussian noise model; every other factor, carried.
@@ -268,10 +266,10 @@ def split_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, group: 
             measurements.append((keys[0], keys[1], point, information))
         elif kind:
             ranges.append((keys[0], keys[1], float(factor.measured()),
-                           float(_information(factor)[0, 0])))
+                           float(factor_information(factor, _name(factor), 1, False)[0, 0])))
         elif type(factor) is prior_type and keys[0] in is_point and _gaussian(factor):
             point_priors.append((keys[0], np.asarray(factor.prior(), float),
-                                 _information(factor)))
+                                 factor_information(factor, _name(factor), group.d, False)))
         else:
             _check_carried(factor, keys, values, pose_keys | is_point)
             carried.append(Carried(position, type(factor).__name__, tuple(keys)))
@@ -282,7 +280,7 @@ def split_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, group: 
         elif key not in in_pose_factors:
             # a pose factor's key without a value: the pose graph's extraction names it
             factor = next(f for f in factors if f is not None and key in f.keys())
-            raise GraphError(f"{type(factor).__name__} on {_keys(factor)}: key "
+            raise GraphError(f"{_name(factor)}: key "
                              f"{key_text(key)} has no value")
     carried_values = gtsam.Values(values)  # every value of the graph's other variables
     for key in pose_keys | is_point:
@@ -304,10 +302,9 @@ def _measurements(factors: list[Any], group: Any, pose_keys: set[int]
     """The factors the relaxation models besides the pose factors, by position: their kind
     (``"bearing-range"``, ``"point range"``, ``"pose range"``) and keys. Their measuring
     poses join ``pose_keys`` (a pose range's both ends)."""
-    point_type = gtsam.BearingRangeFactor2D if group.d == 2 else gtsam.BearingRangeFactor3D
-    # ranges enter the planar relaxation only (a unit complex number per range)
-    point_range = gtsam.RangeFactor2D if group.d == 2 else None
-    pose_range = gtsam.RangeFactorPose2 if group.d == 2 else None
+    point_type, point_range, pose_range = group.measurement_factors
+    if group.d == 3:  # ranges enter the planar relaxation only (a unit complex number each)
+        point_range = pose_range = None
     found: dict[int, tuple[str, tuple[int, ...]]] = {}
     for position, factor in enumerate(factors):
         kind = type(factor)
@@ -333,7 +330,7 @@ def _check_carried(factor: Any, keys: list[int], values: gtsam.Values,
     Raises:
         GraphError: naming the factor, its keys and what is wrong.
     """
-    name = f"{type(factor).__name__} on {_keys(factor)}"
+    name = _name(factor)
     for key in keys:
         if key not in modeled and not values.exists(key):
             raise GraphError(f"{name}: key {key_text(key)} has no value")
@@ -361,11 +358,6 @@ def _point_value(values: gtsam.Values, key: int, d: int) -> np.ndarray:
         raise GraphError(f"key {key_text(key)} is a landmark measured by bearing and range but "
                          f"its value is not a Point{d}") from None
     return np.asarray(point, float)
-
-
-def _information(factor: Any) -> np.ndarray:
-    sqrt_information = np.asarray(factor.noiseModel().R(), float)
-    return sqrt_information.T @ sqrt_information
 
 
 def place_points(points: Points, rotations: np.ndarray, positions: np.ndarray) -> np.ndarray:

@@ -29,8 +29,8 @@ from rlpgo_gtsam.linear import PairwiseSystem, solve_block_pairwise, solve_isotr
 from rlpgo_gtsam.se2 import rotation_matrices, wrap
 from rlpgo_gtsam.se3 import inverse_left_jacobians, log_so3
 
-__all__ = ["solve_translations", "poses_with_rotations", "translation_system", "TranslationStep",
-           "SystemParts", "TranslationSystem"]
+__all__ = ["solve_translations", "poses_with_rotations", "poses_and_points",
+           "translation_system", "TranslationStep", "SystemParts", "TranslationSystem"]
 
 # The translation step at fixed rotations: (m, d, d) blocks A_e and (m, d) b_e of the whitened
 # residuals A_e (t_j - t_i) - b_e, and solve(weights) -> (n, d) positions.
@@ -47,6 +47,26 @@ def poses_with_rotations(pose_graph: PoseGraph, rotations: np.ndarray) -> np.nda
     step = TranslationStep.shared(pose_graph)
     aligned = step.aligned(np.asarray(rotations, dtype=float))
     return pose_graph.group.with_positions(aligned, step.positions(aligned, gauge=False))
+
+
+def poses_and_points(pose_graph: PoseGraph, rotations: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray | None]:
+    """:func:`poses_with_rotations`, and on a graph with landmarks or ranges the points'
+    positions solved with the poses' (:meth:`TranslationStep.solve_with_points`; None
+    without). ``rotations``: the poses', then on a graph with ranges each range's direction
+    (planar angles, turned with the poses)."""
+    g = pose_graph
+    if g.points is None and g.ranges is None:
+        return poses_with_rotations(g, rotations), None
+    n = g.num_poses
+    rotations = np.asarray(rotations, dtype=float)
+    step = TranslationStep.shared(g)
+    aligned = step.aligned(rotations[:n])
+    directions = None
+    if g.ranges is not None:  # ranges are planar: the poses' turn is one angle
+        directions = rotations[n:] + (step.in_gauge(rotations[:n])[0] - rotations[0])
+    positions, points = step.solve_with_points(aligned, directions)
+    return g.group.with_positions(aligned, positions), points
 
 
 def solve_translations(pose_graph: PoseGraph, rotations: np.ndarray) -> np.ndarray:
