@@ -303,8 +303,6 @@ def _measurements(factors: list[Any], group: Any, pose_keys: set[int]
     (``"bearing-range"``, ``"point range"``, ``"pose range"``) and keys. Their measuring
     poses join ``pose_keys`` (a pose range's both ends)."""
     point_type, point_range, pose_range = group.measurement_factors
-    if group.d == 3:  # ranges enter the planar relaxation only (a unit complex number each)
-        point_range = pose_range = None
     found: dict[int, tuple[str, tuple[int, ...]]] = {}
     for position, factor in enumerate(factors):
         kind = type(factor)

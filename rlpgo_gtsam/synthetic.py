@@ -100,6 +100,7 @@ by pair.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
@@ -116,7 +117,7 @@ __all__ = ["SyntheticGraph", "generate", "generate_landmarks", "LandmarkSettings
            "add_outliers", "scaled_informations", "with_informations", "OUTLIER_MODES",
            "VERTIGO_MODES", "ROW_LENGTH", "LAYER_ROWS", "GROUP_SIZE", "LOCAL_RANGE",
            "MIN_RANGE_FRACTION", "RANGE_SIGMAS", "generate_ranges", "RangeSettings",
-           "MIN_BEACON_RANGES"]
+           "MIN_BEACON_RANGES", "generate_helix_ranges"]
 
 ROW_LENGTH = 10
 LAYER_ROWS = 10  # 3D: rows of a layer
@@ -827,3 +828,57 @@ def _check_outliers(fraction: float, mode: str, group_size: int = GROUP_SIZE) ->
         raise RlpgoError(f"unknown outlier mode '{mode}'; choose from {', '.join(OUTLIER_MODES)}")
     if group_size < 1:
         raise RlpgoError(f"group_size must be >= 1, got {group_size}")
+
+
+def generate_helix_ranges(n: int, rng: np.random.Generator, *, beacons: int = 3,
+                          pose_ranges: int = 8, stride: int = 2, noise: float = 1.0,
+                          rotation_sigma: float = 0.02, translation_sigma: float = 0.05,
+                          sigma_range_m: float = 0.1) -> SyntheticGraph:
+    """A 3D range-aided graph: a climbing helix of ``n`` poses (1 m steps turning 0.15 rad)
+    with Pose3 odometry, a prior on the first pose, ranges (``RangeFactor3D``) from every
+    ``stride``-th pose to each of ``beacons`` points placed uniformly in a 12 m cube about
+    the origin, and ``pose_ranges`` ranges (``RangeFactorPose3``) between random pairs of
+    poses; measurements perturbed by ``noise`` times their sigmas (0: exact).
+
+    Returns:
+        The graph, the initial guess (chained odometry; each beacon 3 m off its truth) and
+        the ground truth; poses keyed ``x0 ...``, beacons ``l0 ...`` (``Point3``).
+    """
+    if n < 2 or beacons < 0 or pose_ranges < 0 or stride < 1 or noise < 0:
+        raise RlpgoError("generate_helix_ranges needs n >= 2, stride >= 1 and beacons, "
+                         "pose_ranges and noise >= 0")
+    sigmas = np.array([rotation_sigma] * 3 + [translation_sigma] * 3)
+    turn = gtsam.Pose3(gtsam.Rot3.Ypr(0.15, 0.02, 0.01), np.array([1.0, 0.0, 0.1]))
+    truth = [gtsam.Pose3()]
+    for _ in range(1, n):
+        truth.append(truth[-1].compose(turn))
+    beacons_at = rng.uniform(-6, 6, size=(beacons, 3))
+    graph = gtsam.NonlinearFactorGraph()
+    pose_key = functools.partial(gtsam.symbol, "x")
+    graph.add(gtsam.PriorFactorPose3(pose_key(0), truth[0],
+                                     gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
+    odometry = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
+    chained = [truth[0]]
+    for k in range(n - 1):
+        step = truth[k].between(truth[k + 1]).retract(noise * rng.normal(size=6) * sigmas)
+        graph.add(gtsam.BetweenFactorPose3(pose_key(k), pose_key(k + 1), step, odometry))
+        chained.append(chained[-1].compose(step))
+    ranging = gtsam.noiseModel.Isotropic.Sigma(1, sigma_range_m)
+    for k in range(0, n, stride):
+        for b in range(beacons):
+            r = np.linalg.norm(truth[k].translation() - beacons_at[b])
+            graph.add(gtsam.RangeFactor3D(pose_key(k), landmark_key(b),
+                                          r + noise * sigma_range_m * rng.normal(), ranging))
+    for _ in range(pose_ranges):
+        a, b = (int(k) for k in rng.choice(n, 2, replace=False))
+        r = np.linalg.norm(truth[a].translation() - truth[b].translation())
+        graph.add(gtsam.RangeFactorPose3(pose_key(a), pose_key(b),
+                                         r + noise * sigma_range_m * rng.normal(), ranging))
+    values, ground_truth = gtsam.Values(), gtsam.Values()
+    for k in range(n):
+        values.insert(pose_key(k), chained[k])
+        ground_truth.insert(pose_key(k), truth[k])
+    for b in range(beacons):
+        values.insert(landmark_key(b), gtsam.Point3(*(beacons_at[b] + 3.0 * rng.normal(size=3))))
+        ground_truth.insert(landmark_key(b), gtsam.Point3(*beacons_at[b]))
+    return SyntheticGraph(graph, values, ground_truth, num_landmarks=beacons)

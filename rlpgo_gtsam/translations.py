@@ -54,7 +54,7 @@ def poses_and_points(pose_graph: PoseGraph, rotations: np.ndarray
     """:func:`poses_with_rotations`, and on a graph with landmarks or ranges the points'
     positions solved with the poses' (:meth:`TranslationStep.solve_with_points`; None
     without). ``rotations``: the poses', then on a graph with ranges each range's direction
-    (planar angles, turned with the poses)."""
+    (planar angles; in 3D a rotation whose first column is the direction)."""
     g = pose_graph
     if g.points is None and g.ranges is None:
         return poses_with_rotations(g, rotations), None
@@ -63,8 +63,13 @@ def poses_and_points(pose_graph: PoseGraph, rotations: np.ndarray
     step = TranslationStep.shared(g)
     aligned = step.aligned(rotations[:n])
     directions = None
-    if g.ranges is not None:  # ranges are planar: the poses' turn is one angle
-        directions = rotations[n:] + (step.in_gauge(rotations[:n])[0] - rotations[0])
+    if g.ranges is not None:  # each range's direction turned as the poses are
+        turned = step.in_gauge(rotations[:n])[0]
+        if g.group.d == 2:  # angles: the turn is one angle
+            angles = rotations[n:] + (turned - rotations[0])
+            directions = np.column_stack([np.cos(angles), np.sin(angles)])
+        else:  # the first column of each range's rotation
+            directions = (turned @ rotations[0].T @ rotations[n:])[:, :, 0]
     positions, points = step.solve_with_points(aligned, directions)
     return g.group.with_positions(aligned, positions), points
 
@@ -143,7 +148,7 @@ class TranslationStep:
                           ) -> tuple[np.ndarray, np.ndarray | None]:
         """Positions of least cost for ``rotations`` (used as given) with the landmarks: each
         landmark measurement a whitened residual ``W R_i^T (l - t_i) - W z`` (``W^T W`` its
-        information), and, given the ranges' ``directions`` (planar angles (k,)), each range
+        information), and, given the ranges' ``directions`` (unit vectors (k, d)), each range
         the residual ``(t_b - t_a - r u) / sigma`` (CORA's, linear once the direction ``u`` is
         fixed). Returns (n, d) pose positions and (p, d) point positions (a point that
         nothing here measures keeps its value), None without landmarks."""
@@ -166,8 +171,7 @@ class TranslationStep:
         if ranges is not None and directions is not None:
             root = np.sqrt(ranges.weights)
             a.append(root[:, None, None] * np.eye(d))
-            rhs.append((root * ranges.measured)[:, None]
-                       * np.column_stack([np.cos(directions), np.sin(directions)]))
+            rhs.append((root * ranges.measured)[:, None] * directions)
             edges.append(ranges.nodes)
         pairs = np.concatenate(edges).astype(np.int64)
         blocks, rhs_all = np.concatenate(a), np.concatenate(rhs)

@@ -1,6 +1,6 @@
-"""Ranges in the planar relaxation (CORA's formulation: a unit direction per range): exact
-range-aided graphs certified with their truth recovered, noisy ones never falsely certified,
-3D ranges carried and named."""
+"""Ranges in the relaxation (CORA's formulation: a unit direction per range), planar and 3D:
+exact range-aided graphs certified with their truth recovered, noisy ones at or below LM and
+never falsely certified, a range the relaxation does not model carried and named."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from gtsam.symbol_shorthand import L, X
 from rlpgo_gtsam import staged_initialize
 from rlpgo_gtsam.errors import GraphError
 from rlpgo_gtsam.graph import extract_pose_graph
+from rlpgo_gtsam.synthetic import generate_helix_ranges
 from tests.conftest import chi2_of, lm_values
 
 
@@ -78,10 +79,12 @@ def test_an_exact_range_aided_graph_is_certified_with_its_truth_recovered(seed):
                                    atol=1e-6)
 
 
+@pytest.mark.parametrize("dim", [2, 3])
 @pytest.mark.parametrize("seed", [1, 2, 3])
-def test_noisy_range_aided_graphs_are_at_or_below_lm_and_never_falsely_certified(seed):
-    graph, values, ground_truth = range_aided(seed, 1.0)
+def test_noisy_range_aided_graphs_are_at_or_below_lm_and_never_falsely_certified(seed, dim):
+    graph, values, ground_truth = (range_aided if dim == 2 else range_aided_3d)(seed, 1.0)
     run = staged_initialize(graph, values, iters=100)
+    assert run.certificate.ranges == (128 if dim == 2 else 68)
     ours = chi2_of(graph, run.values)
     others = [chi2_of(graph, lm_values(graph, start)) for start in (values, ground_truth)]
     assert ours <= min(others) * (1 + 1e-4)
@@ -98,21 +101,34 @@ def test_a_range_only_beacon_without_a_value_is_named():
         staged_initialize(graph, values)
 
 
-def test_3d_ranges_are_carried_and_named():
-    graph = gtsam.NonlinearFactorGraph()
-    odometry = gtsam.noiseModel.Isotropic.Sigma(6, 0.05)
-    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), odometry))
-    step = gtsam.Pose3(gtsam.Rot3.Rz(0.1), np.array([1.0, 0.0, 0.0]))
-    values, pose = gtsam.Values(), gtsam.Pose3()
-    values.insert(X(0), pose)
-    for k in range(1, 5):
-        graph.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), step, odometry))
-        pose = pose.compose(step)
-        values.insert(X(k), pose)
-    for k in range(5):
-        graph.add(gtsam.RangeFactor3D(X(k), L(0), 5.0, gtsam.noiseModel.Isotropic.Sigma(1, 0.1)))
-    values.insert(L(0), gtsam.Point3(2.0, 4.0, 1.0))
+def range_aided_3d(seed: int, noise: float, n: int = 40, beacons: int = 3,
+                   pose_ranges: int = 8):
+    sample = generate_helix_ranges(n, np.random.default_rng(seed), beacons=beacons,
+                                   pose_ranges=pose_ranges, noise=noise)
+    return sample.graph, sample.initial, sample.ground_truth
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_an_exact_3d_range_aided_graph_is_certified_with_its_truth_recovered(seed):
+    graph, values, ground_truth = range_aided_3d(seed, 0.0)
+    g = extract_pose_graph(graph, values)
+    assert g.ranges is not None and g.ranges.count == 20 * 3 + 8 and not g.carried
+    run = staged_initialize(graph, values, iters=100)
+    assert run.certified, run.certificate.describe()
+    assert "3 landmarks and 68 ranges inside" in run.certificate.describe()
+    assert chi2_of(graph, run.values) < 1e-10
+    for b in range(3):
+        np.testing.assert_allclose(run.values.atPoint3(L(b)), ground_truth.atPoint3(L(b)),
+                                   atol=1e-5)
+
+
+def test_a_robust_3d_range_is_carried_and_named():
+    graph, values, _ = range_aided_3d(0, 1.0, n=10, beacons=1, pose_ranges=0)
+    huber = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(1.0),
+                                           gtsam.noiseModel.Isotropic.Sigma(1, 0.1))
+    graph.add(gtsam.RangeFactor3D(X(9), L(0), 5.0, huber))
     run = staged_initialize(graph, values)
-    assert run.certificate.outside == ("RangeFactor3D x 5",)
+    assert run.certificate.outside == ("RangeFactor3D x 1",)
+    assert run.certificate.ranges == 5
     assert not run.certified
     assert chi2_of(graph, run.values) <= chi2_of(graph, lm_values(graph, values)) * (1 + 1e-6)

@@ -21,7 +21,8 @@ from enum import Enum
 
 import numpy as np
 
-__all__ = ["Status", "Certificate", "Check", "certificate", "GAP_TOLERANCE", "GAP_CAP"]
+__all__ = ["Status", "Certificate", "Check", "certificate", "exact_gap", "only_loose",
+           "GAP_TOLERANCE", "GAP_CAP"]
 
 GAP_TOLERANCE = 1e-6  # relative gap between f(rounded) and tr(Lambda) still called exact
 # the largest gap ever called exact: this share of f(rounded), or of one unit of cost where f
@@ -187,6 +188,24 @@ class Check:
     imprecise: bool = False  # ARPACK did not converge on the eigenvalue(s) asked for
 
 
+def exact_gap(estimate: float, eta: float, size: int) -> float:
+    """The largest suboptimality bound still called exact for a rounded estimate of cost
+    ``estimate`` (``size`` rows of ``Q``): the tolerance follows the weights; where they are
+    extreme it can dwarf the cost itself, and a bound that loose proves nothing: the gap is
+    capped beside it."""
+    return min(size * eta + GAP_TOLERANCE * abs(estimate), GAP_CAP * max(abs(estimate), 1.0))
+
+
+def only_loose(check: Check, estimate: float, eta: float, size: int) -> bool:
+    """Whether a solved relaxation (``S`` within ``eta`` of positive semidefinite) misses
+    exactness only through its bound's ``size x lambda_min`` term: the rounded estimate
+    attains ``f(Y)`` itself, and an ``S`` nearer positive semidefinite (``Y`` closer to
+    first-order stationary) would prove it."""
+    return (check.certified and check.min_eigenvalue < 0.0
+            and estimate - check.trace <= exact_gap(estimate, eta, size)
+            < estimate - check.trace - size * check.min_eigenvalue)
+
+
 def certificate(check: Check, estimate: float, eta: float, size: int, rank: int,
                 started: float, stop: Status) -> Certificate:
     """The certificate of the rounded estimate (``size``: rows of ``Q``); ``stop``: the status
@@ -195,11 +214,8 @@ def certificate(check: Check, estimate: float, eta: float, size: int, rank: int,
     lower = check.trace + size * min(check.min_eigenvalue, 0.0)  # NaN stays NaN
     gap = max(estimate - lower, 0.0)
     if check.certified:
-        # the tolerance follows the weights; where they are extreme it can dwarf the cost
-        # itself, and a bound that loose proves nothing: the gap is capped beside it
-        exact = gap <= min(size * eta + GAP_TOLERANCE * abs(estimate),
-                           GAP_CAP * max(abs(estimate), 1.0))
-        status = Status.CERTIFIED if exact else Status.NOT_TIGHT
+        status = Status.CERTIFIED if gap <= exact_gap(estimate, eta, size) else \
+            Status.NOT_TIGHT
     else:
         status = stop
     return Certificate(

@@ -59,6 +59,20 @@ class Relaxation:
     times ``sqrt(n) x scale``."""
     n: int
     scale: float
+    flat: np.ndarray | None = None
+    """Rows of ``Y`` that no term measures (a 3D range's block beyond its direction), or
+    None: ``Q`` is zero there, so is ``S`` once :meth:`decoupled` has set their multipliers,
+    and the verification looks for ``lambda_min`` on the other rows."""
+
+    def decoupled(self, lam: np.ndarray) -> np.ndarray:
+        """The multipliers without :attr:`flat` rows' (``sym((Q Y) Y^*)`` holds them only
+        where the gradient is not yet zero); a relaxation without such rows has none."""
+        return lam
+
+    def conditioned(self, blocks: np.ndarray) -> np.ndarray:
+        """The preconditioner's shift ``blocks`` (:meth:`Manifold.diagonal`) with weight on
+        :attr:`flat` rows, where ``Q`` has none."""
+        return blocks
     _preconditioner: tuple[float, Any] | None = None
 
     def __init__(self, pose_graph: PoseGraph) -> None:
@@ -136,7 +150,8 @@ class Relaxation:
         """The factor of ``Q + delta I`` (:meth:`preconditioner_delta`); cached per delta."""
         delta = self.preconditioner_delta(manifold)
         if self._preconditioner is None or self._preconditioner[0] != delta:
-            self._preconditioner = (delta, self.factor(manifold.diagonal(self.n, delta)))
+            self._preconditioner = (delta, self.factor(
+                self.conditioned(manifold.diagonal(self.n, delta))))
         return self._preconditioner[1]
 
     def hessian_preconditioner(self, manifold: Manifold, y: np.ndarray,

@@ -178,8 +178,11 @@ class SpatialProblem(Relaxation):
 
     def __init__(self, pose_graph: PoseGraph3D) -> None:
         super().__init__(pose_graph)
+        # a range's direction is the first row of a block of its own (CORA's unit vector as
+        # a 3x3 block, so every block stays a point of St(3, r)); no term measures its other
+        # two rows
         if pose_graph.ranges is not None:
-            raise SolverError("ranges enter the planar relaxation only")
+            self.flat = self._flat_rows()
         self.dense = 3 * self.n < max(_DENSE_Q_BELOW, _DENSE_BELOW)
         self._layout: tuple[sp.csc_matrix, np.ndarray, np.ndarray] | None = None
         self._order: np.ndarray | None = None  # the first sparse factor's elimination order
@@ -213,13 +216,15 @@ class SpatialProblem(Relaxation):
         self.connection = np.bincount((at[:, :, None] * size + at[:, None, :]).ravel(),
                                       weights=rotation.ravel(),
                                       minlength=size * size).reshape(size, size)
-        # the edges' translation terms and the landmarks' (translation nodes n..)
-        pose, node, _, weight, measured = self.extra_terms()
+        # the edges' translation terms and the landmarks' and ranges' (translation nodes
+        # num_poses.., unit rows c)
+        pose, node, turn, weight, measured = self.extra_terms()
+        turned = np.concatenate([i, turn])
         i, j = np.concatenate([i, pose]), np.concatenate([j, node])
         tau = np.concatenate([tau, weight])
         column = np.arange(nodes) - (np.arange(nodes) > g.anchor)  # t's columns, anchor's last
         column[g.anchor] = nodes - 1
-        at = np.concatenate([3 * i[:, None] + _AXES, size + column[i][:, None],
+        at = np.concatenate([3 * turned[:, None] + _AXES, size + column[i][:, None],
                              size + column[j][:, None]], axis=1)
         v = np.concatenate([-np.concatenate([g.measured_translations, measured]),
                             _STEP.repeat(len(i), axis=0)], axis=1)
@@ -235,8 +240,9 @@ class SpatialProblem(Relaxation):
         np.subtract(self.connection, self.q, out=self.q)
         self.q += terms[:size, :size]
         first = 3 * int(g.world_frame)  # a world frame's weights are its FIX lines' and priors'
-        self.scale = float(np.sum(np.diagonal(self.connection)[first:])
-                           + np.sum(np.diagonal(terms)[first:size])) / (size - first)
+        end = 3 * self.num_poses  # the poses' rows: a range's own rows hold no rotation term
+        self.scale = float(np.sum(np.diagonal(self.connection)[first:end])
+                           + np.sum(np.diagonal(terms)[first:end])) / (end - first)
 
     def _set_up_sparse(self, g: PoseGraph3D, kappa: np.ndarray, tau: np.ndarray) -> None:
         """D, L, B (and its transpose) as sparse matrices, L's LU."""
@@ -246,8 +252,9 @@ class SpatialProblem(Relaxation):
         n, nodes = self.n, self.translation_nodes
         i, j = g.edges[:, 0], g.edges[:, 1]
         eye = np.broadcast_to(np.eye(3), (len(i), 3, 3))
-        # the edges' translation terms and the landmarks' (translation nodes n..)
-        pose, node, _, weight, measured = self.extra_terms()
+        # the edges' translation terms and the landmarks' and ranges' (translation nodes
+        # num_poses.., unit rows c)
+        pose, node, turn, weight, measured = self.extra_terms()
         t = np.concatenate([g.measured_translations, measured])
         tau_all = np.concatenate([tau, weight])
         anchored = tau_all[:, None, None] * t[:, :, None] * t[:, None, :]  # tau t~ t~^T at (i, i)
@@ -257,12 +264,13 @@ class SpatialProblem(Relaxation):
             _blocks(j, j, kappa[:, None, None] * eye),
             _blocks(i, j, -kappa[:, None, None] * g.measured_rotations),
             _blocks(j, i, -kappa[:, None, None] * np.transpose(g.measured_rotations, (0, 2, 1))),
-            _blocks(pose, pose, anchored[m:]),
+            _blocks(turn, turn, anchored[m:]),
         ]
+        turned = np.concatenate([i, turn])
         i, j, tau = np.concatenate([i, pose]), np.concatenate([j, node]), tau_all
         data, rows, cols = (np.concatenate(p) for p in zip(*parts, strict=True))
         keep = np.delete(np.arange(nodes), g.anchor)
-        cols3 = (3 * i[:, None] + np.arange(3)).ravel()
+        cols3 = (3 * turned[:, None] + np.arange(3)).ravel()
         matrices = [
             ((data, (rows, cols)), (3 * n, 3 * n)),  # D
             ((np.concatenate([tau, tau, -tau, -tau]),  # the translation Laplacian
@@ -282,7 +290,36 @@ class SpatialProblem(Relaxation):
                                options={"SymmetricMode": True})
         except RuntimeError:
             raise SolverError("the measurements do not determine the translations") from None
-        self.scale = float(np.mean(self.d.diagonal()[3 * int(g.world_frame):]))
+        self.scale = float(np.mean(self.d.diagonal()[3 * int(g.world_frame):3 * self.num_poses]))
+
+    def decoupled(self, lam: np.ndarray) -> np.ndarray:
+        """A range's block of multipliers ``diag(mu, 0, 0)`` with its ``mu``: the rest of
+        ``sym((Q X)_c X_c^T)`` is the direction's coupling to the two free rows, zero once
+        the gradient is; any symmetric multipliers bound the relaxation from below."""
+        if self.flat is None:
+            return lam
+        lam = lam.copy()
+        lam[self.num_poses:, 0, 1:] = lam[self.num_poses:, 1:, 0] = 0.0
+        lam[self.num_poses:, 1:, 1:] = 0.0
+        return lam
+
+    def conditioned(self, blocks: np.ndarray) -> np.ndarray:
+        """A range's free rows weighted as its direction is (``w r^2``), on top of the
+        shift: ``Q`` is zero there, and the truncated CG would take long steps along them."""
+        ranges = self.pose_graph.ranges
+        if ranges is None:
+            return blocks
+        blocks = np.array(np.broadcast_to(blocks, (self.n, 3, 3)))
+        weight = ranges.weights * ranges.measured ** 2
+        blocks[self.num_poses:, 1, 1] += weight
+        blocks[self.num_poses:, 2, 2] += weight
+        return blocks
+
+    def _flat_rows(self) -> np.ndarray:
+        """The second and third rows of each range's block (no term measures them)."""
+        ranges = self.pose_graph.ranges
+        first = 3 * (self.num_poses + np.arange(0 if ranges is None else ranges.count))
+        return np.concatenate([first + 1, first + 2])
 
     def apply(self, x: np.ndarray) -> np.ndarray:
         """Q x for x (3n, r)."""
@@ -379,10 +416,30 @@ class SpatialProblem(Relaxation):
         through its own connection Laplacian)."""
         if rotations is not None:
             return self.given(rotations)
-        return _stack(chordal_rotations(self.pose_graph, self.connection))
+        connection = self.connection
+        if connection is not None and self.pose_graph.ranges is not None:
+            connection = connection[:3 * self.num_poses, :3 * self.num_poses]
+        return self.given(chordal_rotations(self.pose_graph, connection))
 
     def given(self, rotations: np.ndarray) -> np.ndarray:
-        return _stack(_checked_rotations(rotations, self.n))
+        """The blocks of the poses' ``rotations`` (num_poses, 3, 3), then each range's: a
+        rotation whose first column is the range's direction in the values the graph came
+        with (poses and points)."""
+        rotations = _checked_rotations(rotations, self.num_poses)
+        if self.pose_graph.ranges is not None:
+            rotations = np.concatenate([rotations, _frames(self.range_directions())])
+        return _stack(rotations)
+
+    def range_directions(self) -> np.ndarray:
+        """(k, 3) the unit direction of each range's ``t_b - t_a`` in the values the graph
+        came with (the x axis where the two coincide)."""
+        g, ranges = self.pose_graph, self.pose_graph.ranges
+        if ranges is None:
+            return np.zeros((0, 3))
+        positions = g.poses[:, :3, 3]
+        if g.points is not None:
+            positions = np.concatenate([positions, g.points.values])
+        return positions[ranges.nodes[:, 1]] - positions[ranges.nodes[:, 0]]
 
     def verified_shortcut(self, manifold: Manifold, x: np.ndarray, eta: float,
                           grad_tol: float, deadline: float | None, progress: Progress
@@ -393,13 +450,14 @@ class SpatialProblem(Relaxation):
         arithmetic), and its check where it certifies: the staircase's check and progress
         line without its trust region's set-up. Where Newton's method stops short or ``S``
         is not positive semidefinite, the staircase runs from its point."""
-        if not (self.dense and 3 * self.n < _NEWTON_BELOW and x.shape[1] == 3):
-            return x, None
+        if not (self.dense and 3 * self.n < _NEWTON_BELOW and x.shape[1] == 3) \
+                or self.pose_graph.ranges is not None:  # a range's block turns freely about
+            return x, None  # its direction: Newton's Hessian is singular there
         x, converged = newton_point(self, x, grad_tol, self.pose_graph.anchor, deadline)
         return x, (_verified_at_once(self, manifold, x, eta, progress) if converged else None)
 
     def rounded(self, y: np.ndarray) -> np.ndarray:
-        return _round(y)
+        return _round(y, self.num_poses)
 
     def stacked(self, rotations: np.ndarray) -> np.ndarray:
         return _stack(rotations)
@@ -556,19 +614,43 @@ def manifold() -> Stiefel:
 
 # --- rounding -------------------------------------------------------------------------------
 
-def _round(x: np.ndarray) -> np.ndarray:
+def _round(x: np.ndarray, poses: int | None = None) -> np.ndarray:
     """(n, 3, 3) rotations: rank-3 SVD, reflection rule, projection onto SO(3). At rank 3
     with every block a rotation (the staircase's from an SO(3) start: its retractions keep
     the sign of each determinant) the blocks' transposes are returned as they are: the SVD
     route gives ``V^T X_i^T`` (one orthogonal ``V`` for all), the same rotations once the
     anchor is turned back (to 2e-15 on tinyGrid3D, smallGrid3D and parking-garage; CPU ms,
-    the SVD route against the blocks kept: 0.19 / 0.03, 0.77 / 0.07 and 7.8 / 0.6)."""
+    the SVD route against the blocks kept: 0.19 / 0.03, 0.77 / 0.07 and 7.8 / 0.6). With
+    ranges (blocks after the first ``poses``), their directions are read in the subspace
+    of the poses' rows."""
     if x.shape[1] == 3:
         blocks = np.transpose(x.reshape(-1, 3, 3), (0, 2, 1))
         if (np.linalg.det(blocks) > 0).all():
             return blocks.copy()
-    u, s, _ = np.linalg.svd(x, full_matrices=False)
-    blocks = np.transpose((u[:, :3] * s[:3]).reshape(-1, 3, 3), (0, 2, 1))  # R_i = (U_i S)^T
-    if np.count_nonzero(np.linalg.det(blocks) > 0) < 0.5 * len(blocks):
+    poses = len(x) // 3 if poses is None else poses
+    if len(x) == 3 * poses:
+        u, s, _ = np.linalg.svd(x, full_matrices=False)
+        scaled = u[:, :3] * s[:3]  # U_i S
+    else:
+        # the poses' rows alone: a range's second and third rows are free, and its first
+        # (the direction) is read in the poses' subspace: X_i V = U_i S
+        scaled = x @ np.linalg.svd(x[:3 * poses], full_matrices=False)[2][:3].T
+    blocks = np.transpose(scaled.reshape(-1, 3, 3), (0, 2, 1))  # R_i = (U_i S)^T
+    if np.count_nonzero(np.linalg.det(blocks[:poses]) > 0) < 0.5 * poses:
         blocks = _REFLECT @ blocks
-    return project_to_so3(blocks)
+    if len(blocks) == poses:
+        return project_to_so3(blocks)
+    return np.concatenate([project_to_so3(blocks[:poses]), _frames(blocks[poses:, :, 0])])
+
+
+def _frames(directions: np.ndarray) -> np.ndarray:
+    """(k, 3, 3) rotations whose first columns are ``directions`` (k, 3) normalized (the x
+    axis where one is zero)."""
+    size = np.linalg.norm(directions, axis=1)
+    first = np.where(size[:, None] > 1e-300, directions / np.maximum(size, 1e-300)[:, None],
+                     _EYE[0])
+    # the axis least aligned with the direction, made orthogonal to it
+    other = _EYE[np.argmin(np.abs(first), axis=1)]
+    second = other - np.sum(other * first, axis=1)[:, None] * first
+    second /= np.linalg.norm(second, axis=1)[:, None]
+    return np.stack([first, second, np.cross(first, second)], axis=2)

@@ -48,10 +48,19 @@ def verify(problem: Any, manifold: Manifold, y: np.ndarray, eta: float,
     if before is not None:  # the eigen-solver's solves call it through the problem
         problem = _Counted(problem, before)
     lam = m.multipliers(y, problem.apply(y))
-    trace = m.trace(lam)
+    flat = problem.flat
+    if flat is not None:  # S is zero on these rows and apart from the others
+        lam = problem.decoupled(lam)
+    trace = m.trace(lam)  # tr(Lambda) = f(Y)
     if m.size(problem.n) < m.dense_below:
         s = m.dense(problem, lam)
-        values, vectors = np.linalg.eigh(0.5 * (s + s.conj().T))
+        if flat is not None:
+            kept = np.delete(np.arange(len(s)), flat)
+            values, found = np.linalg.eigh(_symmetric(s[np.ix_(kept, kept)]))
+            vectors = np.zeros((len(s), len(values)), found.dtype)
+            vectors[kept] = found
+        else:
+            values, vectors = np.linalg.eigh(_symmetric(s))
         return Check(bool(values[0] >= -eta), float(values[0]), trace, vectors[:, 0])
     floor = -max(m.largest(lam), 0.0)  # lambda_min(S) >= -max Lambda as Q >= 0
     # S + eta I > 0  iff  the sparse matrix with Schur complement S + eta I has positive
@@ -85,6 +94,10 @@ def verify(problem: Any, manifold: Manifold, y: np.ndarray, eta: float,
     return Check(bool(value >= -eta), value, trace, vector)
 
 
+def _symmetric(s: np.ndarray) -> np.ndarray:
+    return 0.5 * (s + s.conj().T)
+
+
 class _Counted:
     """A problem whose shifted solves first call ``before`` with the solves so far (the rest
     of the problem as it is)."""
@@ -116,9 +129,20 @@ def _shifted_inverse(problem: Any, manifold: Manifold, factor: Any) -> LinearOpe
     # checks loads scipy.linalg alone (a command's run on tinyGrid3D: 0.02 s less)
     from scipy.sparse.linalg import LinearOperator
 
-    size = manifold.size(problem.n)
-    return LinearOperator((size, size), dtype=manifold.dtype,
-                          matvec=lambda v: problem.solve_shifted(factor, v.reshape(-1, 1))[:, 0])
+    size, flat = manifold.size(problem.n), problem.flat
+    if flat is None:
+        return LinearOperator((size, size), dtype=manifold.dtype, matvec=lambda v: (
+            problem.solve_shifted(factor, v.reshape(-1, 1))[:, 0]))
+
+    def masked(v: np.ndarray) -> np.ndarray:
+        # S's zero rows are apart from the rest (decoupled): the inverse keeps them apart
+        v = v.reshape(-1, 1).copy()
+        v[flat] = 0.0
+        w = problem.solve_shifted(factor, v)[:, 0]
+        w[flat] = 0.0
+        return w
+
+    return LinearOperator((size, size), dtype=manifold.dtype, matvec=masked)
 
 
 def _nearest_above(problem, manifold, factor, sigma, start,
@@ -130,8 +154,8 @@ def _nearest_above(problem, manifold, factor, sigma, start,
     options = {} if ncv is None else {"ncv": min(ncv, size)}
     values, vectors, converged = _eigsh(
         _shifted_inverse(problem, manifold, factor), {**manifold.arpack_options, **options},
-        k=1, which="LA", v0=_fixed_start(problem, manifold) if start is None else start,
-        tol=1e-10)
+        k=1, which="LA", v0=_fixed_start(problem, manifold) if start is None else
+        _masked_start(problem, start), tol=1e-10)
     if not converged or len(values) == 0:
         return math.nan, None
     return float(sigma + 1.0 / np.real(values[0])), vectors[:, 0]
@@ -155,6 +179,15 @@ def _fixed_start(problem: Any, manifold: Manifold) -> np.ndarray:
     start = rng.standard_normal(size)
     if np.dtype(manifold.dtype).kind == "c":
         start = start + 1j * rng.standard_normal(size)
+    return _masked_start(problem, start)
+
+
+def _masked_start(problem: Any, start: np.ndarray) -> np.ndarray:
+    """``start`` without the problem's :attr:`~Relaxation.flat` rows."""
+    if problem.flat is None:
+        return start
+    start = start.copy()
+    start[problem.flat] = 0.0
     return start
 
 
