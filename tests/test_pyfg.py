@@ -219,10 +219,10 @@ def test_the_writer_refuses_what_a_pyfg_file_cannot_hold(tmp_path):
         with pytest.raises(OutputError) as caught:
             write_pyfg(tmp_path / "x.pyfg", graph_, values)
         assert str(caught.value) == message
-    spatial = gtsam.NonlinearFactorGraph()
-    spatial.add(gtsam.PriorFactorPose3(0, gtsam.Pose3(), gtsam.noiseModel.Unit.Create(6)))
+    spatial = gtsam.NonlinearFactorGraph(graph)
+    spatial.add(gtsam.PriorFactorPose3(a0, gtsam.Pose3(), gtsam.noiseModel.Unit.Create(6)))
     with pytest.raises(OutputError, match=re.escape(
-            "factor 0 (PriorFactorPose3 on 0): a planar PyFG file has no line for it")):
+            "factor 1 (PriorFactorPose3 on A0): a planar PyFG file has no line for it")):
         check_pyfg_graph(spatial)
     assert not (tmp_path / "x.pyfg").exists()
 
@@ -250,9 +250,8 @@ BAD_LINES = [
      "EDGE_SE2 covariance is not positive definite (0.0004 0.0 0.0 -0.0004 0.0 0.000004)"),
     ("VERTEX_SE2 9.0 A1 0.0 0.0 0.0", "vertex A1 defined twice (first on line 2)"),
     ("VERTEX_XY A1 0.0 0.0", "vertex A1 defined twice (first on line 2)"),
-    ("EDGE_SE3:QUAT 0 A0 A1 1 0 0 0 0 0 1", "EDGE_SE3:QUAT is a 3D PyFG line; this reader is "
-     "planar (VERTEX_SE2, VERTEX_XY, VERTEX_SE2:PRIOR, VERTEX_XY:PRIOR, EDGE_SE2, "
-     "EDGE_SE2_XY, EDGE_RANGE)"),
+    ("EDGE_SE3:QUAT 0 A0 A1 1 0 0 0 0 0 1", "EDGE_SE3:QUAT is a 3D PyFG line; this file is "
+     "planar (VERTEX_SE2 on line 1)"),
     ("EDGE_BEARING 0 A0 L0 1.0", "unknown PyFG line 'EDGE_BEARING' (planar PyFG: VERTEX_SE2, "
      "VERTEX_XY, VERTEX_SE2:PRIOR, VERTEX_XY:PRIOR, EDGE_SE2, EDGE_SE2_XY, EDGE_RANGE)"),
     ("VERTEX_SE2 t A9 0.0 0.0 0.0", "VERTEX_SE2 field 1 is not a number: 't'"),

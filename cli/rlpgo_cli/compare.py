@@ -1,5 +1,5 @@
 """rlpgo-compare: initial guesses side by side, each refined by the same GTSAM solver, on
-planar or 3D g2o files and planar PyFG files (each file gets the methods of its group)."""
+planar or 3D g2o and PyFG files (each file gets the methods of its group)."""
 
 from __future__ import annotations
 
@@ -161,7 +161,7 @@ def _methods_for(path: Path, group: Group, given: list[str] | None) -> list[str]
               help="Passes over the edges of the rl methods [default: the model's test cycles].")
 @click.option("--ground-truth", "truth_path", type=click.Path(path_type=Path),
               help="True poses of the one FILE (a g2o file whose vertex lines hold a pose for "
-                   "each of its ids, edges not needed; or a PyFG file, its VERTEX_SE2 poses, "
+                   "each of its ids, edges not needed; or a PyFG file, its pose vertices, "
                    "such as rlpgo-generate --ground-truth writes): adds evo's APE and RPE "
                    "(rmse, m) of "
                    "each refined result. With no FILE, the generated graph's own are used.")

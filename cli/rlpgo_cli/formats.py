@@ -1,5 +1,5 @@
 """Which reader and writer a command uses: a file's extension picks them, ``.pyfg`` (any
-case) CORA's PyFG, planar (:mod:`rlpgo_gtsam.io.pyfg`), any other g2o."""
+case) CORA's PyFG, planar or 3D (:mod:`rlpgo_gtsam.io.pyfg`), any other g2o."""
 
 from __future__ import annotations
 
@@ -10,9 +10,16 @@ from typing import TYPE_CHECKING
 import gtsam
 
 from rlpgo_gtsam.errors import OutputError
-from rlpgo_gtsam.groups import SE2, Group
+from rlpgo_gtsam.groups import SE3, Group
 from rlpgo_gtsam.io import file_group, g2o_text, read_poses
-from rlpgo_gtsam.io.pyfg import RANGE_FACTORS, PyfgTimes, check_pyfg_graph, pyfg_text, read_pyfg
+from rlpgo_gtsam.io.pyfg import (
+    RANGE_FACTORS,
+    PyfgTimes,
+    check_pyfg_graph,
+    pyfg_group,
+    pyfg_text,
+    read_pyfg_file,
+)
 
 if TYPE_CHECKING:
     from rlpgo_gtsam.graph import PoseGraph
@@ -26,17 +33,21 @@ def is_pyfg(path: str | os.PathLike[str]) -> bool:
 
 
 def input_group(path: Path) -> Group:
-    """The pose group of an input: SE2 for a PyFG file (the reader is planar), else the g2o
-    file's (:func:`~rlpgo_gtsam.io.file_group`)."""
-    return SE2 if is_pyfg(path) else file_group(path)
+    """The pose group of an input: a PyFG file's (:func:`~rlpgo_gtsam.io.pyfg.pyfg_group`)
+    or a g2o file's (:func:`~rlpgo_gtsam.io.file_group`)."""
+    return pyfg_group(path) if is_pyfg(path) else file_group(path)
 
 
 def read_truth(path: Path) -> gtsam.Values:
     """The true poses of a ground-truth file: a g2o file's vertex poses
-    (:func:`~rlpgo_gtsam.io.read_poses`), or a PyFG file's ``VERTEX_SE2`` values."""
+    (:func:`~rlpgo_gtsam.io.read_poses`), or a PyFG file's pose values (``VERTEX_SE2`` or
+    ``VERTEX_SE3:QUAT``)."""
     if not is_pyfg(path):
         return read_poses(path)
-    return gtsam.utilities.allPose2s(read_pyfg(path)[1])
+    read = read_pyfg_file(path)
+    if read.group is SE3:
+        return gtsam.utilities.allPose3s(read.values)
+    return gtsam.utilities.allPose2s(read.values)
 
 
 def check_graph_output(path: Path, graph: gtsam.NonlinearFactorGraph) -> None:

@@ -1,5 +1,5 @@
-"""rlpgo-init: write an initial guess for a planar or 3D g2o pose graph, or a planar PyFG
-graph (same edges, new vertices)."""
+"""rlpgo-init: write an initial guess for a planar or 3D g2o pose graph, or a PyFG graph
+(same edges, new vertices)."""
 
 from __future__ import annotations
 
@@ -389,8 +389,8 @@ def _print_stage(row: MethodResult, reason: str) -> None:
 def main(ctx, input_path, output, method, budget, model, cycles, episodes, start, refine,
          iters, json_path, seed, robust, trust_odometry, outliers_out, covariance_scale,
          false_rejections):
-    """Write an initial guess for INPUT (a g2o file, planar or 3D, or a planar PyFG file,
-    .pyfg, as CORA reads) to OUTPUT.
+    """Write an initial guess for INPUT (a g2o file, or a PyFG file, .pyfg, as CORA reads;
+    planar or 3D) to OUTPUT.
 
     The default, --method auto, runs the certified SE(d) relaxation, refines its estimate
     with --refine and writes it; the certificate says whether it is the global optimum (if
