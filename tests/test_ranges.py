@@ -132,3 +132,15 @@ def test_a_robust_3d_range_is_carried_and_named():
     assert run.certificate.ranges == 5
     assert not run.certified
     assert chi2_of(graph, run.values) <= chi2_of(graph, lm_values(graph, values)) * (1 + 1e-6)
+
+
+def test_a_first_radius_far_too_long_does_not_stall_the_trust_region():
+    """Heavy range weights (0.01 m) beside loose odometry (0.05 rad per step) make the first
+    trust-region radius 1e5 times too long: its rejected steps shrink it rather than end
+    the rank as a stall, and the default reaches LM's best from the truth."""
+    sample = generate_helix_ranges(60, np.random.default_rng(1), beacons=3, stride=1,
+                                   rotation_sigma=0.05, translation_sigma=0.1,
+                                   sigma_range_m=0.01)
+    run = staged_initialize(sample.graph, sample.initial, iters=100)
+    truth = chi2_of(sample.graph, lm_values(sample.graph, sample.ground_truth))
+    assert chi2_of(sample.graph, run.values) <= truth * (1 + 1e-4)

@@ -73,6 +73,7 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
     radius = None
     ended: Status | None = Status.ITERATION_LIMIT
     costs = [f]  # the cost at the start of each iteration
+    taken: list[bool] = []  # whether each iteration's step was taken
     rejected = False  # whether the last step was rejected
     path: list[tuple] = []  # the last CG run's path
     pre: Callable[[np.ndarray], np.ndarray]  # the last CG run's preconditioner
@@ -89,8 +90,12 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
         if grad_norm <= grad_tol:
             ended = None
             break
-        if iteration >= STALL_WINDOW and costs[-1 - STALL_WINDOW] - f < stall:
-            ended = None  # stalled below the certificate's resolution
+        if iteration >= STALL_WINDOW and costs[-1 - STALL_WINDOW] - f < stall \
+                and any(taken[-STALL_WINDOW:]):
+            # stalled below the certificate's resolution; a window of rejected steps alone
+            # is the radius still shrinking to the model's reach (a range graph's first
+            # radius can be 1e5 times too long), not a stall
+            ended = None
             break
         if iteration == max_iterations:
             break
@@ -148,6 +153,7 @@ def trust_region(problem: Any, manifold: Manifold, y: np.ndarray, max_iterations
         if not rejected:
             y, qy, f = y_new, qy_new, m.inner(y_new, qy_new)
         costs.append(f)
+        taken.append(not rejected)
     return y, ended
 
 

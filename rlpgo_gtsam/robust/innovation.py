@@ -96,21 +96,27 @@ def innovation_draws(problem: Problem, values: gtsam.Values, kept: np.ndarray) -
     residual = np.asarray(a_edges @ shift).reshape(len(kept), dof, samples)
     residual[kept] *= -1.0
     residual += noise
-    upper = np.linalg.cholesky(g.information).transpose(0, 2, 1)  # R^T R = information
-    return Draws(residual, b, upper)
+    return Draws(residual, b, problem.information_factor)
 
 
-def set_statistics(problem: Problem, draws: Draws, sets: list[np.ndarray]) -> SetStatistics:
+def set_statistics(problem: Problem, draws: Draws,
+                   sets: list[np.ndarray] | np.ndarray) -> SetStatistics:
     """Per set of edges (all kept or all left out), its statistic at the map of ``draws``, the
-    spread of its residual covariance and its turn (see :class:`SetStatistics`)."""
+    spread of its residual covariance and its turn (see :class:`SetStatistics`). ``sets``: a
+    list of index arrays, or an (n, size) array of n sets of one size."""
     group, samples = problem.group, problem.settings.samples
     dof = group.dof
     residual, b, upper = draws.residual, draws.b, draws.upper
     chi2_sets, spread, turn = np.empty(len(sets)), np.empty(len(sets)), np.empty(len(sets))
-    sizes = np.array([len(which) for which in sets])
-    for size_ in np.unique(sizes).tolist():  # sets of one size at once
-        index = np.flatnonzero(sizes == size_)
-        members = np.array([sets[n] for n in index.tolist()])
+    if isinstance(sets, np.ndarray):  # one size, a set per row
+        groups = [(np.arange(len(sets)), sets)] if len(sets) else []
+    else:
+        sizes = np.array([len(which) for which in sets])
+        groups = [(index, np.array([sets[n] for n in index.tolist()]))
+                  for index in (np.flatnonzero(sizes == size_)
+                                for size_ in np.unique(sizes).tolist())]
+    for index, members in groups:  # sets of one size at once
+        size_ = members.shape[1]
         drawn = residual[members].reshape(len(index), dof * size_, samples)
         eigenvalues, vectors = np.linalg.eigh(drawn @ drawn.transpose(0, 2, 1) / samples)
         whitened = np.einsum("sab,sa->sb", vectors, b[members].reshape(len(index), -1))

@@ -61,6 +61,12 @@ class Problem:
         return rng.standard_normal((self.g.num_edges, self.group.dof, self.settings.samples))
 
     @cached_property
+    def information_factor(self) -> np.ndarray:
+        """(m, dof, dof) each edge's upper information factor, ``R^T R = information``: read
+        by every round of the verify step, factored once."""
+        return np.linalg.cholesky(self.g.information).transpose(0, 2, 1)
+
+    @cached_property
     def chain(self) -> np.ndarray:
         """(m,) the odometry chain (:func:`~rlpgo_gtsam.graph.odometry_edges`): it spans the
         graph."""

@@ -26,13 +26,20 @@ def runs(g: PoseGraph, among: np.ndarray, settings: RobustSettings) -> list[np.n
     index, low, high = index[keep], low[keep], high[keep]
     order = np.lexsort((low, high - low))
     index, low, diagonal = index[order], low[order], (high - low)[order]
-    breaks = np.flatnonzero((np.diff(diagonal) != 0)
-                            | (np.diff(low) > settings.run_reach)) + 1
+    if len(index) < 2:
+        return []
+    starts = np.flatnonzero(np.concatenate([[True], (np.diff(diagonal) != 0)
+                                            | (np.diff(low) > settings.run_reach)]))
+    # each run cut into pieces of run_max from its start, as arrays: most runs are one
+    # closure, and a loop over them took 30 ms a round on M3500 with 5800 wrong closures
     size = settings.run_max
-    pieces = []
-    for run in np.split(index, breaks):
-        pieces += [run[k:k + size] for k in range(0, len(run), size)]
-    return [piece for piece in pieces if len(piece) >= 2]
+    lengths = np.diff(np.append(starts, len(index)))
+    count = -(-lengths // size)  # pieces per run
+    first = np.cumsum(count) - count  # each run's first piece
+    cuts = np.repeat(starts, count) + size * (np.arange(count.sum()) - np.repeat(first, count))
+    ends = np.minimum(cuts + size, np.repeat(starts + lengths, count))
+    two = ends - cuts >= 2
+    return [index[a:b] for a, b in zip(cuts[two].tolist(), ends[two].tolist(), strict=True)]
 
 
 def left_out_runs(g: PoseGraph, among: np.ndarray, fits: np.ndarray, bar: float,
