@@ -1,20 +1,27 @@
-"""Range-aided planar graphs: the default (``staged_initialize``) against GTSAM 4.3's
+"""Range-aided graphs, planar and 3D: the default (``staged_initialize``) against GTSAM 4.3's
 certifiable range-aided staircase and GTSAM's LM, in process.
 
-    python benchmarks/ranges.py [--sizes 100,300,500] [--sigmas 0.01,0.05,0.1,0.3]
+    python benchmarks/ranges.py [--dims 2,3] [--sizes LIST] [--sigmas LIST]
         [--beacons 0,3,5,8] [--pose-ranges 0,20] [--seeds 1,2,3] [--files goats_15.pyfg,...]
         [--repeats 1] [--name ranges]
 
-Graphs: generated lawn mowers that range to beacons and between poses
+Graphs, for each dimension of ``--dims``, then the files. Planar: generated lawn mowers that
+range to beacons and between poses
 (:func:`rlpgo_gtsam.synthetic.generate_ranges`: sigma_t 0.05 m, d 3 m, lc 0.3, noisy
 measurements, the default sensor range of :class:`~rlpgo_gtsam.synthetic.RangeSettings`),
 swept one setting at a time around :data:`BASE` (300 poses, range noise 0.1 m, 5 beacons, 20
 pose-to-pose ranges): ``--sizes`` poses, ``--sigmas`` range noise in metres with the rotation
 noise scaled alike (:data:`RADIANS_PER_METRE`), ``--beacons`` (0: pose-to-pose ranges
-alone), ``--pose-ranges``; each for every seed of ``--seeds``. Then GTSAM's wheel files
-``--files`` (CORA's goats, PyFG: poses, three or four beacons, ranges to them), read by the
-package's reader (``rlpgo_gtsam.read_pyfg``; without one they are listed as not run), started
-from the file's vertices.
+alone), ``--pose-ranges``; each for every seed of ``--seeds``. 3D: generated climbing
+helices (:func:`rlpgo_gtsam.synthetic.generate_helix_ranges` with :data:`HELIX`: 3 beacons
+ranged from every second pose, 8 pose-to-pose ranges, odometry sigmas 0.02 rad and 0.05 m
+per 1 m step, noisy measurements, a prior on the first pose), every size of ``--sizes`` with
+every range noise of ``--sigmas``, for every seed (``--beacons`` and ``--pose-ranges`` are
+planar). ``--sizes`` and ``--sigmas`` default per dimension (:data:`SIZES`,
+:data:`SIGMAS`); given, they hold for each. Then GTSAM's wheel files ``--files`` (CORA's
+goats, PyFG: poses, three or four beacons, ranges to them), read by the package's reader
+(``rlpgo_gtsam.read_pyfg``; without one they are listed as not run), started from the file's
+vertices, whatever ``--dims`` says.
 
 Per graph (timed warm: one untimed run of a small graph first; seconds are medians of
 ``--repeats`` runs, everything else the first run's):
@@ -22,7 +29,8 @@ Per graph (timed warm: one untimed run of a small graph first; seconds are media
 - ours: ``staged_initialize(graph, values, iters=100)`` from the odometry guess (the
   generator's ``.initial``: chained odometry, beacons at their rangers' centroid):
   certified, the certificate's status, its gap (``suboptimality_bound / estimate_cost``,
-  both in the relaxation's units), its rank (complex columns: rank r is real rank 2r), the
+  both in the relaxation's units), its rank (planar: complex columns, rank r is real rank
+  2r; 3D: real columns), the
   relaxation's seconds (its certificate's), the certified stage's seconds, the whole call's
   seconds and chi2 after its LM100.
 - GTSAM's ``RiemannianStaircaseOptimizer`` on the problem built as GTSAM's
@@ -39,16 +47,21 @@ Per graph (timed warm: one untimed run of a small graph first; seconds are media
   SE-Sync rounds, onto the rotation blocks' top-d subspace (``rounded_by``: ``benchmark``),
   so that its LM rows still exist. Its flag is a Cholesky factorization of ``S + eta I``
   (``eta`` 1e-3, absolute) with the augmented Lagrangian's multipliers; it then reports
-  ``minEigenvalue`` as exactly ``-eta``.
+  ``minEigenvalue`` as exactly ``-eta``. In 3D the problem is built as GTSAM's
+  ``CertifiableRangeAidedSLAMPose3`` notebook builds it
+  (:func:`benchmarks.harness.gtsam_se3_range_staircase`: ``QuadraticRangeFactor3`` with a
+  lifted ``Unit3`` direction per range, pMax 12, the same eta and iterations; the first
+  pose's prior, a gauge, left out and honoured by a rigid move of the rounded estimate).
 - GTSAM's LM100 (default parameters, first pose held) from the odometry guess and, on
   generated graphs, from the ground truth: seconds (CPU) and chi2.
 - ``best``: ours <= min(every other chi2) x (1 + 1e-4).
 - ``tight``: ours certified; GTSAM ``exact``: certified by its flag and its gap at most
   :data:`TIGHT_GAP`; ``feasible``: its last lifted point within :data:`FEASIBLE` of its
   manifolds (else its level cost is neither the relaxation's optimum nor a bound on it). Its
-  relaxation (real, the directions' second rows unused) is never tighter than ours
-  (complex: the same problem with fewer lifted freedoms), so a graph GTSAM finds exact and
-  ours does not points to a bug on our side: :func:`disagreements` lists it with its seed
+  planar relaxation (real, the directions' second rows unused) is never tighter than ours
+  (complex: the same problem with fewer lifted freedoms); in 3D both hold each direction as
+  a unit row of the lifted space, the same relaxation. A graph GTSAM finds exact and ours
+  does not therefore points to a bug on our side: :func:`disagreements` lists it with its seed
   and settings, in the tables and loudly on stderr.
 - ratio: our certified stage over GTSAM's staircase wall seconds (each from the graph and
   the guess to a rounded estimate); the JSON has the relaxation-only ratio too.
@@ -69,6 +82,14 @@ from benchmarks import harness  # noqa: E402
 from benchmarks.harness import cell, chi2_cell, numbers  # noqa: E402
 
 WHEEL_FILES = ("goats_15.pyfg", "goats_16.pyfg")
+DIMS = (2, 3)
+SIZES = {2: (100, 300, 500), 3: (60, 200)}  # poses swept, per dimension
+SIGMAS = {2: (0.01, 0.05, 0.1, 0.3), 3: (0.01, 0.1, 0.3)}  # range noise swept (m)
+# The 3D graphs' other settings (generate_helix_ranges' arguments): beacons, pose-to-pose
+# ranges, every how-many-th pose ranges the beacons, odometry sigmas per 1 m step (rad, m),
+# measurement noise in units of those sigmas (1: noisy measurements).
+HELIX = {"beacons": 3, "pose_ranges": 8, "stride": 2, "rotation_sigma": 0.02,
+         "translation_sigma": 0.05, "noise": 1.0}
 GENERATOR = {"sigma_t": 0.05, "d": 3.0, "lc": 0.3}  # the generated graphs' other settings
 # The sweeps' centre: poses, range noise (m), beacons, pose-to-pose ranges.
 BASE = {"n": 300, "sigma_range_m": 0.1, "beacons": 5, "pose_ranges": 20}
@@ -122,12 +143,42 @@ def _name(settings: dict) -> str:
             f"p{settings['pose_ranges']} seed{settings['seed']}")
 
 
+def _settings_3d(n: int, sigma_range_m: float, seed: int) -> dict:
+    return {"n": n, "sigma_range_m": sigma_range_m, **HELIX, "seed": seed}
+
+
+def _generated_3d(settings: dict):
+    import numpy as np
+
+    from rlpgo_gtsam.synthetic import generate_helix_ranges
+
+    options = {key: settings[key] for key in HELIX}
+    return generate_helix_ranges(settings["n"], np.random.default_rng(settings["seed"]),
+                                 sigma_range_m=settings["sigma_range_m"], **options)
+
+
+def sweep_3d(args) -> list[dict]:
+    """The 3D graphs' settings: every size with every range noise, for every seed."""
+    return [_settings_3d(n, sigma, seed) for seed in args.seeds for n in args.sizes_3d
+            for sigma in args.sigmas_3d]
+
+
+def _name_3d(settings: dict) -> str:
+    return f"3d {_name(settings)}"
+
+
 def _cases(args, skipped: list[str]):
     """(name, settings or None, graph, values, truth or None) of every graph, in order; a
     file that cannot be read is named in ``skipped`` with why."""
-    for settings in sweep(args):
-        sample = _generated(settings)
-        yield _name(settings), settings, sample.graph, sample.initial, sample.ground_truth
+    if 2 in args.dims:
+        for settings in sweep(args):
+            sample = _generated(settings)
+            yield _name(settings), settings, sample.graph, sample.initial, sample.ground_truth
+    if 3 in args.dims:
+        for settings in sweep_3d(args):
+            sample = _generated_3d(settings)
+            yield (_name_3d(settings), settings, sample.graph, sample.initial,
+                   sample.ground_truth)
     if not args.files:
         return
     import rlpgo_gtsam
@@ -148,8 +199,9 @@ def _cases(args, skipped: list[str]):
 def _counts(graph) -> dict:
     import gtsam
 
-    kinds = {"between": gtsam.BetweenFactorPose2, "beacon_ranges": gtsam.RangeFactor2D,
-             "pose_ranges": gtsam.RangeFactorPose2}
+    kinds = {"between": (gtsam.BetweenFactorPose2, gtsam.BetweenFactorPose3),
+             "beacon_ranges": (gtsam.RangeFactor2D, gtsam.RangeFactor3D),
+             "pose_ranges": (gtsam.RangeFactorPose2, gtsam.RangeFactorPose3)}
     counts = {name: 0 for name in kinds}
     for k in range(graph.size()):
         for name, kind in kinds.items():
@@ -187,8 +239,9 @@ def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def _staircase(graph, values) -> tuple[dict, dict]:
-    found = harness.gtsam_se_staircase(graph, values, round_uncertified=True)
+def _staircase(graph, values, dim: int) -> tuple[dict, dict]:
+    anchor = harness.gtsam_se3_range_staircase if dim == 3 else harness.gtsam_se_staircase
+    found = anchor(graph, values, round_uncertified=True)
     if found is None:
         return {"gtsam_failure": "not in this gtsam"}, {}
     if found["failure"] is not None:
@@ -223,18 +276,24 @@ def _lm(graph, start, label: str) -> tuple[dict, dict]:
     return {f"{label}_chi2": chi2, f"{label}_failure": failure}, {f"{label}_seconds": seconds}
 
 
-def in_process(graph, values, truth, repeats: int) -> dict:
-    """The columns of one graph (module docstring): the first run's figures, the medians of
-    the seconds."""
+def in_process(graph, values, truth, repeats: int, dim: int = 2) -> dict:
+    """The columns of one graph of dimension ``dim`` (module docstring): the first run's
+    figures, the medians of the seconds."""
 
     def parts() -> list[tuple[dict, dict]]:
-        found = [_ours(graph, values), _staircase(graph, values), _lm(graph, values, "odometry")]
+        found = [_ours(graph, values), _staircase(graph, values, dim),
+                 _lm(graph, values, "odometry")]
         if truth is not None:
             found.append(_lm(graph, truth, "truth"))
         return found
 
     others = ("gtsam_lm30_chi2", "gtsam_lm100_chi2", "odometry_chi2", "truth_chi2")
-    return harness.repeated_row(parts, repeats, others, MARGIN)
+    row = harness.repeated_row(parts, repeats, others, MARGIN)
+    if row.get("gtsam_wall_seconds"):
+        row["stage_over_gtsam"] = row["ours_stage_seconds"] / row["gtsam_wall_seconds"]
+        row["relaxation_over_gtsam"] = (row["ours_relaxation_seconds"] / row["gtsam_seconds"]
+                                        if row["ours_relaxation_seconds"] is not None else None)
+    return row
 
 
 def disagreements(rows: list[dict]) -> list[str]:
@@ -344,11 +403,19 @@ def summary(rows: list[dict], alarms: list[str], skipped: list[str]) -> str:
 
 # --- the command line ---------------------------------------------------------------------------
 
+def _listed(values) -> str:
+    return ",".join(f"{value:g}" for value in values)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", default="100,300,500", help="poses swept (a list)")
-    parser.add_argument("--sigmas", default="0.01,0.05,0.1,0.3",
-                        help="range noise swept, metres (rotation noise alike, radians)")
+    parser.add_argument("--dims", default=",".join(map(str, DIMS)),
+                        help="dimensions of the generated graphs (a list of 2 and 3)")
+    parser.add_argument("--sizes", help="poses swept (a list; default per dimension: planar "
+                        f"{_listed(SIZES[2])}, 3D {_listed(SIZES[3])})")
+    parser.add_argument("--sigmas", help="range noise swept, metres (planar: rotation noise "
+                        f"alike, radians; default per dimension: planar {_listed(SIGMAS[2])}, "
+                        f"3D {_listed(SIGMAS[3])})")
     parser.add_argument("--beacons", default="0,3,5,8",
                         help="beacons swept (a list; 0: pose-to-pose ranges alone)")
     parser.add_argument("--pose-ranges", default="0,20", help="pose-to-pose ranges swept")
@@ -360,43 +427,58 @@ def main() -> None:
     args = parser.parse_args()
     if args.repeats < 1:
         parser.error("--repeats must be 1 or more")
-    args.sizes, args.beacons = numbers(args.sizes), numbers(args.beacons)
+    args.dims = numbers(args.dims)
+    if not args.dims or not set(args.dims) <= set(DIMS):
+        parser.error("--dims takes 2, 3 or both")
+    sizes, sigmas = args.sizes, args.sigmas
+    args.sizes, args.sizes_3d = ((numbers(sizes),) * 2 if sizes else (SIZES[2], SIZES[3]))
+    args.sigmas, args.sigmas_3d = ((numbers(sigmas, float),) * 2 if sigmas
+                                   else (SIGMAS[2], SIGMAS[3]))
+    args.beacons = numbers(args.beacons)
     args.pose_ranges, args.seeds = numbers(args.pose_ranges), numbers(args.seeds)
-    args.sigmas = numbers(args.sigmas, float)
     args.files = [name for name in args.files.split(",") if name.strip()]
 
     import rlpgo_gtsam.relaxation  # noqa: F401  (SciPy's import is not the method's time)
 
+    # untimed: first calls pay for imports
     warm = _generated(_settings(30, 0.1, 3, 2, 0))
-    in_process(warm.graph, warm.initial, None, 1)  # untimed: first calls pay for imports
+    in_process(warm.graph, warm.initial, None, 1)
+    if 3 in args.dims:
+        warm = _generated_3d(_settings_3d(20, 0.1, 0))
+        in_process(warm.graph, warm.initial, None, 1, dim=3)
     rows, skipped = [], []
     for name, settings, graph, values, truth in _cases(args, skipped):
         import gtsam
 
-        row = {"graph": name, "settings": settings,
-               "poses": gtsam.utilities.allPose2s(values).size(),
-               "beacons": values.size() - gtsam.utilities.allPose2s(values).size(),
-               **_counts(graph)}
-        row.update(in_process(graph, values, truth, args.repeats))
+        dim = 3 if gtsam.utilities.allPose3s(values).size() > 0 else 2
+        poses = (gtsam.utilities.allPose3s(values) if dim == 3
+                 else gtsam.utilities.allPose2s(values)).size()
+        row = {"graph": name, "settings": settings, "dim": dim, "poses": poses,
+               "beacons": values.size() - poses, **_counts(graph)}
+        row.update(in_process(graph, values, truth, args.repeats, dim))
         rows.append(row)
         print({k: v for k, v in row.items() if "certificate" not in k}, flush=True)
     alarms = disagreements(rows)
     for line in alarms:
         print(f"WARNING: {line}", file=sys.stderr, flush=True)
-    table = ("Where each relaxation is tight (ours: complex, rank in complex columns; GTSAM: "
-             "real, rank in real columns; gaps relative to the rounded estimate's cost; costs "
-             "in our relaxation's units, sum of kappa |R_j - R_i R_ij|_F^2 + tau |dt|^2 + nu "
-             "(|dx| - r)^2 = 2 x GTSAM's lifted error; a solved real relaxation's cost is at "
-             "most our lower bound):\n\n" + tightness_table(rows)
+    table = ("Where each relaxation is tight (ours: complex in the plane, rank in complex "
+             "columns, real in 3D; GTSAM: real, rank in real columns; gaps relative to the "
+             "rounded estimate's cost; costs in our relaxation's units, sum of kappa "
+             "|R_j - R_i R_ij|_F^2 + tau |dt|^2 + nu (|dx| - r)^2 = 2 x GTSAM's lifted error; "
+             "a solved real relaxation's cost is at most our lower bound):\n\n"
+             + tightness_table(rows)
              + "\nChi2 (2 x GTSAM error) and seconds (medians of the repeats):\n\n"
              + results_table(rows) + "\nSummary:\n\n" + summary(rows, alarms, skipped))
     print(table)
-    data = {"settings": {"generator": GENERATOR, "base": BASE,
+    data = {"settings": {"dims": args.dims, "generator": GENERATOR, "base": BASE,
+                         "sizes": args.sizes, "sigmas": args.sigmas, "helix": HELIX,
+                         "sizes_3d": args.sizes_3d, "sigmas_3d": args.sigmas_3d,
                          "radians_per_metre": RADIANS_PER_METRE, "seeds": args.seeds,
                          "lm_iterations": LM_ITERATIONS,
                          "staircase_refine_iterations": REFINE_ITERATIONS, "margin": MARGIN,
                          "tight_gap": TIGHT_GAP, "repeats": args.repeats,
-                         "warm_up": "a 30-pose range graph (3 beacons), run once untimed"},
+                         "warm_up": "a 30-pose range graph (3 beacons) and, with 3D rows, "
+                                    "a 20-pose helix, each run once untimed"},
             "disagreements": alarms, "skipped": skipped, "rows": rows}
     print(f"wrote {harness.write_result(args.name, harness.command_line(), data, table)}")
 

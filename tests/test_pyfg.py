@@ -353,7 +353,6 @@ def test_generate_writes_a_range_graph_as_pyfg(generated):
     (["--ranges", "3", "--landmarks", "4", "-o", "r.pyfg"], "--landmarks: not used with"),
     (["--pose-ranges", "3", "--max-sightings", "2", "-o", "r.pyfg"], "--max-sightings: not"),
     (["--ranges", "3", "--outliers", "0.1", "-o", "r.pyfg"], "--outliers: not used with"),
-    (["--ranges", "3", "--dim", "3", "-o", "r.pyfg"], "do not combine with --dim 3"),
     (["--sigma-range", "0.2", "-o", "r.g2o"], "--sigma-range: options of the landmarks and "
      "the ranges"),
     (["--sigma-bearing", "0.2", "-o", "r.g2o"], "--sigma-bearing: options of the landmarks; "),

@@ -1,7 +1,7 @@
 """rlpgo-generate: write one of the paper's synthetic lawn-mower pose graphs as g2o (planar,
 or its layers in 3D with ``--dim 3``), with points measured by bearing and range with
 ``--landmarks N``, or as PyFG (an output ending in ``.pyfg``), with ranges to beacons and
-between poses with ``--ranges N`` / ``--pose-ranges K``."""
+between poses with ``--ranges N`` / ``--pose-ranges K`` (in 3D along a climbing helix)."""
 
 from __future__ import annotations
 
@@ -28,6 +28,7 @@ from rlpgo_gtsam.synthetic import (
     LandmarkSettings,
     RangeSettings,
     generate,
+    generate_helix_ranges,
     generate_landmarks,
     generate_ranges,
 )
@@ -38,6 +39,8 @@ _GROUPS = {2: SE2, 3: SE3}
 _LANDMARK_OPTIONS = ("sigma_bearing", "max_sightings")
 # options of the range sensor, which landmarks and ranges share: refused without either
 _SENSOR_OPTIONS = ("sensor_range", "sigma_range")
+# options of the planar lawn mower that the 3D range graph (a helix) has no use for
+_HELIX_REFUSED = ("d", "lc", "sensor_range")
 
 
 @click.command(cls=RlpgoCommand)
@@ -60,7 +63,7 @@ _SENSOR_OPTIONS = ("sensor_range", "sigma_range")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Random seed.")
 @click.option("-o", "--output", type=OutputFile(), required=True,
               help="File for the graph and its noisy initial guess: PyFG if its name ends in "
-                   ".pyfg (planar), else g2o.")
+                   ".pyfg (planar or 3D), else g2o.")
 @click.option("--ground-truth", type=OutputFile(),
               help="File for the graph with the ground-truth poses (PyFG or g2o, by its name "
                    "as OUTPUT).")
@@ -93,11 +96,15 @@ _SENSOR_OPTIONS = ("sensor_range", "sigma_range")
                    f"{RangeSettings.margin_m:g} m, each ranged from every pose within "
                    "--sensor-range (EDGE_RANGE to VERTEX_XY lines; at least "
                    f"{MIN_BEACON_RANGES} poses each): a range-aided graph, written as PyFG "
-                   f"(OUTPUT must end in {PYFG}).")
+                   f"(OUTPUT must end in {PYFG}). With --dim 3: a climbing helix of 1 m steps "
+                   "(odometry noise --sigma-r, --sigma-t; a prior on the first pose), every "
+                   "second pose ranging each beacon, placed in a 12 m cube (VERTEX_XYZ); "
+                   "--d, --lc and --sensor-range do not apply.")
 @click.option("--pose-ranges", type=click.IntRange(0, 1_000_000), default=0,
               show_default=True,
               help="Ranges between pairs of poses within --sensor-range (EDGE_RANGE between "
-                   "VERTEX_SE2 lines), with or without --ranges; written as PyFG.")
+                   "VERTEX_SE2 lines; with --dim 3 between random pairs of poses), with or "
+                   "without --ranges; written as PyFG.")
 @click.option("--sensor-range", type=FiniteFloat(1e-6, 1e6),
               default=LandmarkSettings.sensor_range_m, show_default=True,
               help="The farthest a pose measures a point (--landmarks) or a range (--ranges, "
@@ -117,15 +124,20 @@ def main(ctx, dim, n, sigma_r, sigma_t, d, lc, noisy_measurements, seed, output,
          sensor_range, sigma_bearing, sigma_range, max_sightings):
     """Generate a lawn-mower pose graph as in the RL-PGO paper (in layers in 3D: --dim 3),
     with points measured by bearing and range with --landmarks N, or ranges to beacons and
-    between poses with --ranges N / --pose-ranges K (planar, written as PyFG: CORA's
-    problem)."""
+    between poses with --ranges N / --pose-ranges K (written as PyFG: CORA's problem; in 3D
+    along a climbing helix)."""
     ranging = ranges > 0 or pose_ranges > 0
     _check_landmark_options(ctx, landmarks, ranging, outliers, outliers_out)
-    _check_formats(dim, ranging, output, ground_truth, outliers_out)
+    _check_formats(ctx, dim, ranging, output, ground_truth, outliers_out)
     run = RunFiles()
     run.check(output, ground_truth, outliers_out)
     rng = np.random.default_rng(seed)
-    if ranging:
+    if ranging and dim == 3:
+        sample = generate_helix_ranges(n, rng, beacons=ranges, pose_ranges=pose_ranges,
+                                       noise=1.0 if noisy_measurements else 0.0,
+                                       rotation_sigma=sigma_r, translation_sigma=sigma_t,
+                                       sigma_range_m=sigma_range)
+    elif ranging:
         sample = generate_ranges(n, sigma_r, sigma_t, d, lc, rng,
                                  RangeSettings(ranges, pose_ranges, sigma_range, sensor_range),
                                  noisy_measurements=noisy_measurements)
@@ -172,16 +184,9 @@ def _check_landmark_options(ctx: click.Context, landmarks: int, ranging: bool,
     """Usage errors for landmark options without --landmarks, sensor options without
     landmarks or ranges, ranges with landmarks or their options, and wrong loop closures
     with either (the generator adds them to pose graphs only)."""
-
-    def given(name: str) -> bool:
-        return ctx.get_parameter_source(name) not in (
-            None, click.core.ParameterSource.DEFAULT, click.core.ParameterSource.DEFAULT_MAP)
-
-    def options(names: tuple[str, ...]) -> list[str]:
-        return [f"--{name.replace('_', '-')}" for name in names if given(name)]
-
+    landmark_options, sensor_options = _given(ctx, _LANDMARK_OPTIONS), _given(ctx, _SENSOR_OPTIONS)
     if ranging:
-        refused = (["--landmarks"] if landmarks > 0 else []) + options(_LANDMARK_OPTIONS)
+        refused = (["--landmarks"] if landmarks > 0 else []) + landmark_options
         if outliers > 0 or outliers_out is not None:
             refused.append("--outliers" if outliers > 0 else "--outliers-out")
         if refused:
@@ -190,11 +195,11 @@ def _check_landmark_options(ctx: click.Context, landmarks: int, ranging: bool,
                                    "landmarks seen by bearing or wrong loop closures)")
         return
     if landmarks == 0:
-        if options(_LANDMARK_OPTIONS):
-            raise click.UsageError(f"{', '.join(options(_LANDMARK_OPTIONS))}: options of the "
+        if landmark_options:
+            raise click.UsageError(f"{', '.join(landmark_options)}: options of the "
                                    "landmarks; give --landmarks N too")
-        if options(_SENSOR_OPTIONS):
-            raise click.UsageError(f"{', '.join(options(_SENSOR_OPTIONS))}: options of the "
+        if sensor_options:
+            raise click.UsageError(f"{', '.join(sensor_options)}: options of the "
                                    "landmarks and the ranges; give --landmarks N, --ranges N "
                                    "or --pose-ranges K too")
     elif outliers > 0 or outliers_out is not None:
@@ -202,24 +207,31 @@ def _check_landmark_options(ctx: click.Context, landmarks: int, ranging: bool,
                                "combine with --landmarks")
 
 
-def _check_formats(dim: int, ranging: bool, output: Path, ground_truth: Path | None,
-                   outliers_out: Path | None) -> None:
-    """Usage errors for outputs whose format cannot hold the graph: ranges outside PyFG (g2o
-    has no range line), a 3D graph in PyFG (planar here), a list of g2o lines beside a PyFG
-    output."""
+def _given(ctx: click.Context, names: tuple[str, ...]) -> list[str]:
+    """The options among ``names`` that the user gave (not left at their defaults), as
+    ``--name``."""
+    unset = (None, click.core.ParameterSource.DEFAULT, click.core.ParameterSource.DEFAULT_MAP)
+    return [f"--{name.replace('_', '-')}" for name in names
+            if ctx.get_parameter_source(name) not in unset]
+
+
+def _check_formats(ctx: click.Context, dim: int, ranging: bool, output: Path,
+                   ground_truth: Path | None, outliers_out: Path | None) -> None:
+    """Usage errors for outputs whose format cannot hold the graph and options the graph has
+    no use for: ranges outside PyFG (g2o has no range line), the planar lawn mower's
+    spacing, loop closures and sensor range beside 3D ranges (a helix), a list of g2o lines
+    beside a PyFG output."""
     outputs = [path for path in (output, ground_truth) if path is not None]
     if ranging:
-        if dim == 3:
-            raise click.UsageError("--ranges and --pose-ranges make planar graphs; they do not "
-                                   "combine with --dim 3")
+        unused = _given(ctx, _HELIX_REFUSED) if dim == 3 else []
+        if unused:
+            raise click.UsageError(f"{', '.join(unused)}: not used by the 3D range graph (a "
+                                   "helix of 1 m steps without loop closures, every second "
+                                   "pose ranging each beacon)")
         not_pyfg = [str(path) for path in outputs if not is_pyfg(path)]
         if not_pyfg:
             raise click.UsageError(f"{', '.join(not_pyfg)}: a graph with ranges is written as "
                                    f"PyFG (g2o has no range line); give a name ending in {PYFG}")
-    pyfg = [str(path) for path in outputs if is_pyfg(path)]
-    if pyfg and dim == 3:
-        raise click.UsageError(f"{', '.join(pyfg)}: PyFG files are written planar here; give "
-                               "--dim 2 or a .g2o name")
     if outliers_out is not None and is_pyfg(output):
         raise click.UsageError("--outliers-out lists edges by their g2o lines; OUTPUT is a "
                                "PyFG file")
