@@ -51,13 +51,16 @@ def left_out_runs(g: PoseGraph, among: np.ndarray, fits: np.ndarray, bar: float,
     beside (Vertigo's local policy puts wrong closures beside true ones). Where the lone one
     passes barely, the run still judges it: a wrong group's member that passes alone does
     so barely, and its run keeps it out."""
-    found = []
-    for run in runs(g, among, settings):
-        passing = fits[run] < bar
-        if passing.sum() == 1 and (fits[run[passing]] < fits_well).all():
-            continue
-        found.append(run)
-    return found
+    found = runs(g, among, settings)
+    if not found:
+        return found
+    # counted as arrays: a loop took 5 ms a round over M3500's 900 runs of wrong closures
+    members = np.concatenate(found)
+    owner = np.repeat(np.arange(len(found)), [len(run) for run in found])
+    passing = fits[members] < bar
+    alone = np.bincount(owner, passing, len(found)) == 1
+    well = np.bincount(owner, passing & (fits[members] < fits_well), len(found)) == 1
+    return [run for run, lone in zip(found, (alone & well).tolist(), strict=True) if not lone]
 
 
 def clusters(g: PoseGraph, among: np.ndarray, settings: RobustSettings) -> list[np.ndarray]:
