@@ -163,7 +163,8 @@ class Relaxation:
         I)^-1`` leaves out ``Lambda``, which outweighs ``Q``'s lowest modes on long graphs.
         A problem may give a closer one (the planar one at rank 1: the tangent Hessian's
         own factor)."""
-        factor = factor_or_none(self, manifold.shift(lam, -self.preconditioner_delta(manifold)))
+        factor = factor_or_none(self, self.conditioned(
+            manifold.shift(lam, -self.preconditioner_delta(manifold))))
         if factor is None or manifold.negative_pivots(factor) != 0:
             return None
         return lambda v: 0.5 * manifold.project(y, self.solve_shifted(factor, v))

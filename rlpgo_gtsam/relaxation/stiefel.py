@@ -48,6 +48,7 @@ chi2: refine the estimate with GTSAM.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -128,6 +129,10 @@ _CLOSED_FROM = 40
 # its chordal estimate, a 372-row Hessian each) 14.4 / 27. Newton's dense Hessian costs
 # (3n)^3 a step: its products, not the per-call overhead, rule above this size.
 _NEWTON_BELOW = _DENSE_BELOW
+# With ranges, a truncated CG run of this many Hessian products switches to the Hessian's own
+# preconditioner (S + delta I, where positive definite): a range's direction is held by
+# multipliers about as large as its terms in Q, which Q + delta I leaves out.
+_RANGE_HESSIAN_AFTER = 10
 
 
 def _stack(rotations: np.ndarray) -> np.ndarray:
@@ -409,7 +414,9 @@ class SpatialProblem(Relaxation):
     # --- the driver's questions (see Relaxation) --------------------------------------------
 
     def manifold(self) -> Stiefel:
-        return manifold()
+        if self.pose_graph.ranges is None:
+            return manifold()
+        return replace(manifold(), hessian_preconditioner_after=_RANGE_HESSIAN_AFTER)
 
     def start(self, rotations: np.ndarray | None) -> np.ndarray:
         """The given ``rotations``' blocks, or the chordal estimate's (a dense problem's
