@@ -8,7 +8,6 @@ is the command's policy (``rlpgo_cli.output``).
 from __future__ import annotations
 
 import os
-import secrets
 import shutil
 import tempfile
 from collections.abc import Iterable, Sequence
@@ -212,7 +211,7 @@ def _keep(path: Path) -> Path | None:
     if not os.path.lexists(path):
         return None
     for _ in range(100):
-        kept = path.parent / f".rlpgo-{secrets.token_hex(6)}.kept"
+        kept = path.parent / f".rlpgo-{os.urandom(6).hex()}.kept"  # (secrets: 4 ms to import)
         try:
             os.link(path, kept, follow_symlinks=False)
             return kept

@@ -31,7 +31,12 @@ from rlpgo_gtsam.information import factor_information
 
 __all__ = ["bearing_range_factor", "relative_point", "point_jacobian", "landmark_key",
            "point_weights", "Points", "Carried", "Split", "split_graph",
-           "place_points", "key_text", "outside_kinds", "Ranges"]
+           "place_points", "key_text", "outside_kinds", "Ranges", "RANGE_FACTORS"]
+
+# GTSAM's range factors, planar then 3D: pose to pose, pose to point, point to point (a PyFG
+# file's EDGE_RANGE lines; a g2o file has no line for them)
+RANGE_FACTORS = (gtsam.RangeFactorPose2, gtsam.RangeFactor2D, gtsam.RangeFactor2,
+                 gtsam.RangeFactorPose3, gtsam.RangeFactor3D, gtsam.RangeFactor3)
 
 
 def landmark_key(index: int) -> int:

@@ -26,7 +26,8 @@ import numpy as np
 from rlpgo_gtsam.errors import SolverError
 
 __all__ = ["PairwiseSystem", "solve_pairwise", "solve_block_pairwise", "solve_isotropic",
-           "dense_cholesky", "DenseCholesky", "WEIGHT_FLOOR", "PIVOT_FLOOR"]
+           "dense_cholesky", "DenseCholesky", "WEIGHT_FLOOR", "PIVOT_FLOOR", "potrf", "potrs",
+           "trtrs", "SMALL_ROWS"]
 
 # Weights at or below this leave an edge out of a weighted solve: even at a tiny weight a
 # wrong closure joins two random poses, and such joins ruin the factorization's fill
@@ -34,6 +35,8 @@ __all__ = ["PairwiseSystem", "solve_pairwise", "solve_block_pairwise", "solve_is
 WEIGHT_FLOOR = 1e-12
 # A pivot below this fraction of its diagonal entry means the system is indeterminate there.
 PIVOT_FLOOR = 1e-10
+# Rows below which dense factors and solves go through numpy's LAPACK, not scipy's (potrf).
+SMALL_ROWS = 150
 # Unknowns (d x free poses) below which the normal equations are solved densely (Cholesky):
 # scipy's sparse set-up costs more there. The chordal estimate and the translation step of
 # generated 3D graphs took 1.8 ms dense / 3.6 ms sparse at 27 unknowns, 3.6 / 4.9 at 117,
@@ -575,30 +578,58 @@ def solve_isotropic(num_poses: int, edges: np.ndarray, a: np.ndarray, b: np.ndar
     return x
 
 
-def dense_cholesky(matrix: np.ndarray, overwrite: bool = False) -> np.ndarray | None:
-    """The lower Cholesky factor of the symmetric ``matrix`` (LAPACK's dpotrf; the upper
-    triangle is left as it was), or None where the factorization fails or a pivot falls
-    below :data:`PIVOT_FLOOR` of its diagonal: the system is indeterminate (the callers then
-    hand over to a solve that names the pose). ``overwrite``: factored in ``matrix``'s own
-    memory, which must then be Fortran-ordered (the transpose of a C-ordered symmetric matrix
-    is the same matrix in that order)."""
+def potrf(matrix: np.ndarray, overwrite: bool = False) -> tuple[np.ndarray, int]:
+    """LAPACK's lower Cholesky factor of the symmetric ``matrix`` and its ``info`` (0: done),
+    the upper triangle left as it was. Below :data:`SMALL_ROWS` rows through numpy's own
+    LAPACK: a small graph's run then loads no scipy (its ``scipy.linalg`` import took 30 ms
+    of a 0.19 s ``rlpgo-init`` on tinyGrid3D). ``overwrite``: factored in ``matrix``'s own
+    memory where it is Fortran-ordered (the transpose of a C-ordered symmetric matrix is the
+    same matrix in that order)."""
+    if len(matrix) < SMALL_ROWS:
+        try:
+            return np.linalg.cholesky(matrix), 0
+        except np.linalg.LinAlgError:
+            return matrix, 1
     from scipy.linalg.lapack import dpotrf  # lazily: --help loads no scipy
 
+    return dpotrf(matrix, lower=1, clean=0, overwrite_a=int(overwrite))
+
+
+def potrs(lower: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``A^-1 b`` from :func:`potrf`'s factor of ``A``."""
+    if len(lower) < SMALL_ROWS:
+        return trtrs(lower.T, trtrs(lower, b), lower=False)
+    from scipy.linalg.lapack import dpotrs
+
+    return dpotrs(lower, b, lower=1)[0]
+
+
+def trtrs(triangle: np.ndarray, b: np.ndarray, lower: bool = True) -> np.ndarray:
+    """``T^-1 b`` for the ``lower`` (or upper) triangle ``T`` of ``triangle``."""
+    if len(triangle) < SMALL_ROWS:
+        return np.linalg.solve(np.tril(triangle) if lower else np.triu(triangle), b)
+    from scipy.linalg.lapack import dtrtrs
+
+    return dtrtrs(triangle, b, lower=int(lower))[0]
+
+
+def dense_cholesky(matrix: np.ndarray, overwrite: bool = False) -> np.ndarray | None:
+    """The lower Cholesky factor of the symmetric ``matrix`` (:func:`potrf`), or None where
+    the factorization fails or a pivot falls below :data:`PIVOT_FLOOR` of its diagonal: the
+    system is indeterminate (the callers then hand over to a solve that names the pose)."""
     diagonal = np.diagonal(matrix).copy()
-    lower, info = dpotrf(matrix, lower=1, clean=0, overwrite_a=int(overwrite))
+    lower, info = potrf(matrix, overwrite)
     if info != 0 or not (np.diagonal(lower) ** 2 > PIVOT_FLOOR * diagonal).all():
         return None
     return lower
 
 
 class DenseCholesky:
-    """A dense lower Cholesky factor (LAPACK's, :func:`dense_cholesky`) that solves as a
-    SuperLU does."""
+    """A dense lower Cholesky factor (:func:`dense_cholesky`) that solves as a SuperLU
+    does."""
 
     def __init__(self, lower: np.ndarray) -> None:
         self.lower = lower
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        from scipy.linalg.lapack import dpotrs
-
-        return dpotrs(self.lower, b, lower=1)[0]
+        return potrs(self.lower, b)

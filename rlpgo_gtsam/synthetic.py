@@ -19,9 +19,11 @@ Wrong loop closures (``outliers > 0``): ``int(outliers x edges)`` extra between 
 ``edges`` the number of between factors of the outlier-free graph (odometry included: 5% of
 M3500's 5453 edges is 272 wrong closures), appended after every other factor and drawn from
 the same ``rng`` after everything else, so a seed gives the same outlier-free part with or
-without them. :func:`add_outliers` does the same to any graph (a benchmark file). Poses are
-taken in the order of the odometry chain (:func:`~rlpgo_gtsam.graph.odometry_edges`: sorted
-keys on a robot's path), so "pose i + k" is k steps further along it. Vertigo's four
+without them. :func:`add_outliers` does the same to any graph (a benchmark file), or adds a
+``count`` of wrong closures instead (any number the graph has room for: several per true
+closure, as at 90% of all closures wrong). Poses are taken in the order of the odometry
+chain (:func:`~rlpgo_gtsam.graph.odometry_edges`: sorted keys on a robot's path), so
+"pose i + k" is k steps further along it. Vertigo's four
 policies (Suenderhauf and Protzel, switchable constraints, ``generateDataset.py``):
 
 - ``"random"``: a random pose pair;
@@ -639,12 +641,15 @@ def _check_ranges(ranges: RangeSettings) -> None:
 def add_outliers(
     graph: gtsam.NonlinearFactorGraph,
     values: gtsam.Values,
-    fraction: float,
+    fraction: float | None,
     rng: np.random.Generator,
     mode: str = OUTLIER_MODES[0],
     group_size: int = GROUP_SIZE,
+    *,
+    count: int | None = None,
 ) -> tuple[gtsam.NonlinearFactorGraph, list[int]]:
-    """A copy of ``graph`` with ``int(fraction x edges)`` wrong loop closures appended.
+    """A copy of ``graph`` with ``int(fraction x edges)`` wrong loop closures appended, or
+    ``count`` of them.
 
     Args:
         graph: a planar or 3D pose graph (what
@@ -652,23 +657,34 @@ def add_outliers(
             its group's between factors.
         values: the poses that define the map's geometry (its extent, which poses are far
             apart): the ground truth or the best known solution, not a drifting guess.
-        fraction: wrong closures per between factor of ``graph``, in [0, 1).
+        fraction: wrong closures per between factor of ``graph``, in [0, 1); None when
+            ``count`` is given.
         rng: the only source of randomness.
         mode: one of :data:`OUTLIER_MODES` (see the module docstring).
         group_size: closures per group in the group modes (the last group may be cut short
-            to give exactly ``int(fraction x edges)``).
+            to give exactly the number asked for).
+        count: the number of wrong closures instead of a fraction (>= 0, any number the
+            graph has room for: more wrong closures than edges, as at 90% of all closures
+            wrong); ``fraction`` must then be None. The draws are those of the fraction that
+            gives the same number, so ``count=int(fraction x edges)`` gives the same graph.
 
     Returns:
         The new graph (``graph`` itself is not changed) and the factor indices of the wrong
         closures in it, ascending (they follow every factor of ``graph``).
 
     Raises:
-        RlpgoError: a fraction outside [0, 1), an unknown mode, or a graph with too few
-            pose pairs that qualify.
+        RlpgoError: a fraction outside [0, 1), a negative count, both or neither given, an
+            unknown mode, or a graph with too few pose pairs that qualify.
         GraphError: a graph the package cannot read as a pose graph.
     """
-    _check_outliers(fraction, mode, group_size)
+    if (fraction is None) == (count is None):
+        raise RlpgoError("add_outliers takes a fraction of the edges or a count of wrong "
+                         "closures: one of them, not both")
+    if count is not None and (isinstance(count, bool) or int(count) != count or count < 0):
+        raise RlpgoError(f"the count of wrong loop closures must be an integer >= 0, got {count}")
+    _check_outliers(0.0 if fraction is None else fraction, mode, group_size)
     g = extract_pose_graph(graph, values)
+    wanted = int(fraction * g.num_edges) if fraction is not None else int(count or 0)
     group = g.group
     measured = group.measured(g)
     draw = _WRONG_MEASUREMENTS[group]
@@ -679,7 +695,7 @@ def add_outliers(
         return draw(mode, side, rng)
 
     return _add_wrong_closures(graph, g, group.translations(g.poses),
-                               group.translations(measured), fraction, rng, mode, group_size,
+                               group.translations(measured), wanted, rng, mode, group_size,
                                group.between_factor, measure)
 
 
@@ -710,14 +726,13 @@ _WRONG_MEASUREMENTS: dict[Group, Callable[[str, float, np.random.Generator], obj
 
 
 def _add_wrong_closures(graph: gtsam.NonlinearFactorGraph, g: PoseGraph,
-                        positions: np.ndarray, moves: np.ndarray, fraction: float,
+                        positions: np.ndarray, moves: np.ndarray, count: int,
                         rng: np.random.Generator, mode: str, group_size: int, factor: type,
                         measure: Callable[[int, float], object]):
-    """The policies of both dimensions. ``positions`` (n, dim) are the poses' positions,
-    ``moves`` (m, dim) each edge's measured translation; ``measure(source, side)`` draws one
-    group's measurement, ``source`` the edge whose information it takes (the one
-    ``"plausible"`` copies), ``side`` the map's longest side."""
-    count = int(fraction * g.num_edges)
+    """The policies of both dimensions: ``count`` wrong closures. ``positions`` (n, dim) are
+    the poses' positions, ``moves`` (m, dim) each edge's measured translation;
+    ``measure(source, side)`` draws one group's measurement, ``source`` the edge whose
+    information it takes (the one ``"plausible"`` copies), ``side`` the map's longest side."""
     result = gtsam.NonlinearFactorGraph(graph)
     if count == 0:
         return result, []

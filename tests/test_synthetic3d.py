@@ -11,8 +11,9 @@ import pytest
 from click.testing import CliRunner
 from rlpgo_cli.generate import main
 
+from rlpgo_gtsam.errors import RlpgoError
 from rlpgo_gtsam.graph import PoseGraph3D, chi2, edge_chi2
-from rlpgo_gtsam.groups import SE3
+from rlpgo_gtsam.groups import SE2, SE3
 from rlpgo_gtsam.initializers import make_initializer
 from rlpgo_gtsam.io import g2o_text, read_g2o
 from rlpgo_gtsam.se3 import between, rotation_angles
@@ -126,6 +127,37 @@ def test_add_outliers_checks_its_arguments_and_leaves_the_graph_alone():
     with pytest.raises(Exception, match="unknown outlier mode 'sneaky'"):
         add_outliers(sample.graph, sample.ground_truth, 0.1, np.random.default_rng(1),
                      "sneaky")
+
+
+@pytest.mark.parametrize("group", [SE2, SE3])
+def test_a_count_of_wrong_closures_may_exceed_the_edges_and_matches_its_fraction(group):
+    sample = generate(60, 0.1, 0.1, 1.0, 0.5, np.random.default_rng(0), group=group)
+    size = sample.graph.size()
+
+    def text(graph) -> str:
+        return g2o_text(graph, sample.ground_truth)
+
+    # the count a fraction gives draws the same graph as that fraction
+    by_fraction, added = add_outliers(sample.graph, sample.ground_truth, 0.3,
+                                      np.random.default_rng(1), "group")
+    by_count, same = add_outliers(sample.graph, sample.ground_truth, None,
+                                  np.random.default_rng(1), "group", count=int(0.3 * size))
+    assert same == added and text(by_count) == text(by_fraction)
+    # 90% of all closures wrong: nine per true closure, more than the graph's edges
+    closures = size - 59
+    many, wrong = add_outliers(sample.graph, sample.ground_truth, None,
+                               np.random.default_rng(1), "localgroup", count=9 * closures)
+    assert wrong == list(range(size, size + 9 * closures)) and 9 * closures > size
+    assert many.size() == size + 9 * closures and sample.graph.size() == size
+    assert add_outliers(sample.graph, sample.ground_truth, None, np.random.default_rng(1),
+                        count=0)[1] == []
+    for fraction, count, message in [(0.1, 5, "one of them, not both"),
+                                     (None, None, "one of them, not both"),
+                                     (None, -1, "integer >= 0"), (None, 2.5, "integer >= 0"),
+                                     (1.0, None, r"in \[0, 1\)")]:
+        with pytest.raises(RlpgoError, match=message):
+            add_outliers(sample.graph, sample.ground_truth, fraction,
+                         np.random.default_rng(1), count=count)
 
 
 def test_the_command_writes_3d_files_and_lists_real_edges(tmp_path):

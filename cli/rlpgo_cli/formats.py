@@ -12,17 +12,13 @@ import gtsam
 from rlpgo_gtsam.errors import OutputError
 from rlpgo_gtsam.groups import SE3, Group
 from rlpgo_gtsam.io import file_group, g2o_text, read_poses
-from rlpgo_gtsam.io.pyfg import (
-    RANGE_FACTORS,
-    PyfgTimes,
-    check_pyfg_graph,
-    pyfg_group,
-    pyfg_text,
-    read_pyfg_file,
-)
+from rlpgo_gtsam.landmarks import RANGE_FACTORS
 
 if TYPE_CHECKING:
     from rlpgo_gtsam.graph import PoseGraph
+    from rlpgo_gtsam.io.pyfg import PyfgTimes
+
+# the PyFG module is imported where a PyFG file is met: a g2o run loads none of it
 
 PYFG = ".pyfg"
 
@@ -35,7 +31,11 @@ def is_pyfg(path: str | os.PathLike[str]) -> bool:
 def input_group(path: Path) -> Group:
     """The pose group of an input: a PyFG file's (:func:`~rlpgo_gtsam.io.pyfg.pyfg_group`)
     or a g2o file's (:func:`~rlpgo_gtsam.io.file_group`)."""
-    return pyfg_group(path) if is_pyfg(path) else file_group(path)
+    if not is_pyfg(path):
+        return file_group(path)
+    from rlpgo_gtsam.io.pyfg import pyfg_group
+
+    return pyfg_group(path)
 
 
 def read_truth(path: Path) -> gtsam.Values:
@@ -44,6 +44,8 @@ def read_truth(path: Path) -> gtsam.Values:
     ``VERTEX_SE3:QUAT``)."""
     if not is_pyfg(path):
         return read_poses(path)
+    from rlpgo_gtsam.io.pyfg import read_pyfg_file
+
     read = read_pyfg_file(path)
     if read.group is SE3:
         return gtsam.utilities.allPose3s(read.values)
@@ -58,6 +60,8 @@ def check_graph_output(path: Path, graph: gtsam.NonlinearFactorGraph) -> None:
         OutputError: naming the output and what it cannot hold.
     """
     if is_pyfg(path):
+        from rlpgo_gtsam.io.pyfg import check_pyfg_graph
+
         try:
             check_pyfg_graph(graph)
         except OutputError as error:
@@ -75,5 +79,7 @@ def graph_text(path: Path, graph: gtsam.NonlinearFactorGraph, values: gtsam.Valu
     input's timestamps ``times``, or g2o (``pose_graph``: the graph's extraction, which
     spares the writer a walk over the factors)."""
     if is_pyfg(path):
+        from rlpgo_gtsam.io.pyfg import pyfg_text
+
         return pyfg_text(graph, values, times)
     return g2o_text(graph, values, pose_graph)

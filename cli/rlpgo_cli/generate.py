@@ -17,7 +17,7 @@ from rlpgo_cli.types import SEED, FiniteFloat, OutputFile
 from rlpgo_gtsam.graph import chi2
 from rlpgo_gtsam.groups import SE2, SE3
 from rlpgo_gtsam.io import EDGE_LIST_LINE, edge_list_text, g2o_text_lines
-from rlpgo_gtsam.io.pyfg import RANGE_FACTORS
+from rlpgo_gtsam.landmarks import RANGE_FACTORS
 from rlpgo_gtsam.synthetic import (
     GROUP_SIZE,
     LAYER_ROWS,

@@ -7,6 +7,7 @@ import functools
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -31,9 +32,11 @@ from rlpgo_gtsam.ranking import (
 )
 from rlpgo_gtsam.residuals import variance_factor
 from rlpgo_gtsam.rl.models import DEFAULT_MODEL, model_path
-from rlpgo_gtsam.robust.results import AllEdgesStep, JudgedStep, Step
 from rlpgo_gtsam.robust.settings import RobustSettings
 from rlpgo_gtsam.staged import DEFAULT_BUDGET_S, DEFAULT_SEARCHES, staged_initialize
+
+if TYPE_CHECKING:
+    from rlpgo_gtsam.robust.results import Step
 
 # --method all: every initializer, and the agent from each classical start; on a 3D graph
 # the 3D rows (comparison_methods).
@@ -205,6 +208,8 @@ LOOSE_FIT = 1.5
 
 def _describe_step(step: Step) -> str:
     """One line on a step of the robust path (``RobustResult.steps``)."""
+    from rlpgo_gtsam.robust.results import AllEdgesStep, JudgedStep  # a robust run's only
+
     if isinstance(step, AllEdgesStep):
         if step.skipped:  # not needed
             return f"step {step.name}: skipped: {step.skipped}"

@@ -14,10 +14,10 @@ from rlpgo_cli.formats import is_pyfg
 from rlpgo_gtsam.errors import InformationWarning
 from rlpgo_gtsam.graph import extract_pose_graph
 from rlpgo_gtsam.io import read_g2o_extracted
-from rlpgo_gtsam.io.pyfg import PyfgTimes, read_pyfg_file
 
 if TYPE_CHECKING:
     from rlpgo_gtsam.graph import PoseGraph
+    from rlpgo_gtsam.io.pyfg import PyfgTimes
 
 
 @dataclass(eq=False)
@@ -54,6 +54,8 @@ def read_input(path: Path) -> InputGraph:
     ``.pyfg`` file is read by :func:`~rlpgo_gtsam.io.pyfg.read_pyfg_file`, its timestamps
     kept."""
     if is_pyfg(path):
+        from rlpgo_gtsam.io.pyfg import read_pyfg_file  # a g2o run loads none of it
+
         read = read_pyfg_file(path)
         return InputGraph(read.graph, read.values, [], read.lines, times=read.times)
     with warnings.catch_warnings(record=True) as caught:

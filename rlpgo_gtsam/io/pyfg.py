@@ -109,7 +109,7 @@ from rlpgo_gtsam.files import write_text
 from rlpgo_gtsam.groups import SE2, SE3, Group, key_text
 from rlpgo_gtsam.io.formats import G2O_TO_GTSAM, SPATIAL
 from rlpgo_gtsam.io.lines import format_15, line_records, parse_numbers, short_token
-from rlpgo_gtsam.landmarks import bearing_range_factor, relative_point
+from rlpgo_gtsam.landmarks import RANGE_FACTORS, bearing_range_factor, relative_point
 from rlpgo_gtsam.se3 import rotations_to_quaternions
 
 __all__ = ["PyfgFile", "PyfgTimes", "read_pyfg", "read_pyfg_file", "pyfg_group", "pyfg_text",
@@ -200,18 +200,16 @@ class _Dimension:
 
 _PLANAR = _Dimension(SE2, "planar", "VERTEX_SE2", "VERTEX_XY", "VERTEX_SE2:PRIOR",
                      "VERTEX_XY:PRIOR", "EDGE_SE2", "EDGE_SE2_XY", "Pose2", "Point2",
-                     (gtsam.RangeFactorPose2, gtsam.RangeFactor2D, gtsam.RangeFactor2),
+                     RANGE_FACTORS[:3],
                      gtsam.PriorFactorPoint2, gtsam.BearingRangeFactor2D,
                      gtsam.Values.atPose2, gtsam.Values.atPoint2)
 _SPATIAL = _Dimension(SE3, "3D", "VERTEX_SE3:QUAT", "VERTEX_XYZ", "VERTEX_SE3:QUAT:PRIOR",
                       "VERTEX_XYZ:PRIOR", "EDGE_SE3:QUAT", "EDGE_SE3_XYZ", "Pose3", "Point3",
-                      (gtsam.RangeFactorPose3, gtsam.RangeFactor3D, gtsam.RangeFactor3),
+                      RANGE_FACTORS[3:],
                       gtsam.PriorFactorPoint3, gtsam.BearingRangeFactor3D,
                       gtsam.Values.atPose3, gtsam.Values.atPoint3)
 _DIMENSIONS = {2: _PLANAR, 3: _SPATIAL}
 
-# the range factors a PyFG file holds, each an EDGE_RANGE line
-RANGE_FACTORS = (*_PLANAR.ranges, *_SPATIAL.ranges)
 
 
 @dataclass(frozen=True, eq=False)

@@ -11,8 +11,8 @@ import time
 from typing import Protocol
 
 import numpy as np
-from scipy.linalg.lapack import dpotrf, dpotrs
 
+from rlpgo_gtsam.linear import potrf, potrs
 from rlpgo_gtsam.relaxation.blocks import sym
 from rlpgo_gtsam.se3 import exp_so3
 
@@ -107,10 +107,10 @@ def newton_point(problem: DenseProblem, x: np.ndarray, grad_tol: float, anchor: 
         damped = h.copy() if mu else h
         if mu:
             damped[diagonal, diagonal] += mu
-        lower, info = dpotrf(damped, lower=1, clean=0)  # h is kept for a damped retry
+        lower, info = potrf(damped)  # h is kept for a damped retry
         fresh = False
         if info == 0:
-            w[free] = dpotrs(lower, -g, lower=1)[0].reshape(-1, 3)
+            w[free] = potrs(lower, -g).reshape(-1, 3)
             x_new = (exp_so3(w) @ xb).reshape(-1, 3)
             qx_new = q @ x_new
             fresh = -float(((x_new - x) * (qx_new + qx)).sum()) > 0  # exact decrease

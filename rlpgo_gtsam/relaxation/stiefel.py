@@ -52,13 +52,12 @@ from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.linalg.lapack import dpotrf, dtrtrs
 
 from rlpgo_gtsam.chordal import chordal_rotations
 from rlpgo_gtsam.errors import SolverError
 from rlpgo_gtsam.graph import PoseGraph3D
 from rlpgo_gtsam.groups import SE3
-from rlpgo_gtsam.linear import DenseCholesky
+from rlpgo_gtsam.linear import DenseCholesky, potrf, trtrs
 from rlpgo_gtsam.relaxation.blocks import (
     from_fields,
     polar_newton,
@@ -237,10 +236,10 @@ class SpatialProblem(Relaxation):
         terms = np.bincount((at[:, :, None] * (size + nodes) + at[:, None, :]).ravel(),
                             weights=translation.ravel(),
                             minlength=(size + nodes) ** 2).reshape(size + nodes, size + nodes)
-        lower, info = dpotrf(terms[size:-1, size:-1], lower=1, clean=1)
+        lower, info = potrf(terms[size:-1, size:-1])
         if info != 0:
             raise SolverError("the measurements do not determine the translations")
-        w, _ = dtrtrs(lower, terms[size:-1, :size], lower=1)
+        w = trtrs(lower, terms[size:-1, :size])
         self.q = w.T @ w
         np.subtract(self.connection, self.q, out=self.q)
         self.q += terms[:size, :size]
@@ -348,7 +347,7 @@ class SpatialProblem(Relaxation):
                 # factored in place: the transpose of the symmetric C-ordered copy is the
                 # same matrix in Fortran order (cho_factor copies it again: smallGrid3D's
                 # factor 2.85 ms CPU against 1.4)
-                lower, info = dpotrf(shifted.T, lower=1, clean=0, overwrite_a=1)
+                lower, info = potrf(shifted.T, overwrite=True)
                 if info != 0:
                     raise RuntimeError("not positive definite")
                 return DenseCholesky(lower)
