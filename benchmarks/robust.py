@@ -5,7 +5,7 @@ on Vertigo's four policies, against GTSAM's anchors, as commands, in 3D and as n
         [--modes random,local,group,localgroup] [--fractions 0.05,0.1,0.2,0.3]
         [--clean all|none] [--anchor-timeout 60] [--robust-timeout 300] [--append]
     python benchmarks/robust.py commands [--cases MIT,Intel,FR079,gen] [--modes ...]
-        [--fractions 0.05,0.1,0.2] [--repeats 3] [--loads idle,busy]
+        [--fractions 0.05,0.1,0.2 | --ratios 0.1,1,9] [--repeats 3] [--loads idle,busy]
     python benchmarks/robust.py 3d [--clean tinyGrid3D,...|none] [--cases sphere2500,torus3D,gen]
         [--modes random,uniform] [--fractions 0.05,0.1]
     python benchmarks/robust.py noise [--dims 2,3] [--sigmas 0.05,0.1,0.2,0.3] [--spacings 1,3]
@@ -346,22 +346,33 @@ def _command_row(init: str, clean: Path, bad: Path, out: Path, repeats: int, loa
 
 
 def commands(args, rows: list[dict], save) -> None:
-    from rlpgo_gtsam import write_g2o
+    """``--fractions`` of the edges as ``policies`` corrupts them, or with ``--ratios`` wrong
+    closures per true one as ``rates`` adds them (the first seed)."""
+    from rlpgo_gtsam import add_outliers, write_g2o
 
     init = harness.command_path("rlpgo-init")
+    ratios = [float(r) for r in args.ratios.split(",")] if args.ratios else []
     with tempfile.TemporaryDirectory(prefix="rlpgo_robust_commands_") as folder:
         work, out = Path(folder), Path(folder) / "out.g2o"
         for name in args.cases.split(","):
             graph, values, optimum, _ = clean_case(name)
+            closures = rate_case(name, 2).closures if ratios else []
             clean = work / f"{name}.g2o"
             write_g2o(clean, graph, values)
-            for fraction in map(float, args.fractions.split(",")):
+            levels = [("ratio", r) for r in ratios] or [
+                ("fraction", f) for f in map(float, args.fractions.split(","))]
+            for kind, level in levels:
                 for mode in args.modes.split(","):
-                    bad_graph, wrong = corrupted(name, graph, optimum, fraction, mode)
-                    bad = work / f"{name}_{mode}_{fraction}.g2o"
+                    if kind == "ratio":
+                        bad_graph, wrong = add_outliers(
+                            graph, optimum, None, np.random.default_rng(SEED), mode,
+                            count=round(level * len(closures)))
+                    else:
+                        bad_graph, wrong = corrupted(name, graph, optimum, level, mode)
+                    bad = work / f"{name}_{mode}_{level}.g2o"
                     write_g2o(bad, bad_graph, values)  # policies' start: the clean values
                     for load in args.loads.split(","):
-                        rows.append({"case": name, "mode": mode, "fraction": fraction,
+                        rows.append({"case": name, "mode": mode, kind: level,
                                      "wrong": len(wrong)}
                                     | _command_row(init, clean, bad, out, args.repeats, load))
                         print(json.dumps(rows[-1]), flush=True)
@@ -369,10 +380,11 @@ def commands(args, rows: list[dict], save) -> None:
 
 
 def commands_table(rows: list[dict]) -> str:
+    kind = "ratio" if rows and "ratio" in rows[0] else "fraction"
     lines = ["Wall seconds of whole processes, medians.", "",
-             "| case | policy | fraction | load | wrong | rejected | clean command s | "
+             f"| case | policy | {kind} | load | wrong | rejected | clean command s | "
              "--robust command s | x clean |", "|---" * 9 + "|"]
-    lines += [f"| {r['case']} | {r['mode']} | {r['fraction']:g} | {r['load']} | {r['wrong']} | "
+    lines += [f"| {r['case']} | {r['mode']} | {r[kind]:g} | {r['load']} | {r['wrong']} | "
               f"{r['rejected']} | {r['clean_s']:.2f} | {r['robust_s']:.2f} | "
               f"{r['x_clean']:.2f} |" for r in rows]
     return "\n".join(lines) + "\n"
@@ -716,6 +728,9 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--cases", default="MIT,Intel,FR079,gen")
     c.add_argument("--modes", default=POLICIES)
     c.add_argument("--fractions", default="0.05,0.1,0.2")
+    c.add_argument("--ratios", default="",
+                   help="wrong closures per true one instead of --fractions (as rates adds "
+                        "them)")
     c.add_argument("--repeats", type=int, default=3)
     c.add_argument("--loads", default="idle")
     c.set_defaults(name="robust_commands")
