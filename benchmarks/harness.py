@@ -568,9 +568,9 @@ def gtsam_staircase(graph, values, max_rank_step: int = 3) -> dict | None:
 # GTSAM's certifiable SE(d) notebooks' settings (CertifiableLandmarkSLAMPose2/3): the highest
 # rank, eta, and the augmented Lagrangian's iteration cap and initial penalty (None: its own).
 _SE_STAIRCASE_SETTINGS = {2: (6, 1e-3, 100, None), 3: (7, 1e-3, 200, 300.0)}
-# The same settings of GTSAM's CertifiableRangeAidedSLAMPose2 notebook, used where a planar
-# graph holds ranges.
-_RANGE_STAIRCASE_SETTINGS = (6, 1e-3, 200, None)
+# The same settings of GTSAM's CertifiableRangeAidedSLAMPose2/3 notebooks (the Pose3 one's
+# "Run and certify" cell; its initial penalty GTSAM's own), used where a graph holds ranges.
+_RANGE_STAIRCASE_SETTINGS = {2: (6, 1e-3, 200, None), 3: (12, 1e-3, 200, None)}
 
 
 def gtsam_se_staircase(graph, values, round_uncertified: bool = False) -> dict | None:
@@ -595,7 +595,17 @@ def gtsam_se_staircase(graph, values, round_uncertified: bool = False) -> dict |
     start is the direction from ``a`` to ``b`` in ``values`` (``Rot2(angle).matrix().T``);
     the notebook's parameters (pMax 6, eta 1e-3, the augmented Lagrangian's 200
     iterations); after rounding, each direction is recovered from the rounded positions, as
-    the notebook does.
+    the notebook does. 3D ranges (``RangeFactor3D``, ``RangeFactorPose3``) as the
+    ``CertifiableRangeAidedSLAMPose3`` notebook builds them: ``QuadraticRangeFactor3`` with
+    a lifted ``Unit3`` direction (a 1 x p unit row) started at the unit direction from ``a``
+    to ``b`` (where the notebook draws a random one), its "Run and certify" cell's pMax 12,
+    eta 1e-3 and 200 iterations, each direction recovered as a ``Unit3``.
+
+    A prior on one pose fixes only the gauge (the notebooks have none): it is left out of
+    the lifted problem and the rounded estimate is moved rigidly to put that pose at the
+    prior's mean, where the prior costs nothing; no other term changes under a rigid motion,
+    so the optimum is the same. A second pose prior, or any other factor, is a ``failure``
+    that names it.
 
     Returns ``certified``, ``rank``, ``ranks`` (visited), ``seconds`` (its ``totalTime``),
     ``wall_seconds`` (building the problem, the staircase and the rounding), ``min_eigenvalue``,
@@ -611,7 +621,8 @@ def gtsam_se_staircase(graph, values, round_uncertified: bool = False) -> dict |
     its last lifted point projected here onto the top-d right singular subspace of its
     stacked rotation blocks, as SE-Sync rounds, then turned back as above; None: not
     rounded) and ``failure`` (a factor it does not model, or its error; None). None where
-    the gtsam wheel has no such optimizer.
+    the gtsam wheel has no such optimizer, or no quadratic range factor for the graph's
+    ranges.
     """
     import gtsam
     import numpy as np
@@ -625,16 +636,22 @@ def gtsam_se_staircase(graph, values, round_uncertified: bool = False) -> dict |
     d = 3 if spatial else 2
     frobenius = getattr(gtsam, f"FrobeniusBetweenFactorRot{d}")
     relative = getattr(gtsam, f"RelativeTranslationFactor{d}")
-    between, bearing_range, at, point_type = (
-        (gtsam.BetweenFactorPose3, gtsam.BearingRangeFactor3D, values.atPose3, gtsam.Point3)
+    between, bearing_range, prior, at, point_type = (
+        (gtsam.BetweenFactorPose3, gtsam.BearingRangeFactor3D, gtsam.PriorFactorPose3,
+         values.atPose3, gtsam.Point3)
         if spatial else
-        (gtsam.BetweenFactorPose2, gtsam.BearingRangeFactor2D, values.atPose2, gtsam.Point2))
+        (gtsam.BetweenFactorPose2, gtsam.BearingRangeFactor2D, gtsam.PriorFactorPose2,
+         values.atPose2, gtsam.Point2))
     poses = [int(k) for k in (gtsam.utilities.allPose3s(values) if spatial
                               else gtsam.utilities.allPose2s(values)).keys()]
     pose_index = {key: index for index, key in enumerate(poses)}
     point_index: dict[int, int] = {}
     ranges: list[tuple[int, int]] = []  # (first key, second key) per direction U(m)
-    range_types = () if spatial else (gtsam.RangeFactor2D, gtsam.RangeFactorPose2)
+    gauge: list[tuple[int, Any]] = []  # (pose key, prior mean) of the one pose prior
+    range_types, pose_range = ((gtsam.RangeFactor3D, gtsam.RangeFactorPose3),
+                               gtsam.RangeFactorPose3) if spatial else (
+        (gtsam.RangeFactor2D, gtsam.RangeFactorPose2), gtsam.RangeFactorPose2)
+    quadratic = getattr(gtsam, f"QuadraticRangeFactor{d}", None)
     lifted = gtsam.NonlinearFactorGraph()
     for k in range(graph.size()):
         factor = graph.at(k)
@@ -660,18 +677,23 @@ def gtsam_se_staircase(graph, values, round_uncertified: bool = False) -> dict |
             lifted.add(relative(gtsam.symbol("R", i), gtsam.symbol("T", i),
                                 gtsam.symbol("L", m), point, nu))
         elif isinstance(factor, range_types):
+            if quadratic is None:
+                return None
             first, second = (int(key) for key in factor.keys())
-            if isinstance(factor, gtsam.RangeFactorPose2):
+            if isinstance(factor, pose_range):
                 target = gtsam.symbol("T", pose_index[second])
             else:
                 target = gtsam.symbol("L", point_index.setdefault(second, len(point_index)))
             nu = float(factor.noiseModel().information()[0, 0])
-            lifted.add(gtsam.QuadraticRangeFactor2(
+            lifted.add(quadratic(
                 gtsam.symbol("T", pose_index[first]), target, gtsam.symbol("U", len(ranges)),
                 float(factor.measured()), nu))
             ranges.append((first, second))
+        elif isinstance(factor, prior) and not gauge:
+            gauge.append((int(factor.keys()[0]), factor.prior()))
         elif factor is not None:
-            return {"failure": f"{type(factor).__name__} is not modelled"}
+            second_prior = " (a second pose prior)" if isinstance(factor, prior) else ""
+            return {"failure": f"{type(factor).__name__} is not modelled{second_prior}"}
     initial = gtsam.Values()
     for key, i in pose_index.items():
         pose = at(key)
@@ -680,9 +702,11 @@ def gtsam_se_staircase(graph, values, round_uncertified: bool = False) -> dict |
     for key, m in point_index.items():
         initial.insert(gtsam.symbol("L", m), _point_row(values, key, d))
     for m, (first, second) in enumerate(ranges):
-        angle = _direction_angle(values, first, second)
-        initial.insert(gtsam.symbol("U", m), gtsam.Rot2.fromAngle(angle).matrix().T)
-    p_max, eta, alm_iterations, alm_penalty = (_RANGE_STAIRCASE_SETTINGS if ranges else
+        initial.insert(gtsam.symbol("U", m), _unit_direction(values, first, second, spatial)
+                       .reshape(1, 3) if spatial else
+                       gtsam.Rot2.fromAngle(_direction_angle(values, first, second))
+                       .matrix().T)
+    p_max, eta, alm_iterations, alm_penalty = (_RANGE_STAIRCASE_SETTINGS[d] if ranges else
                                                _SE_STAIRCASE_SETTINGS[d])
     alm = gtsam.AugmentedLagrangianParams()
     alm.maxIterations = alm_iterations
@@ -727,6 +751,8 @@ def gtsam_se_staircase(graph, values, round_uncertified: bool = False) -> dict |
                                      float(np.arctan2(rotation[1, 0], rotation[0, 0]))))
         for key in point_index:
             found.insert(key, point_type(rows[key]))
+        if gauge:
+            found = _moved_onto(found, *gauge[0], spatial)
     wall_seconds = time.perf_counter() - began
     manifold_keys = ([gtsam.symbol("R", i) for i in pose_index.values()] +
                      [gtsam.symbol("U", m) for m in range(len(ranges))])
@@ -741,19 +767,51 @@ def gtsam_se_staircase(graph, values, round_uncertified: bool = False) -> dict |
             "ranges": len(ranges), "values": found, "rounded_by": rounded_by, "failure": None}
 
 
+def _position(values, key: int, spatial: bool):
+    """The position of a pose or a point (Pose2/Point2, or Pose3/Point3) in ``values``."""
+    import numpy as np
+
+    try:
+        pose = values.atPose3(key) if spatial else values.atPose2(key)
+        return np.asarray(pose.translation(), float)
+    except RuntimeError:  # not a pose: a point
+        return np.asarray(values.atPoint3(key) if spatial else values.atPoint2(key), float)
+
+
 def _direction_angle(values, first: int, second: int) -> float:
     """The angle of the direction from the position of ``first`` to that of ``second``
     (planar poses or points) in ``values``."""
     import numpy as np
 
-    def position(key: int):
-        try:
-            return np.asarray(values.atPose2(key).translation(), float)
-        except RuntimeError:  # not a pose: a point
-            return np.asarray(values.atPoint2(key), float)
-
-    offset = position(second) - position(first)
+    offset = _position(values, second, False) - _position(values, first, False)
     return float(np.arctan2(offset[1], offset[0]))
+
+
+def _unit_direction(values, first: int, second: int, spatial: bool = True):
+    """The unit direction from ``first`` to ``second`` (3D poses or points) in ``values``
+    (the x axis where they coincide)."""
+    import numpy as np
+
+    offset = _position(values, second, spatial) - _position(values, first, spatial)
+    length = float(np.linalg.norm(offset))
+    return offset / length if length > 0.0 else np.array([1.0, 0.0, 0.0])
+
+
+def _moved_onto(found, key: int, pose, spatial: bool):
+    """``found`` (poses and points) moved rigidly so that ``key`` sits at ``pose``."""
+    import gtsam
+
+    at = found.atPose3 if spatial else found.atPose2
+    turn = pose.compose(at(key).inverse())
+    moved = gtsam.Values()
+    poses = gtsam.utilities.allPose3s(found) if spatial else gtsam.utilities.allPose2s(found)
+    for pose_key in poses.keys():
+        moved.insert(pose_key, turn.compose(at(pose_key)))
+    point_at = found.atPoint3 if spatial else found.atPoint2
+    for point_key in found.keys():
+        if not moved.exists(point_key):
+            moved.insert(point_key, turn.transformFrom(point_at(point_key)))
+    return moved
 
 
 def _stiefel_violation(lifted_values, keys) -> float | None:
@@ -775,8 +833,8 @@ def _stiefel_violation(lifted_values, keys) -> float | None:
 def _lifted_error(lifted, found, pose_index: dict[int, int], point_index: dict[int, int],
                   ranges: list[tuple[int, int]], spatial: bool) -> float:
     """The lifted graph's error at a rounded estimate ``found`` (poses and points under the
-    graph's keys), as the range notebook evaluates it: rotations, translations, points,
-    and each range's direction from the rounded positions."""
+    graph's keys), as the range notebooks evaluate it: rotations, translations, points,
+    and each range's direction from the rounded positions (``Rot2``, or ``Unit3``)."""
     import gtsam
 
     estimate = gtsam.Values()
@@ -789,6 +847,7 @@ def _lifted_error(lifted, found, pose_index: dict[int, int], point_index: dict[i
                         found.atPoint3(key) if spatial else found.atPoint2(key))
     for m, (first, second) in enumerate(ranges):
         estimate.insert(gtsam.symbol("U", m),
+                        gtsam.Unit3(_unit_direction(found, first, second)) if spatial else
                         gtsam.Rot2.fromAngle(_direction_angle(found, first, second)))
     return float(lifted.error(estimate))
 
@@ -809,213 +868,6 @@ def _nearest_rotation(matrix):
     turn = np.eye(len(matrix))
     turn[-1, -1] = np.linalg.det(left @ right_t)
     return left @ turn @ right_t
-
-
-# GTSAM's CertifiableRangeAidedSLAMPose3 notebook's settings (its "Run and certify" cell): the
-# highest rank, eta and the augmented Lagrangian's iteration cap (its initial penalty its own).
-_RANGE_STAIRCASE_SETTINGS_3D = (12, 1e-3, 200)
-
-
-def gtsam_se3_range_staircase(graph, values, round_uncertified: bool = False) -> dict | None:
-    """GTSAM's ``RiemannianStaircaseOptimizer`` on a 3D range-aided graph, built as GTSAM's
-    ``CertifiableRangeAidedSLAMPose3`` notebook builds it, and started and rounded as
-    :func:`gtsam_se_staircase` does its planar one.
-
-    The lifted problem (the notebook's "Generative model" cell): per ``BetweenFactorPose3`` a
-    ``FrobeniusBetweenFactorRot3`` (``Isotropic.Variance(3, 1 / kappa)``) and a
-    ``RelativeTranslationFactor3`` (weight tau), SE-Sync's weights as in
-    :func:`gtsam_se_staircase`; per ``RangeFactor3D`` (pose to point) or ``RangeFactorPose3``
-    (pose to pose) a ``QuadraticRangeFactor3(T(a), L(b) | T(b), U(m), range, nu)``, the term
-    ``nu || x_b - t_a - range u_m ||^2`` (``nu``: the range's information) with its own
-    direction ``U(m)``, a lifted ``Unit3`` (a 1 x p unit row). The lifted start is
-    ``values`` (``R_i^T``, ``t_i`` and the points as 1 x 3 rows, each ``U(m)`` the unit
-    direction from ``a`` to ``b``), where the notebook draws a random one; the parameters
-    are its "Run and certify" cell's: pMin 3, pMax 12, eta 1e-3, the augmented Lagrangian's
-    200 iterations. The rounding is its "Round back to SE(3)" cell's: a global reflection
-    undone where most rotation blocks have a negative determinant, each block projected
-    onto SO(3), each direction recovered from the rounded positions (``Unit3``).
-
-    A ``PriorFactorPose3`` on one pose fixes only the gauge (the notebook has none): it is
-    left out of the lifted problem and the rounded estimate is moved rigidly to put that
-    pose at the prior's mean, where the prior costs nothing; no other term changes under a
-    rigid motion, so the optimum is the same. Another factor is a ``failure`` that names it.
-
-    Returns the keys of :func:`gtsam_se_staircase` (``rounded_cost``: the lifted graph's
-    error at the rounded estimate, the prior left out), or None where the gtsam wheel has no
-    such optimizer or no ``QuadraticRangeFactor3``.
-    """
-    import gtsam
-    import numpy as np
-
-    from rlpgo_gtsam.landmarks import point_weights
-
-    if not (hasattr(gtsam, "RiemannianStaircaseOptimizer")
-            and hasattr(gtsam, "QuadraticRangeFactor3")):
-        return None
-    began = time.perf_counter()
-    poses = [int(k) for k in gtsam.utilities.allPose3s(values).keys()]
-    pose_index = {key: index for index, key in enumerate(poses)}
-    point_index: dict[int, int] = {}
-    ranges: list[tuple[int, int]] = []  # (first key, second key) per direction U(m)
-    gauge: list[tuple[int, Any]] = []  # (pose key, prior mean) of the pose priors
-    lifted = gtsam.NonlinearFactorGraph()
-    for k in range(graph.size()):
-        factor = graph.at(k)
-        if isinstance(factor, gtsam.BetweenFactorPose3):
-            i, j = (pose_index[int(key)] for key in factor.keys())
-            information = factor.noiseModel().information()
-            kappa = _rotation_weight(information, True)
-            tau = float(point_weights(np.array([information[3:, 3:]]))[0])
-            measured = factor.measured()
-            lifted.add(gtsam.FrobeniusBetweenFactorRot3(
-                gtsam.symbol("R", i), gtsam.symbol("R", j), measured.rotation(),
-                gtsam.noiseModel.Isotropic.Variance(3, 1.0 / kappa)))
-            lifted.add(gtsam.RelativeTranslationFactor3(
-                gtsam.symbol("R", i), gtsam.symbol("T", i), gtsam.symbol("T", j),
-                np.asarray(measured.translation()), tau))
-        elif isinstance(factor, (gtsam.RangeFactor3D, gtsam.RangeFactorPose3)):
-            first, second = (int(key) for key in factor.keys())
-            if isinstance(factor, gtsam.RangeFactorPose3):
-                target = gtsam.symbol("T", pose_index[second])
-            else:
-                target = gtsam.symbol("L", point_index.setdefault(second, len(point_index)))
-            lifted.add(gtsam.QuadraticRangeFactor3(
-                gtsam.symbol("T", pose_index[first]), target, gtsam.symbol("U", len(ranges)),
-                float(factor.measured()), float(factor.noiseModel().information()[0, 0])))
-            ranges.append((first, second))
-        elif isinstance(factor, gtsam.PriorFactorPose3) and not gauge:
-            gauge.append((int(factor.keys()[0]), factor.prior()))
-        elif factor is not None:
-            return {"failure": f"{type(factor).__name__} is not modelled"
-                    + (" (a second pose prior)" if gauge else "")}
-    initial = gtsam.Values()
-    for key, i in pose_index.items():
-        pose = values.atPose3(key)
-        initial.insert(gtsam.symbol("R", i), pose.rotation().matrix().T)
-        initial.insert(gtsam.symbol("T", i), np.asarray(pose.translation()).reshape(1, 3))
-    for key, m in point_index.items():
-        initial.insert(gtsam.symbol("L", m), _point_row(values, key, 3))
-    for m, (first, second) in enumerate(ranges):
-        initial.insert(gtsam.symbol("U", m),
-                       _unit_direction(values, first, second).reshape(1, 3))
-    p_max, eta, alm_iterations = _RANGE_STAIRCASE_SETTINGS_3D
-    alm = gtsam.AugmentedLagrangianParams()
-    alm.maxIterations = alm_iterations
-    params = gtsam.RiemannianStaircaseParams()
-    params.pMin, params.pMax, params.eta = 3, p_max, eta
-    params.setAlmParams(alm)
-    try:
-        result = gtsam.RiemannianStaircaseOptimizer(lifted, initial, params).optimize()
-    except RuntimeError as error:
-        return {"failure": str(error).strip().splitlines()[0],
-                "wall_seconds": time.perf_counter() - began}
-    found, rounded_by = None, None
-    if result.hasRoundedSolution():
-        found, rounded_by = _rounded_se3(result.roundedValues(), pose_index, point_index,
-                                         False), "gtsam"
-    elif round_uncertified:
-        found, rounded_by = _rounded_se3(result.values, pose_index, point_index,
-                                         True), "benchmark"
-    if found is not None and gauge:
-        found = _moved_onto(found, *gauge[0])
-    wall_seconds = time.perf_counter() - began
-    manifold_keys = ([gtsam.symbol("R", i) for i in pose_index.values()] +
-                     [gtsam.symbol("U", m) for m in range(len(ranges))])
-    return {"certified": bool(result.certified), "rank": int(result.finalRank),
-            "violation": _stiefel_violation(result.values, manifold_keys),
-            "ranks": [int(r) for r in np.asarray(result.getRanksVisited()).ravel()],
-            "seconds": float(result.totalTime), "wall_seconds": wall_seconds,
-            "min_eigenvalue": float(result.minEigenvalue),
-            "cost": float(np.asarray(result.getCostPerLevel()).ravel()[-1]),
-            "rounded_cost": None if found is None else
-            _lifted_error_3d(lifted, found, pose_index, point_index, ranges),
-            "ranges": len(ranges), "values": found, "rounded_by": rounded_by, "failure": None}
-
-
-def _position_3d(values, key: int):
-    """The position of a Pose3 or a Point3 in ``values``."""
-    import numpy as np
-
-    try:
-        return np.asarray(values.atPose3(key).translation(), float)
-    except RuntimeError:  # not a pose: a point
-        return np.asarray(values.atPoint3(key), float)
-
-
-def _unit_direction(values, first: int, second: int):
-    """The unit direction from ``first`` to ``second`` (3D poses or points) in ``values``
-    (the x axis where they coincide)."""
-    import numpy as np
-
-    offset = _position_3d(values, second) - _position_3d(values, first)
-    length = float(np.linalg.norm(offset))
-    return offset / length if length > 0.0 else np.array([1.0, 0.0, 0.0])
-
-
-def _rounded_se3(lifted_values, pose_index: dict[int, int], point_index: dict[int, int],
-                 project: bool):
-    """Poses and points under the graph's keys from a lifted 3D point: with ``project``
-    (an unrounded point, 3 x p blocks) first onto the top-3 right singular subspace of its
-    stacked rotation blocks; a global reflection undone where most blocks have a negative
-    determinant; each block's nearest rotation."""
-    import gtsam
-    import numpy as np
-
-    blocks = {key: lifted_values.atMatrix(gtsam.symbol("R", i)).copy()
-              for key, i in pose_index.items()}
-    rows = {key: lifted_values.atMatrix(gtsam.symbol("T", i)).copy().ravel()
-            for key, i in pose_index.items()}
-    rows.update({key: lifted_values.atMatrix(gtsam.symbol("L", m)).copy().ravel()
-                 for key, m in point_index.items()})
-    if project:
-        basis = np.linalg.svd(np.vstack(list(blocks.values())), full_matrices=False)[2][:3].T
-        blocks = {key: block @ basis for key, block in blocks.items()}
-        rows = {key: row @ basis for key, row in rows.items()}
-    if sum(np.linalg.det(block) < 0.0 for block in blocks.values()) > len(blocks) // 2:
-        for block in blocks.values():  # the optimizer works over O(3)
-            block[:, -1] *= -1.0
-        for row in rows.values():
-            row[-1] *= -1.0
-    found = gtsam.Values()
-    for key in pose_index:
-        found.insert(key, gtsam.Pose3(gtsam.Rot3(_nearest_rotation(blocks[key].T)),
-                                      gtsam.Point3(rows[key])))
-    for key in point_index:
-        found.insert(key, gtsam.Point3(rows[key]))
-    return found
-
-
-def _moved_onto(found, key: int, pose):
-    """``found`` (Pose3 and Point3 values) moved rigidly so that ``key`` sits at ``pose``."""
-    import gtsam
-
-    turn = pose.compose(found.atPose3(key).inverse())
-    moved = gtsam.Values()
-    for pose_key in gtsam.utilities.allPose3s(found).keys():
-        moved.insert(pose_key, turn.compose(found.atPose3(pose_key)))
-    for point_key in found.keys():
-        if not moved.exists(point_key):
-            moved.insert(point_key, turn.transformFrom(found.atPoint3(point_key)))
-    return moved
-
-
-def _lifted_error_3d(lifted, found, pose_index: dict[int, int], point_index: dict[int, int],
-                     ranges: list[tuple[int, int]]) -> float:
-    """The lifted 3D graph's error at a rounded estimate ``found``, as the range notebook
-    evaluates it: rotations, translations, points, and each range's direction from the
-    rounded positions (``Unit3``)."""
-    import gtsam
-
-    estimate = gtsam.Values()
-    for key, i in pose_index.items():
-        pose = found.atPose3(key)
-        estimate.insert(gtsam.symbol("R", i), pose.rotation())
-        estimate.insert(gtsam.symbol("T", i), pose.translation())
-    for key, m in point_index.items():
-        estimate.insert(gtsam.symbol("L", m), found.atPoint3(key))
-    for m, (first, second) in enumerate(ranges):
-        estimate.insert(gtsam.symbol("U", m), gtsam.Unit3(_unit_direction(found, first, second)))
-    return float(lifted.error(estimate))
 
 
 # --- results ----------------------------------------------------------------------------------

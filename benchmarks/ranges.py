@@ -49,7 +49,7 @@ Per graph (timed warm: one untimed run of a small graph first; seconds are media
   (``eta`` 1e-3, absolute) with the augmented Lagrangian's multipliers; it then reports
   ``minEigenvalue`` as exactly ``-eta``. In 3D the problem is built as GTSAM's
   ``CertifiableRangeAidedSLAMPose3`` notebook builds it
-  (:func:`benchmarks.harness.gtsam_se3_range_staircase`: ``QuadraticRangeFactor3`` with a
+  (the same :func:`benchmarks.harness.gtsam_se_staircase`: ``QuadraticRangeFactor3`` with a
   lifted ``Unit3`` direction per range, pMax 12, the same eta and iterations; the first
   pose's prior, a gauge, left out and honoured by a rigid move of the rounded estimate).
 - GTSAM's LM100 (default parameters, first pose held) from the odometry guess and, on
@@ -239,9 +239,8 @@ def _finite(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def _staircase(graph, values, dim: int) -> tuple[dict, dict]:
-    anchor = harness.gtsam_se3_range_staircase if dim == 3 else harness.gtsam_se_staircase
-    found = anchor(graph, values, round_uncertified=True)
+def _staircase(graph, values) -> tuple[dict, dict]:
+    found = harness.gtsam_se_staircase(graph, values, round_uncertified=True)
     if found is None:
         return {"gtsam_failure": "not in this gtsam"}, {}
     if found["failure"] is not None:
@@ -276,12 +275,12 @@ def _lm(graph, start, label: str) -> tuple[dict, dict]:
     return {f"{label}_chi2": chi2, f"{label}_failure": failure}, {f"{label}_seconds": seconds}
 
 
-def in_process(graph, values, truth, repeats: int, dim: int = 2) -> dict:
-    """The columns of one graph of dimension ``dim`` (module docstring): the first run's
+def in_process(graph, values, truth, repeats: int) -> dict:
+    """The columns of one graph, planar or 3D (module docstring): the first run's
     figures, the medians of the seconds."""
 
     def parts() -> list[tuple[dict, dict]]:
-        found = [_ours(graph, values), _staircase(graph, values, dim),
+        found = [_ours(graph, values), _staircase(graph, values),
                  _lm(graph, values, "odometry")]
         if truth is not None:
             found.append(_lm(graph, truth, "truth"))
@@ -445,7 +444,7 @@ def main() -> None:
     in_process(warm.graph, warm.initial, None, 1)
     if 3 in args.dims:
         warm = _generated_3d(_settings_3d(20, 0.1, 0))
-        in_process(warm.graph, warm.initial, None, 1, dim=3)
+        in_process(warm.graph, warm.initial, None, 1)
     rows, skipped = [], []
     for name, settings, graph, values, truth in _cases(args, skipped):
         import gtsam
@@ -455,7 +454,7 @@ def main() -> None:
                  else gtsam.utilities.allPose2s(values)).size()
         row = {"graph": name, "settings": settings, "dim": dim, "poses": poses,
                "beacons": values.size() - poses, **_counts(graph)}
-        row.update(in_process(graph, values, truth, args.repeats, dim))
+        row.update(in_process(graph, values, truth, args.repeats))
         rows.append(row)
         print({k: v for k, v in row.items() if "certificate" not in k}, flush=True)
     alarms = disagreements(rows)
