@@ -25,6 +25,7 @@ from rlpgo_gtsam.io.pyfg import (
 )
 from rlpgo_gtsam.landmarks import bearing_range_factor
 from tests.conftest import cli_error, cli_ok
+from tests.test_pyfg import with_bad_line
 from tests.test_ranges import range_aided_3d
 
 # a covariance in PyFG's order (x y z, then rotation), correlated across the two blocks
@@ -338,19 +339,11 @@ BAD_LINES = [
 
 @pytest.mark.parametrize(("bad", "reason"), BAD_LINES)
 def test_a_bad_3d_line_is_named_with_its_reason(tmp_path, bad, reason):
-    lines = SMALL.splitlines()
-    # a factor line replaces the first of its tag; a vertex line or a new tag goes in third
-    same = [k for k, line in enumerate(lines) if line.split()[0] == bad.split()[0]
-            and not bad.startswith("VERTEX")]
-    at = same[0] if same else 2
-    if same:
-        lines[at] = bad
-    else:
-        lines.insert(at, bad)
-    path = _file(tmp_path, "\n".join(lines) + "\n")
+    text, line = with_bad_line(SMALL, bad)
+    path = _file(tmp_path, text)
     with pytest.raises(G2oFormatError) as caught:
         read_pyfg(path)
-    assert str(caught.value) == f"{path}:{at + 1}: {reason}"
+    assert str(caught.value) == f"{path}:{line}: {reason}"
 
 
 def test_a_3d_line_in_a_planar_file_is_named_at_its_line(tmp_path):

@@ -258,10 +258,10 @@ BAD_LINES = [
 ]
 
 
-@pytest.mark.parametrize(("bad", "reason"), BAD_LINES)
-def test_a_bad_line_is_named_with_its_reason(tmp_path, bad, reason):
-    lines = SMALL.splitlines()
-    # a factor line replaces the first of its tag; a vertex line or a new tag goes in third
+def with_bad_line(text: str, bad: str) -> tuple[str, int]:
+    """``text`` with the line ``bad`` in it, and its line number: a factor line replaces the
+    first of its tag; a vertex line or a new tag goes in third."""
+    lines = text.splitlines()
     same = [k for k, line in enumerate(lines) if line.split()[0] == bad.split()[0]
             and not bad.startswith("VERTEX")]
     at = same[0] if same else 2
@@ -269,10 +269,16 @@ def test_a_bad_line_is_named_with_its_reason(tmp_path, bad, reason):
         lines[at] = bad
     else:
         lines.insert(at, bad)
-    path = _small(tmp_path, "\n".join(lines) + "\n")
+    return "\n".join(lines) + "\n", at + 1
+
+
+@pytest.mark.parametrize(("bad", "reason"), BAD_LINES)
+def test_a_bad_line_is_named_with_its_reason(tmp_path, bad, reason):
+    text, line = with_bad_line(SMALL, bad)
+    path = _small(tmp_path, text)
     with pytest.raises(G2oFormatError) as caught:
         read_pyfg(path)
-    assert str(caught.value) == f"{path}:{at + 1}: {reason}"
+    assert str(caught.value) == f"{path}:{line}: {reason}"
 
 
 def test_a_vertex_nothing_measures_is_named(tmp_path):
