@@ -300,20 +300,9 @@ class PlanarProblem(Relaxation):
         angles = _angles(rotations, self.num_poses)
         ranges = self.pose_graph.ranges
         if ranges is not None:
-            angles = np.concatenate([angles, self.range_directions()])
+            step = self.range_steps()
+            angles = np.concatenate([angles, np.arctan2(step[:, 1], step[:, 0])])
         return np.exp(1j * angles)[:, None]
-
-    def range_directions(self) -> np.ndarray:
-        """(k,) the angle of each range's ``t_b - t_a`` in the values the graph came with
-        (0 where the two coincide)."""
-        g, ranges = self.pose_graph, self.pose_graph.ranges
-        if ranges is None:
-            return np.zeros(0)
-        positions = g.poses[:, :2]
-        if g.points is not None:
-            positions = np.concatenate([positions, g.points.values])
-        step = positions[ranges.nodes[:, 1]] - positions[ranges.nodes[:, 0]]
-        return np.arctan2(step[:, 1], step[:, 0])
 
     def rounded(self, y: np.ndarray) -> np.ndarray:
         return _round(y)

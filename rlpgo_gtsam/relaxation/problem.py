@@ -69,6 +69,17 @@ class Relaxation:
         where the gradient is not yet zero); a relaxation without such rows has none."""
         return lam
 
+    def range_steps(self) -> np.ndarray:
+        """(k, d) each range's ``t_b - t_a`` in the values the graph came with (poses, then
+        points): where its direction starts."""
+        g, ranges = self.pose_graph, self.pose_graph.ranges
+        if ranges is None:
+            return np.zeros((0, g.group.d))
+        positions = g.group.translations(g.poses)
+        if g.points is not None:
+            positions = np.concatenate([positions, g.points.values])
+        return positions[ranges.nodes[:, 1]] - positions[ranges.nodes[:, 0]]
+
     def conditioned(self, blocks: np.ndarray) -> np.ndarray:
         """The preconditioner's shift ``blocks`` (:meth:`Manifold.diagonal`) with weight on
         :attr:`flat` rows, where ``Q`` has none."""

@@ -433,19 +433,9 @@ class SpatialProblem(Relaxation):
         with (poses and points)."""
         rotations = _checked_rotations(rotations, self.num_poses)
         if self.pose_graph.ranges is not None:
-            rotations = np.concatenate([rotations, _frames(self.range_directions())])
+            rotations = np.concatenate([rotations, _frames(self.range_steps())])
         return _stack(rotations)
 
-    def range_directions(self) -> np.ndarray:
-        """(k, 3) the unit direction of each range's ``t_b - t_a`` in the values the graph
-        came with (the x axis where the two coincide)."""
-        g, ranges = self.pose_graph, self.pose_graph.ranges
-        if ranges is None:
-            return np.zeros((0, 3))
-        positions = g.poses[:, :3, 3]
-        if g.points is not None:
-            positions = np.concatenate([positions, g.points.values])
-        return positions[ranges.nodes[:, 1]] - positions[ranges.nodes[:, 0]]
 
     def verified_shortcut(self, manifold: Manifold, x: np.ndarray, eta: float,
                           grad_tol: float, deadline: float | None, progress: Progress
