@@ -47,10 +47,9 @@ def verify(problem: Any, manifold: Manifold, y: np.ndarray, eta: float,
     m = manifold
     if before is not None:  # the eigen-solver's solves call it through the problem
         problem = _Counted(problem, before)
-    lam = m.multipliers(y, problem.apply(y))
+    # S is zero on the problem's flat rows (if any) and apart from the others
+    lam = problem.decoupled(m.multipliers(y, problem.apply(y)))
     flat = problem.flat
-    if flat is not None:  # S is zero on these rows and apart from the others
-        lam = problem.decoupled(lam)
     trace = m.trace(lam)  # tr(Lambda) = f(Y)
     if m.size(problem.n) < m.dense_below:
         s = m.dense(problem, lam)
@@ -130,19 +129,19 @@ def _shifted_inverse(problem: Any, manifold: Manifold, factor: Any) -> LinearOpe
     from scipy.sparse.linalg import LinearOperator
 
     size, flat = manifold.size(problem.n), problem.flat
-    if flat is None:
-        return LinearOperator((size, size), dtype=manifold.dtype, matvec=lambda v: (
-            problem.solve_shifted(factor, v.reshape(-1, 1))[:, 0]))
 
-    def masked(v: np.ndarray) -> np.ndarray:
+    def matvec(v: np.ndarray) -> np.ndarray:
+        v = v.reshape(-1, 1)
+        if flat is None:
+            return problem.solve_shifted(factor, v)[:, 0]
         # S's zero rows are apart from the rest (decoupled): the inverse keeps them apart
-        v = v.reshape(-1, 1).copy()
+        v = v.copy()
         v[flat] = 0.0
         w = problem.solve_shifted(factor, v)[:, 0]
         w[flat] = 0.0
         return w
 
-    return LinearOperator((size, size), dtype=manifold.dtype, matvec=masked)
+    return LinearOperator((size, size), dtype=manifold.dtype, matvec=matvec)
 
 
 def _nearest_above(problem, manifold, factor, sigma, start,
